@@ -1,0 +1,156 @@
+//! The `palpate` command line (DESIGN.md §4). User errors print one `error: …` line and exit 1.
+
+use clap::{Parser, Subcommand};
+use palpate::error::{PalpateError, Result};
+use palpate::run::{OnDiverge, RunLength, RunOptions};
+use palpate::scene::{self, Scene};
+use palpate::sim::Backend;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+#[derive(Parser)]
+#[command(name = "palpate", version, about = "GPU soft-tissue simulation for haptic interaction")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Simulate a scene and write final.vtu, summary.json (and series.pvd with --frames).
+    Run {
+        /// Built-in scene name or path to a scene TOML file.
+        #[arg(default_value = "beam")]
+        scene: String,
+        /// Backend that steps the model.
+        #[arg(long, value_enum, default_value = "gpu")]
+        backend: Backend,
+        /// Number of steps (0 writes the initial state).
+        #[arg(long, conflicts_with_all = ["duration", "until_static"])]
+        steps: Option<u64>,
+        /// Simulated time, s.
+        #[arg(long, conflicts_with = "until_static")]
+        duration: Option<f64>,
+        /// Run with kinetic damping until the residual force is below the scene's tolerance.
+        #[arg(long)]
+        until_static: bool,
+        /// Step cap for --until-static.
+        #[arg(long, default_value_t = 200_000)]
+        max_steps: u64,
+        /// Time step, s (overrides the scene).
+        #[arg(long)]
+        dt: Option<f64>,
+        /// Accept a dt above the stability bound.
+        #[arg(long, requires = "dt")]
+        allow_unstable: bool,
+        /// What to do when the state becomes non-finite.
+        #[arg(long, value_enum, default_value = "stop")]
+        on_diverge: OnDiverge,
+        /// Write K frames to series.pvd.
+        #[arg(long, default_value_t = 0)]
+        frames: u32,
+        /// Output directory.
+        #[arg(long, default_value = "out")]
+        out: PathBuf,
+    },
+    /// List the built-in scenes.
+    Scenes,
+    /// List GPU adapters, the one chosen, and its limits.
+    Info,
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match execute(cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn execute(cli: Cli) -> Result<()> {
+    match cli.command {
+        Command::Run {
+            scene,
+            backend,
+            steps,
+            duration,
+            until_static,
+            max_steps,
+            dt,
+            allow_unstable,
+            on_diverge,
+            frames,
+            out,
+        } => {
+            let scene = Scene::load(&scene)?;
+            for t in scene.mesh_report.reoriented.iter().take(3) {
+                eprintln!("warning: {}: tet {t} was inverted and has been reoriented", scene.origin);
+            }
+            if scene.mesh_report.reoriented.len() > 3 {
+                eprintln!("warning: {}: {} tets reoriented in all", scene.origin, scene.mesh_report.reoriented.len());
+            }
+            let length = match (steps, duration, until_static) {
+                (Some(n), _, _) => RunLength::Steps(n),
+                (_, Some(t), _) => RunLength::Duration(t),
+                (_, _, true) => RunLength::UntilStatic { max_steps },
+                _ => RunLength::Steps(1000),
+            };
+            let opts = RunOptions {
+                backend,
+                length,
+                dt,
+                allow_unstable,
+                on_diverge,
+                frames,
+                out: out.clone(),
+                progress: true,
+                ..Default::default()
+            };
+            let s = palpate::run::run(&scene, &opts)?;
+            println!(
+                "{}: {} tets, {} vertices on {}; {} steps of {:.3e} s ({:.3e} s simulated) in {:.2} s = {:.0} steps/s",
+                s.scene, s.tets, s.vertices, s.adapter, s.steps, s.dt, s.sim_seconds, s.wall_seconds, s.steps_per_second
+            );
+            println!(
+                "max displacement {:.4e} m, kinetic {:.3e} J, elastic {:.3e} J{}; status: {}",
+                s.max_displacement,
+                s.kinetic_energy,
+                s.elastic_energy,
+                s.static_residual.map(|r| format!(", residual {r:.2e}")).unwrap_or_default(),
+                s.status
+            );
+            println!("wrote {}/final.vtu, {}/summary.json", out.display(), out.display());
+            if s.status != "ok" {
+                return Err(PalpateError::Usage(format!("run did not finish cleanly: {}", s.status)));
+            }
+            Ok(())
+        }
+        Command::Scenes => {
+            for (name, desc) in scene::builtin_list() {
+                println!("{name:<10} {desc}");
+            }
+            Ok(())
+        }
+        Command::Info => {
+            let adapters = palpate::gpu::context::list_adapters()?;
+            if adapters.is_empty() {
+                println!("no compute-capable adapter found");
+            }
+            for a in &adapters {
+                let i = a.get_info();
+                println!("adapter: {} ({:?}, {:?}, driver {} {})", i.name, i.backend, i.device_type, i.driver, i.driver_info);
+            }
+            let ctx = palpate::gpu::GpuContext::new()?;
+            let l = &ctx.limits;
+            println!("chosen: {}", ctx.describe());
+            println!(
+                "limits: max_buffer_size {} B, max_storage_buffer_binding_size {} B, storage buffers per stage {}, workgroups per dimension {}",
+                l.max_buffer_size, l.max_storage_buffer_binding_size, l.max_storage_buffers_per_shader_stage, l.max_compute_workgroups_per_dimension
+            );
+            Ok(())
+        }
+    }
+}

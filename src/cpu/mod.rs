@@ -1,0 +1,32 @@
+//! The CPU reference path: one function per WGSL kernel, with the same name and the same
+//! inputs in the same order as the kernel's bindings, written to be read side by side with
+//! `kernels/<name>.wgsl`. Loops run over the same index a GPU thread would own and write only
+//! that index's outputs. f32 throughout, like the GPU.
+
+pub mod fem_forces;
+pub mod gather;
+pub mod integrate;
+pub mod reduce;
+pub mod stepper;
+
+pub use fem_forces::fem_forces;
+pub use gather::gather;
+pub use integrate::integrate;
+pub use reduce::{reduce_final, reduce_partial, REDUCE_WORKGROUP};
+pub use stepper::CpuStepper;
+
+use glam::Vec3;
+
+/// Read vector `i` from a packed xyz array.
+#[inline]
+pub fn load3(a: &[f32], i: usize) -> Vec3 {
+    Vec3::new(a[3 * i], a[3 * i + 1], a[3 * i + 2])
+}
+
+/// Write vector `i` into a packed xyz array.
+#[inline]
+pub fn store3(a: &mut [f32], i: usize, v: Vec3) {
+    a[3 * i] = v.x;
+    a[3 * i + 1] = v.y;
+    a[3 * i + 2] = v.z;
+}

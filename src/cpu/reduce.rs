@@ -1,0 +1,102 @@
+//! CPU twin of `kernels/reduce.wgsl`: a two-level tree reduction (blocks of 256, then one
+//! block over the partials) of kinetic energy, elastic energy, max speed, residual and
+//! external load, in the same order as the GPU so sums agree closely.
+
+use super::load3;
+use crate::params::{stat, StepParams};
+use glam::Vec3;
+
+/// Threads per reduce workgroup.
+pub const REDUCE_WORKGROUP: usize = 256;
+/// Quantities per partial: ke, elastic, max speed, residual², external².
+pub const PARTIAL_LEN: usize = 5;
+
+/// Number of partials `reduce_partial` writes.
+pub fn n_partials(params: &StepParams) -> usize {
+    (params.n_vertices.max(params.n_tets) as usize).div_ceil(REDUCE_WORKGROUP)
+}
+
+/// Tree-reduce 256 lanes in place like the workgroup loop: stride 128, 64, …, 1.
+fn tree(lanes: &mut [[f32; PARTIAL_LEN]; REDUCE_WORKGROUP]) -> [f32; PARTIAL_LEN] {
+    let mut s = REDUCE_WORKGROUP / 2;
+    while s > 0 {
+        for l in 0..s {
+            let o = lanes[l + s];
+            let a = &mut lanes[l];
+            a[0] += o[0];
+            a[1] += o[1];
+            a[2] = a[2].max(o[2]);
+            a[3] += o[3];
+            a[4] += o[4];
+        }
+        s /= 2;
+    }
+    lanes[0]
+}
+
+/// Per block of 256 indices i (vertex i and tet i): write 5 partial sums to `partials`.
+pub fn reduce_partial(
+    params: &StepParams,
+    velocities: &[f32],
+    mass: &[f32],
+    inv_mass: &[f32],
+    forces: &[f32],
+    tet_energy: &[f32],
+    partials: &mut [f32],
+) {
+    let g = Vec3::from_array(params.gravity);
+    for block in 0..n_partials(params) {
+        let mut lanes = [[0.0f32; PARTIAL_LEN]; REDUCE_WORKGROUP];
+        for (l, lane) in lanes.iter_mut().enumerate() {
+            let i = block * REDUCE_WORKGROUP + l;
+            if i < params.n_vertices as usize {
+                let v = load3(velocities, i);
+                lane[0] = 0.5 * mass[i] * v.dot(v);
+                lane[2] = v.length();
+                if inv_mass[i] > 0.0 {
+                    let f = load3(forces, i);
+                    lane[3] = f.dot(f);
+                    let w = g * mass[i];
+                    lane[4] = w.dot(w);
+                }
+            }
+            if i < params.n_tets as usize {
+                lane[1] = tet_energy[i];
+            }
+        }
+        let r = tree(&mut lanes);
+        partials[PARTIAL_LEN * block..PARTIAL_LEN * block + PARTIAL_LEN].copy_from_slice(&r);
+    }
+}
+
+/// One block: lane l sums partials l, l+256, …; then the tree. Writes `stats` and updates
+/// the kinetic-damping state: reset when KE fell since the previous reduce.
+pub fn reduce_final(params: &StepParams, partials: &[f32], stats: &mut [f32]) {
+    let n = n_partials(params);
+    let mut lanes = [[0.0f32; PARTIAL_LEN]; REDUCE_WORKGROUP];
+    for (l, lane) in lanes.iter_mut().enumerate() {
+        let mut k = l;
+        while k < n {
+            let p = &partials[PARTIAL_LEN * k..PARTIAL_LEN * k + PARTIAL_LEN];
+            lane[0] += p[0];
+            lane[1] += p[1];
+            lane[2] = lane[2].max(p[2]);
+            lane[3] += p[3];
+            lane[4] += p[4];
+            k += REDUCE_WORKGROUP;
+        }
+    }
+    let r = tree(&mut lanes);
+    stats[stat::KINETIC] = r[0];
+    stats[stat::ELASTIC] = r[1];
+    stats[stat::MAX_SPEED] = r[2];
+    stats[stat::RESIDUAL_SQ] = r[3];
+    stats[stat::EXTERNAL_SQ] = r[4];
+    if r[0] < stats[stat::PREV_KINETIC] {
+        stats[stat::RESET_VELOCITY] = 1.0;
+        stats[stat::PREV_KINETIC] = 0.0;
+    } else {
+        stats[stat::RESET_VELOCITY] = 0.0;
+        stats[stat::PREV_KINETIC] = r[0];
+    }
+}

@@ -1,0 +1,100 @@
+//! One error type for everything a user can get wrong or an adapter can refuse.
+//!
+//! Every variant renders as a single line that names the file or item at fault, so the
+//! command line can print `error: {err}` and exit non-zero without a backtrace.
+
+use std::path::PathBuf;
+
+/// Errors raised by palpate. Each message is one line and names what is wrong and where.
+#[derive(Debug, thiserror::Error)]
+pub enum PalpateError {
+    /// A scene file could not be read from disk.
+    #[error("{path}: cannot read scene file: {source}")]
+    SceneIo {
+        /// The scene file.
+        path: PathBuf,
+        /// The underlying I/O error.
+        source: std::io::Error,
+    },
+    /// A scene file is not valid TOML or does not match the scene schema.
+    #[error("{origin}: {message}")]
+    SceneParse {
+        /// The file path or built-in scene name.
+        origin: String,
+        /// What the parser said, including line and key.
+        message: String,
+    },
+    /// A scene value is out of its valid range.
+    #[error("{origin}: {item}: {message}")]
+    SceneValue {
+        /// The file path or built-in scene name.
+        origin: String,
+        /// The offending key, e.g. `material.poisson_ratio`.
+        item: String,
+        /// Why it is invalid.
+        message: String,
+    },
+    /// A mesh is malformed (bad index, degenerate tet, …).
+    #[error("{origin}: {message}")]
+    Mesh {
+        /// Where the mesh came from (file or generator).
+        origin: String,
+        /// What is wrong, naming the element or node.
+        message: String,
+    },
+    /// A mesh file could not be read or parsed.
+    #[error("{path}: {message}")]
+    MeshFile {
+        /// The mesh file.
+        path: PathBuf,
+        /// What is wrong and where in the file.
+        message: String,
+    },
+    /// A requested time step exceeds the stability bound.
+    #[error("dt = {dt:.3e} s is above the stability bound {bound:.3e} s ({detail}); use a smaller --dt, dt = \"auto\", or --allow-unstable")]
+    UnstableTimeStep {
+        /// The requested step.
+        dt: f64,
+        /// The bound it exceeds.
+        bound: f64,
+        /// How the bound was computed.
+        detail: String,
+    },
+    /// No GPU adapter (hardware or software) could be found.
+    #[error("no GPU adapter found ({detail}); install a software Vulkan adapter with `apt-get install -y mesa-vulkan-drivers`, or run with --backend cpu")]
+    NoAdapter {
+        /// What was tried.
+        detail: String,
+    },
+    /// The mesh does not fit in the adapter's buffer limits.
+    #[error("mesh too big for the GPU adapter '{adapter}': buffer '{buffer}' needs {bytes} bytes but the adapter allows {limit} bytes per {what}")]
+    TooBigForAdapter {
+        /// Adapter name.
+        adapter: String,
+        /// Which buffer.
+        buffer: String,
+        /// Its size in bytes.
+        bytes: u64,
+        /// The adapter's limit.
+        limit: u64,
+        /// Which limit (binding or buffer).
+        what: String,
+    },
+    /// A wgpu call failed (device lost, validation error, out of memory).
+    #[error("GPU error: {0}")]
+    Gpu(String),
+    /// A command-line argument is invalid.
+    #[error("{0}")]
+    Usage(String),
+    /// Writing an output file failed.
+    #[error("{path}: cannot write: {source}")]
+    OutputIo {
+        /// The output file.
+        path: PathBuf,
+        /// The underlying I/O error.
+        source: std::io::Error,
+    },
+}
+
+/// Result alias used across the crate.
+pub type Result<T, E = PalpateError> = std::result::Result<T, E>;

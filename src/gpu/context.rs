@@ -1,0 +1,176 @@
+//! The wgpu context: instance, adapter choice, device with the adapter's own limits, and
+//! capture of asynchronous wgpu errors so they surface as [`PalpateError::Gpu`].
+//!
+//! Adapter choice: a hardware GPU first (discrete, integrated, virtual), then a software one
+//! (Vulkan lavapipe, llvmpipe through GL). `PALPATE_BACKEND` (`vulkan`, `gl`, `metal`,
+//! `dx12`, `all`) limits the backends; `PALPATE_ADAPTER` picks an adapter whose name contains
+//! the given text.
+
+use crate::error::{PalpateError, Result};
+use std::sync::{Arc, Mutex};
+
+/// A headless device and queue.
+pub struct GpuContext {
+    /// The chosen adapter.
+    pub adapter: wgpu::Adapter,
+    /// Its description.
+    pub info: wgpu::AdapterInfo,
+    /// The device, created with the adapter's full limits.
+    pub device: wgpu::Device,
+    /// Its queue.
+    pub queue: wgpu::Queue,
+    /// The device's limits (= the adapter's).
+    pub limits: wgpu::Limits,
+    errors: Arc<Mutex<Vec<String>>>,
+}
+
+/// Backends named by `PALPATE_BACKEND` (default: all compiled in).
+pub fn backends_from_env() -> Result<wgpu::Backends> {
+    match std::env::var("PALPATE_BACKEND").ok().as_deref() {
+        None | Some("") | Some("all") => Ok(wgpu::Backends::all()),
+        Some("vulkan") => Ok(wgpu::Backends::VULKAN),
+        Some("gl") => Ok(wgpu::Backends::GL),
+        Some("metal") => Ok(wgpu::Backends::METAL),
+        Some("dx12") => Ok(wgpu::Backends::DX12),
+        Some(other) => Err(PalpateError::Usage(format!(
+            "PALPATE_BACKEND='{other}' is not one of vulkan, gl, metal, dx12, all"
+        ))),
+    }
+}
+
+fn instance(backends: wgpu::Backends) -> wgpu::Instance {
+    let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
+    desc.backends = backends;
+    wgpu::Instance::new(desc)
+}
+
+/// Rank for adapter preference: lower is better.
+fn rank(info: &wgpu::AdapterInfo) -> (u8, u8) {
+    let kind = match info.device_type {
+        wgpu::DeviceType::DiscreteGpu => 0,
+        wgpu::DeviceType::IntegratedGpu => 1,
+        wgpu::DeviceType::VirtualGpu => 2,
+        wgpu::DeviceType::Cpu => 3,
+        wgpu::DeviceType::Other => 4,
+    };
+    let backend = match info.backend {
+        wgpu::Backend::Vulkan | wgpu::Backend::Metal | wgpu::Backend::Dx12 => 0,
+        _ => 1,
+    };
+    (kind, backend)
+}
+
+/// Every adapter that can run compute shaders, best first. Without `PALPATE_BACKEND`, the
+/// native backends (Vulkan, Metal, DX12) are tried first and GL only when they offer none.
+pub fn list_adapters() -> Result<Vec<wgpu::Adapter>> {
+    let from_env = std::env::var("PALPATE_BACKEND").is_ok_and(|v| !v.is_empty());
+    let backends = backends_from_env()?;
+    let mut adapters = enumerate(backends - wgpu::Backends::GL);
+    if adapters.is_empty() || (from_env && backends.contains(wgpu::Backends::GL)) {
+        adapters.extend(enumerate(wgpu::Backends::GL & backends));
+    }
+    adapters.sort_by_key(|a| rank(&a.get_info()));
+    Ok(adapters)
+}
+
+fn enumerate(backends: wgpu::Backends) -> Vec<wgpu::Adapter> {
+    if backends.is_empty() {
+        return Vec::new();
+    }
+    let inst = instance(backends);
+    pollster::block_on(inst.enumerate_adapters(backends))
+        .into_iter()
+        .filter(|a| {
+            a.get_downlevel_capabilities()
+                .flags
+                .contains(wgpu::DownlevelFlags::COMPUTE_SHADERS)
+        })
+        .collect()
+}
+
+impl GpuContext {
+    /// Pick an adapter (see module docs) and open a device with its full limits.
+    pub fn new() -> Result<GpuContext> {
+        let mut adapters = list_adapters()?;
+        if let Ok(want) = std::env::var("PALPATE_ADAPTER") {
+            adapters.retain(|a| a.get_info().name.to_lowercase().contains(&want.to_lowercase()));
+        }
+        let adapter = adapters.into_iter().next().ok_or_else(|| PalpateError::NoAdapter {
+            detail: format!(
+                "backends {:?}{}",
+                backends_from_env().unwrap_or(wgpu::Backends::all()),
+                std::env::var("PALPATE_ADAPTER")
+                    .map(|a| format!(", PALPATE_ADAPTER='{a}'"))
+                    .unwrap_or_default()
+            ),
+        })?;
+        let info = adapter.get_info();
+        let limits = adapter.limits();
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("palpate"),
+            required_features: wgpu::Features::empty(),
+            required_limits: limits.clone(),
+            experimental_features: wgpu::ExperimentalFeatures::disabled(),
+            memory_hints: wgpu::MemoryHints::Performance,
+            trace: wgpu::Trace::Off,
+        }))
+        .map_err(|e| PalpateError::Gpu(format!("cannot open device on '{}': {e}", info.name)))?;
+        let errors = Arc::new(Mutex::new(Vec::new()));
+        let sink = errors.clone();
+        device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
+            if let Ok(mut v) = sink.lock() {
+                v.push(e.to_string().lines().next().unwrap_or("").to_string());
+            }
+        }));
+        Ok(GpuContext {
+            adapter,
+            info,
+            device,
+            queue,
+            limits,
+            errors,
+        })
+    }
+
+    /// One line naming the adapter and backend.
+    pub fn describe(&self) -> String {
+        format!("{} ({:?}, {:?})", self.info.name, self.info.backend, self.info.device_type)
+    }
+
+    /// Return the first wgpu error captured since the last check, if any.
+    pub fn check_errors(&self) -> Result<()> {
+        let mut v = self.errors.lock().map_err(|_| PalpateError::Gpu("error sink poisoned".into()))?;
+        let first = v.drain(..).next();
+        match first {
+            Some(e) => Err(PalpateError::Gpu(e)),
+            None => Ok(()),
+        }
+    }
+
+    /// Wait for all submitted work.
+    pub fn wait(&self) -> Result<()> {
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| PalpateError::Gpu(format!("poll: {e}")))?;
+        self.check_errors()
+    }
+
+    /// Copy `size` bytes of a MAP_READ buffer to the host (waits for the GPU).
+    pub fn read_mapped(&self, buffer: &wgpu::Buffer, size: u64) -> Result<Vec<u8>> {
+        let slice = buffer.slice(..size);
+        let (tx, rx) = std::sync::mpsc::channel();
+        slice.map_async(wgpu::MapMode::Read, move |r| {
+            let _ = tx.send(r);
+        });
+        self.wait()?;
+        rx.recv()
+            .map_err(|_| PalpateError::Gpu("map callback never ran".into()))?
+            .map_err(|e| PalpateError::Gpu(format!("map: {e}")))?;
+        let data = slice
+            .get_mapped_range()
+            .map_err(|e| PalpateError::Gpu(format!("mapped range: {e}")))?
+            .to_vec();
+        buffer.unmap();
+        Ok(data)
+    }
+}

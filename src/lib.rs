@@ -1,0 +1,24 @@
+//! palpate: a GPU compute-first engine for deformable soft tissue under haptic interaction,
+//! after Mero & Susin, "Deformable Hybrid Model for Haptic Interaction".
+//!
+//! The public path is [`scene::Scene`] → [`sim::Simulation`] → `advance` / `state`. Every
+//! per-element and per-vertex stage is a WGSL kernel in `kernels/` with a CPU twin in
+//! [`cpu`]; see `ARCHITECTURE.md`.
+
+pub mod cpu;
+pub mod error;
+pub mod gpu;
+pub mod material;
+pub mod mesh;
+pub mod model;
+pub mod output;
+pub mod params;
+pub mod run;
+pub mod scene;
+pub mod sim;
+pub mod stepper;
+pub mod timestep;
+
+pub use error::{PalpateError, Result};
+pub use scene::Scene;
+pub use sim::{Backend, Simulation};

@@ -1,0 +1,150 @@
+//! Mesh files in and out. `read` picks the reader from the file extension.
+//!
+//! Every reader refuses malformed input with a one-line error naming the file and the line
+//! or item, never panics, and never allocates from an unchecked count in a header.
+
+use super::TetMesh;
+use crate::error::{PalpateError, Result};
+use glam::DVec3;
+use std::path::Path;
+
+/// Read a tet mesh from a file; the format follows the extension.
+pub fn read(path: &Path) -> Result<TetMesh> {
+    let ext = path
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    match ext.as_str() {
+        "node" | "ele" => read_tetgen(path),
+        _ => Err(PalpateError::MeshFile {
+            path: path.to_path_buf(),
+            message: format!("unsupported mesh format '.{ext}' (supported: .node/.ele)"),
+        }),
+    }
+}
+
+fn file_err(path: &Path, message: String) -> PalpateError {
+    PalpateError::MeshFile {
+        path: path.to_path_buf(),
+        message,
+    }
+}
+
+fn read_text(path: &Path) -> Result<String> {
+    let bytes = std::fs::read(path).map_err(|e| file_err(path, format!("cannot read: {e}")))?;
+    String::from_utf8(bytes).map_err(|e| {
+        file_err(
+            path,
+            format!("not a text file (invalid UTF-8 at byte {})", e.utf8_error().valid_up_to()),
+        )
+    })
+}
+
+/// Data lines of a TetGen file: (1-based line number, tokens), comments and blanks dropped.
+fn tetgen_lines(text: &str) -> impl Iterator<Item = (usize, Vec<&str>)> {
+    text.lines().enumerate().filter_map(|(i, l)| {
+        let l = l.split('#').next().unwrap_or("");
+        let toks: Vec<&str> = l.split_whitespace().collect();
+        (!toks.is_empty()).then_some((i + 1, toks))
+    })
+}
+
+fn parse<T: std::str::FromStr>(path: &Path, line: usize, tok: Option<&&str>, what: &str) -> Result<T> {
+    let tok = tok.ok_or_else(|| file_err(path, format!("line {line}: missing {what}")))?;
+    tok.parse()
+        .map_err(|_| file_err(path, format!("line {line}: {what} '{tok}' is not a valid number")))
+}
+
+/// TetGen `.node` + `.ele` (either path may be given; the other is found beside it).
+/// Indices may start at 0 or 1 (the first node's index decides). An `.ele` attribute column
+/// becomes the region id.
+pub fn read_tetgen(path: &Path) -> Result<TetMesh> {
+    let node_path = path.with_extension("node");
+    let ele_path = path.with_extension("ele");
+    let node_text = read_text(&node_path)?;
+    let mut lines = tetgen_lines(&node_text);
+    let (hl, header) = lines
+        .next()
+        .ok_or_else(|| file_err(&node_path, "empty file: no header line".into()))?;
+    let n: usize = parse(&node_path, hl, header.first(), "node count")?;
+    let dim: usize = parse(&node_path, hl, header.get(1), "dimension")?;
+    if dim != 3 {
+        return Err(file_err(&node_path, format!("line {hl}: dimension {dim}, expected 3")));
+    }
+    let mut positions = Vec::with_capacity(n.min(node_text.len() / 8 + 1));
+    let mut first_index = None;
+    for (ln, toks) in lines.by_ref().take(n) {
+        let idx: i64 = parse(&node_path, ln, toks.first(), "node index")?;
+        let base = *first_index.get_or_insert(idx);
+        if idx - base != positions.len() as i64 {
+            return Err(file_err(&node_path, format!("line {ln}: node index {idx} out of sequence")));
+        }
+        let mut p = [0.0; 3];
+        for (k, c) in p.iter_mut().enumerate() {
+            *c = parse(&node_path, ln, toks.get(1 + k), "coordinate")?;
+        }
+        positions.push(DVec3::from_array(p));
+    }
+    if positions.len() != n {
+        return Err(file_err(
+            &node_path,
+            format!("header declares {n} nodes but the file has {}", positions.len()),
+        ));
+    }
+    let base = first_index.unwrap_or(0);
+    if base != 0 && base != 1 {
+        return Err(file_err(&node_path, format!("first node index {base}: expected 0 or 1")));
+    }
+    let ele_text = read_text(&ele_path)?;
+    let mut lines = tetgen_lines(&ele_text);
+    let (hl, header) = lines
+        .next()
+        .ok_or_else(|| file_err(&ele_path, "empty file: no header line".into()))?;
+    let m: usize = parse(&ele_path, hl, header.first(), "element count")?;
+    let npe: usize = parse(&ele_path, hl, header.get(1), "nodes per element")?;
+    if npe != 4 && npe != 10 {
+        return Err(file_err(&ele_path, format!("line {hl}: {npe} nodes per element, expected 4 or 10")));
+    }
+    let n_attr: usize = match header.get(2) {
+        Some(_) => parse(&ele_path, hl, header.get(2), "attribute count")?,
+        None => 0,
+    };
+    let mut tets = Vec::with_capacity(m.min(ele_text.len() / 8 + 1));
+    let mut regions = Vec::with_capacity(tets.capacity());
+    for (ln, toks) in lines.take(m) {
+        let mut t = [0u32; 4];
+        for (k, v) in t.iter_mut().enumerate() {
+            let i: i64 = parse(&ele_path, ln, toks.get(1 + k), "node index")?;
+            let local = i - base;
+            if local < 0 || local >= n as i64 {
+                return Err(file_err(
+                    &ele_path,
+                    format!("line {ln}: node index {i} out of range ({base}..{})", n as i64 + base - 1),
+                ));
+            }
+            *v = local as u32;
+        }
+        let region = if n_attr > 0 {
+            parse::<f64>(&ele_path, ln, toks.get(1 + npe), "attribute")?.max(0.0) as u32
+        } else {
+            0
+        };
+        tets.push(t);
+        regions.push(region);
+    }
+    if tets.len() != m {
+        return Err(file_err(
+            &ele_path,
+            format!("header declares {m} elements but the file has {}", tets.len()),
+        ));
+    }
+    if tets.is_empty() {
+        return Err(file_err(&ele_path, "no tetrahedra".into()));
+    }
+    Ok(TetMesh {
+        positions,
+        tets,
+        regions,
+        ..Default::default()
+    })
+}

@@ -1,0 +1,129 @@
+//! The simulation model: a scene's mesh and material turned into the flat f32 arrays that
+//! both backends step (rest shape, Dm⁻¹, volumes, lumped masses, CSR incidence).
+
+use crate::material::MaterialParams;
+use crate::mesh::TetMesh;
+use crate::params::StepParams;
+use crate::scene::Scene;
+use crate::timestep::TimeStepBounds;
+use glam::DMat3;
+
+/// Everything the kernels read that does not change during a run.
+#[derive(Clone, Debug)]
+pub struct Model {
+    /// Rest positions, packed xyz, m.
+    pub rest: Vec<f32>,
+    /// Tets (positively oriented).
+    pub tets: Vec<[u32; 4]>,
+    /// Region id per tet.
+    pub regions: Vec<u32>,
+    /// Dm⁻¹ per tet, 9 floats column-major; Dm = [X₁−X₀, X₂−X₀, X₃−X₀] (the paper's β).
+    pub dm_inv: Vec<f32>,
+    /// Rest volume per tet, m³.
+    pub rest_volume: Vec<f32>,
+    /// Lumped mass per vertex: Σ ρV/4 over incident tets, kg.
+    pub mass: Vec<f32>,
+    /// 1/mass, or 0 for fixed vertices and vertices with no tet.
+    pub inv_mass: Vec<f32>,
+    /// CSR row starts: vertex i's corners are `incidence[offsets[i]..offsets[i+1]]`.
+    pub incidence_offsets: Vec<u32>,
+    /// Corner ids tet·4 + corner, grouped by vertex, ascending within a vertex.
+    pub incidence: Vec<u32>,
+    /// Material.
+    pub material: MaterialParams,
+    /// Gravity, m/s².
+    pub gravity: [f32; 3],
+    /// Stability bounds of this mesh and material.
+    pub bounds: TimeStepBounds,
+}
+
+impl Model {
+    /// Build from a mesh, per-vertex fixed flags, material and gravity.
+    pub fn new(mesh: &TetMesh, fixed: &[bool], material: MaterialParams, gravity: [f64; 3]) -> Model {
+        let n = mesh.n_vertices();
+        let m = mesh.n_tets();
+        let mut dm_inv = Vec::with_capacity(9 * m);
+        let mut rest_volume = Vec::with_capacity(m);
+        let mut mass = vec![0.0f64; n];
+        for (e, tet) in mesh.tets.iter().enumerate() {
+            let x = mesh.corners(e);
+            let dm = DMat3::from_cols(x[1] - x[0], x[2] - x[0], x[3] - x[0]);
+            let vol = dm.determinant() / 6.0;
+            dm_inv.extend(dm.inverse().to_cols_array().map(|c| c as f32));
+            rest_volume.push(vol as f32);
+            for &i in tet {
+                mass[i as usize] += material.density * vol / 4.0;
+            }
+        }
+        let mut counts = vec![0u32; n + 1];
+        for tet in &mesh.tets {
+            for &i in tet {
+                counts[i as usize + 1] += 1;
+            }
+        }
+        for i in 0..n {
+            counts[i + 1] += counts[i];
+        }
+        let offsets = counts;
+        let mut fill = offsets.clone();
+        let mut incidence = vec![0u32; 4 * m];
+        for (e, tet) in mesh.tets.iter().enumerate() {
+            for (c, &i) in tet.iter().enumerate() {
+                incidence[fill[i as usize] as usize] = (4 * e + c) as u32;
+                fill[i as usize] += 1;
+            }
+        }
+        let inv_mass = mass
+            .iter()
+            .zip(fixed)
+            .map(|(&mv, &f)| if f || mv <= 0.0 { 0.0 } else { (1.0 / mv) as f32 })
+            .collect();
+        let bounds = TimeStepBounds::new(&material, mesh.min_altitude(), mesh.min_edge());
+        Model {
+            rest: mesh.positions.iter().flat_map(|p| p.to_array().map(|c| c as f32)).collect(),
+            tets: mesh.tets.clone(),
+            regions: mesh.regions.clone(),
+            dm_inv,
+            rest_volume,
+            mass: mass.iter().map(|&x| x as f32).collect(),
+            inv_mass,
+            incidence_offsets: offsets,
+            incidence,
+            material,
+            gravity: gravity.map(|g| g as f32),
+            bounds,
+        }
+    }
+
+    /// Build from a validated scene.
+    pub fn from_scene(scene: &Scene) -> Model {
+        Model::new(&scene.mesh, &scene.fixed, scene.material, scene.gravity)
+    }
+
+    /// Number of vertices.
+    pub fn n_vertices(&self) -> usize {
+        self.mass.len()
+    }
+
+    /// Number of tets.
+    pub fn n_tets(&self) -> usize {
+        self.tets.len()
+    }
+
+    /// Step parameters for time step `dt` and damping α.
+    pub fn step_params(&self, dt: f64, damping: f64, kinetic_damping: bool) -> StepParams {
+        let m = &self.material;
+        StepParams {
+            n_vertices: self.n_vertices() as u32,
+            n_tets: self.n_tets() as u32,
+            dt: dt as f32,
+            damping: damping as f32,
+            gravity: self.gravity,
+            lambda: m.lambda as f32,
+            mu: m.mu as f32,
+            phi: m.phi as f32,
+            psi: m.psi as f32,
+            kinetic_damping: kinetic_damping as u32,
+        }
+    }
+}
