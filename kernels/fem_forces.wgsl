@@ -1,5 +1,7 @@
 // Stage 1: per tet, St. Venant–Kirchhoff forces with the paper's viscous stress (eq. 1–6).
-// F = Ds Dm^-1, E = (F^T F - I)/2, Edot = (Fdot^T F + F^T Fdot)/2,
+// The state is the displacement u = x - X (finer f32 resolution than positions):
+// H = Du Dm^-1, F = I + H, E = (H + H^T + H^T H)/2 (= (F^T F - I)/2 without cancellation),
+// Edot = (Fdot^T F + F^T Fdot)/2 with Fdot = Dv Dm^-1,
 // S = lambda tr(E) I + 2 mu E + phi tr(Edot) I + 2 psi Edot, P = F S,
 // corner forces [f1 f2 f3] = -V P Dm^-T, f0 = -(f1 + f2 + f3); energy V (mu E:E + lambda/2 tr(E)^2).
 // CPU twin: src/cpu/fem_forces.rs.
@@ -7,7 +9,7 @@
 #import index
 
 @group(0) @binding(0) var<uniform> params: StepParams;
-@group(0) @binding(1) var<storage, read> positions: array<f32>;
+@group(0) @binding(1) var<storage, read> displacements: array<f32>;
 @group(0) @binding(2) var<storage, read> velocities: array<f32>;
 @group(0) @binding(3) var<storage, read> tets: array<vec4<u32>>;
 @group(0) @binding(4) var<storage, read> dm_inv: array<f32>;
@@ -20,8 +22,8 @@ override VISCOUS: bool = true;
 
 const WORKGROUP: u32 = 64u;
 
-fn position(i: u32) -> vec3<f32> {
-    return vec3<f32>(positions[3u * i], positions[3u * i + 1u], positions[3u * i + 2u]);
+fn displacement(i: u32) -> vec3<f32> {
+    return vec3<f32>(displacements[3u * i], displacements[3u * i + 1u], displacements[3u * i + 2u]);
 }
 
 fn velocity(i: u32) -> vec3<f32> {
@@ -45,8 +47,8 @@ fn fem_forces(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgr
         return;
     }
     let t = tets[e];
-    let x0 = position(t.x);
-    let ds = mat3x3<f32>(position(t.y) - x0, position(t.z) - x0, position(t.w) - x0);
+    let u0 = displacement(t.x);
+    let du = mat3x3<f32>(displacement(t.y) - u0, displacement(t.z) - u0, displacement(t.w) - u0);
     let b = 9u * e;
     let dmi = mat3x3<f32>(
         vec3<f32>(dm_inv[b], dm_inv[b + 1u], dm_inv[b + 2u]),
@@ -55,8 +57,9 @@ fn fem_forces(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgr
     );
     let volume = rest_volume[e];
     let identity = mat3x3<f32>(vec3<f32>(1.0, 0.0, 0.0), vec3<f32>(0.0, 1.0, 0.0), vec3<f32>(0.0, 0.0, 1.0));
-    let f = ds * dmi;
-    let strain = (transpose(f) * f - identity) * 0.5;
+    let h_grad = du * dmi;
+    let f = identity + h_grad;
+    let strain = (h_grad + transpose(h_grad) + transpose(h_grad) * h_grad) * 0.5;
     let tr = trace3(strain);
     var s = identity * (params.lambda * tr) + strain * (2.0 * params.mu);
     if VISCOUS {

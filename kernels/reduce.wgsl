@@ -1,23 +1,24 @@
 // Stage 7: two-level tree reduction of kinetic energy, elastic energy, max speed, residual
-// force and external load. `reduce_partial`: one workgroup per 256 indices (vertex i and tet
-// i) writes 5 partials; `reduce_final`: one workgroup reduces the partials into `stats` and
-// updates the kinetic-damping state. CPU twin: src/cpu/reduce.rs.
+// force, external load and mass-weighted squared displacement. `reduce_partial`: one
+// workgroup per 256 indices (vertex i and tet i) writes 6 partials; `reduce_final`: one
+// workgroup reduces the partials into `stats`. CPU twin: src/cpu/reduce.rs.
 #import params
 #import index
 
 @group(0) @binding(0) var<uniform> params: StepParams;
-@group(0) @binding(1) var<storage, read> velocities: array<f32>;
-@group(0) @binding(2) var<storage, read> mass: array<f32>;
-@group(0) @binding(3) var<storage, read> inv_mass: array<f32>;
-@group(0) @binding(4) var<storage, read> forces: array<f32>;
-@group(0) @binding(5) var<storage, read> tet_energy: array<f32>;
-@group(0) @binding(6) var<storage, read_write> partials: array<f32>;
-@group(0) @binding(7) var<storage, read_write> stats: array<f32>;
+@group(0) @binding(1) var<storage, read> displacements: array<f32>;
+@group(0) @binding(2) var<storage, read> velocities: array<f32>;
+@group(0) @binding(3) var<storage, read> mass: array<f32>;
+@group(0) @binding(4) var<storage, read> inv_mass: array<f32>;
+@group(0) @binding(5) var<storage, read> forces: array<f32>;
+@group(0) @binding(6) var<storage, read> tet_energy: array<f32>;
+@group(0) @binding(7) var<storage, read_write> partials: array<f32>;
+@group(0) @binding(8) var<storage, read_write> stats: array<f32>;
 
 const WORKGROUP: u32 = 256u;
-const PARTIAL_LEN: u32 = 5u;
+const PARTIAL_LEN: u32 = 6u;
 
-var<workgroup> lanes: array<array<f32, 5>, 256>;
+var<workgroup> lanes: array<array<f32, 6>, 256>;
 
 fn combine(l: u32, o: u32) {
     lanes[l][0] += lanes[o][0];
@@ -25,6 +26,7 @@ fn combine(l: u32, o: u32) {
     lanes[l][2] = max(lanes[l][2], lanes[o][2]);
     lanes[l][3] += lanes[o][3];
     lanes[l][4] += lanes[o][4];
+    lanes[l][5] += lanes[o][5];
 }
 
 fn tree(l: u32) {
@@ -45,7 +47,7 @@ fn reduce_partial(
     @builtin(workgroup_id) wid: vec3<u32>,
 ) {
     let i = linear_index(gid, nwg, WORKGROUP);
-    var lane = array<f32, 5>(0.0, 0.0, 0.0, 0.0, 0.0);
+    var lane = array<f32, 6>(0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
     if i < params.n_vertices {
         let v = vec3<f32>(velocities[3u * i], velocities[3u * i + 1u], velocities[3u * i + 2u]);
         lane[0] = 0.5 * mass[i] * dot(v, v);
@@ -56,6 +58,8 @@ fn reduce_partial(
             let w = params.gravity * mass[i];
             lane[4] = dot(w, w);
         }
+        let u = vec3<f32>(displacements[3u * i], displacements[3u * i + 1u], displacements[3u * i + 2u]);
+        lane[5] = mass[i] * dot(u, u);
     }
     if i < params.n_tets {
         lane[1] = tet_energy[i];
@@ -73,7 +77,7 @@ fn reduce_partial(
 @compute @workgroup_size(256)
 fn reduce_final(@builtin(local_invocation_index) l: u32) {
     let n = (max(params.n_vertices, params.n_tets) + WORKGROUP - 1u) / WORKGROUP;
-    var lane = array<f32, 5>(0.0, 0.0, 0.0, 0.0, 0.0);
+    var lane = array<f32, 6>(0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
     for (var k = l; k < n; k += WORKGROUP) {
         let b = PARTIAL_LEN * k;
         lane[0] += partials[b];
@@ -81,6 +85,7 @@ fn reduce_final(@builtin(local_invocation_index) l: u32) {
         lane[2] = max(lane[2], partials[b + 2u]);
         lane[3] += partials[b + 3u];
         lane[4] += partials[b + 4u];
+        lane[5] += partials[b + 5u];
     }
     lanes[l] = lane;
     tree(l);
@@ -91,12 +96,6 @@ fn reduce_final(@builtin(local_invocation_index) l: u32) {
         stats[STAT_MAX_SPEED] = r[2];
         stats[STAT_RESIDUAL_SQ] = r[3];
         stats[STAT_EXTERNAL_SQ] = r[4];
-        if r[0] < stats[STAT_PREV_KINETIC] {
-            stats[STAT_RESET_VELOCITY] = 1.0;
-            stats[STAT_PREV_KINETIC] = 0.0;
-        } else {
-            stats[STAT_RESET_VELOCITY] = 0.0;
-            stats[STAT_PREV_KINETIC] = r[0];
-        }
+        stats[STAT_MASS_DISPLACEMENT_SQ] = r[5];
     }
 }

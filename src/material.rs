@@ -49,6 +49,12 @@ pub fn green_strain(f: Mat3) -> Mat3 {
     (f.transpose() * f - Mat3::IDENTITY) * 0.5
 }
 
+/// Green strain from the displacement gradient H = F − I: E = ½(H + Hᵀ + HᵀH), the same
+/// tensor as [`green_strain`] without the cancellation in FᵀF − I (better in f32).
+pub fn green_strain_from_gradient(h: Mat3) -> Mat3 {
+    (h + h.transpose() + h.transpose() * h) * 0.5
+}
+
 /// Green strain rate Ė = ½(ḞᵀF + FᵀḞ).
 pub fn green_strain_rate(f: Mat3, f_dot: Mat3) -> Mat3 {
     (f_dot.transpose() * f + f.transpose() * f_dot) * 0.5

@@ -111,7 +111,7 @@ impl Model {
     }
 
     /// Step parameters for time step `dt` and damping α.
-    pub fn step_params(&self, dt: f64, damping: f64, kinetic_damping: bool) -> StepParams {
+    pub fn step_params(&self, dt: f64, damping: f64) -> StepParams {
         let m = &self.material;
         StepParams {
             n_vertices: self.n_vertices() as u32,
@@ -123,7 +123,7 @@ impl Model {
             mu: m.mu as f32,
             phi: m.phi as f32,
             psi: m.psi as f32,
-            kinetic_damping: kinetic_damping as u32,
+            _pad0: 0,
         }
     }
 }

@@ -17,10 +17,9 @@ pub mod stat {
     pub const RESIDUAL_SQ: usize = 3;
     /// Σ |m g|² over free vertices, N².
     pub const EXTERNAL_SQ: usize = 4;
-    /// Kinetic energy at the previous reduce (kinetic damping), J.
-    pub const PREV_KINETIC: usize = 5;
-    /// 1.0 when the next integrate must zero all velocities (kinetic damping peak).
-    pub const RESET_VELOCITY: usize = 6;
+    /// Σ m |x − X|², kg·m² (with the elastic energy, a Rayleigh-quotient estimate of the
+    /// dominant frequency: ω² ≈ 2·elastic / Σ m|u|²).
+    pub const MASS_DISPLACEMENT_SQ: usize = 5;
     /// Number of floats in the stats buffer.
     pub const LEN: usize = 8;
 }
@@ -47,6 +46,6 @@ pub struct StepParams {
     pub phi: f32,
     /// Shear viscosity ψ, Pa·s.
     pub psi: f32,
-    /// 1: zero velocities after a kinetic-energy peak (dynamic relaxation), 0: off.
-    pub kinetic_damping: u32,
+    /// Padding to a 16-byte multiple.
+    pub _pad0: u32,
 }

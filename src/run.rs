@@ -118,27 +118,23 @@ pub struct RunSummary {
     pub status: String,
 }
 
-/// Largest |x − X| over vertices, m.
-pub fn max_displacement(rest: &[f32], positions: &[f32]) -> f64 {
-    rest.chunks(3)
-        .zip(positions.chunks(3))
-        .map(|(r, p)| {
-            let d: f64 = (0..3).map(|k| (p[k] as f64 - r[k] as f64).powi(2)).sum();
-            d.sqrt()
-        })
+/// Largest |u| over vertices, m.
+pub fn max_displacement(displacements: &[f32]) -> f64 {
+    displacements
+        .chunks(3)
+        .map(|u| u.iter().map(|&c| (c as f64).powi(2)).sum::<f64>().sqrt())
         .fold(0.0, f64::max)
 }
 
 /// The `.vtu` text of a state: points at rest, point data displacement and velocity, cell data material.
 pub fn state_vtu(model: &Model, state: &State) -> String {
-    let displacement: Vec<f32> = state.positions.iter().zip(&model.rest).map(|(x, r)| x - r).collect();
     let fixed: Vec<i32> = model.inv_mass.iter().map(|&w| (w == 0.0) as i32).collect();
     let material: Vec<i32> = model.regions.iter().map(|&r| r as i32).collect();
     vtu::vtu(
         &model.rest,
         &model.tets,
         &[
-            vtu::DataArray::F32("displacement", 3, &displacement),
+            vtu::DataArray::F32("displacement", 3, &state.displacements),
             vtu::DataArray::F32("velocity", 3, &state.velocities),
             vtu::DataArray::I32("fixed", &fixed),
         ],
@@ -190,6 +186,24 @@ fn write_frame(dir: &Path, index: usize, model: &Model, state: &State, time: f64
     Ok(())
 }
 
+/// Damping ratio that `--until-static` gives the highest mesh frequency through added
+/// shear viscosity (see [`relaxation_scene`]).
+pub const RELAXATION_HIGH_MODE_DAMPING: f64 = 0.3;
+
+/// The scene used by `--until-static` (dynamic relaxation): the same scene with shear
+/// viscosity raised to at least ψ_r = 2ζ(λ + 2μ)/ω_max, ω_max = 2c_p/h, so that the highest
+/// mesh modes are damped at ζ = 0.3 and f32 round-off cannot keep them ringing. Viscous
+/// stress vanishes at rest, so the static solution is unchanged; the auto dt accounts for it.
+pub fn relaxation_scene(scene: &Scene) -> Scene {
+    let mut s = scene.clone();
+    let m = &scene.material;
+    let bounds = crate::timestep::TimeStepBounds::new(m, scene.mesh.min_altitude(), scene.mesh.min_edge());
+    let omega_max = 2.0 * bounds.p_wave_speed / bounds.h_altitude;
+    let psi = 2.0 * RELAXATION_HIGH_MODE_DAMPING * (m.lambda + 2.0 * m.mu) / omega_max;
+    s.material.psi = m.psi.max(psi);
+    s
+}
+
 /// Run `scene` as `opts` says and write the outputs. Returns the summary (also written).
 pub fn run(scene: &Scene, opts: &RunOptions) -> Result<RunSummary> {
     std::fs::create_dir_all(&opts.out).map_err(|source| PalpateError::OutputIo {
@@ -197,13 +211,19 @@ pub fn run(scene: &Scene, opts: &RunOptions) -> Result<RunSummary> {
         source,
     })?;
     let until_static = matches!(opts.length, RunLength::UntilStatic { .. });
+    let relaxed;
+    let scene = if until_static {
+        relaxed = relaxation_scene(scene);
+        &relaxed
+    } else {
+        scene
+    };
     let mut sim = Simulation::new(
         scene,
         opts.backend,
         SimOptions {
             dt: opts.dt,
             allow_unstable: opts.allow_unstable,
-            kinetic_damping: until_static,
             gpu: None,
         },
     )?;
@@ -239,11 +259,21 @@ pub fn run(scene: &Scene, opts: &RunOptions) -> Result<RunSummary> {
     let mut residual = None;
     let start = Instant::now();
     let mut next_frame = frame_every;
+    let adaptive = until_static && scene.solver.damping == 0.0;
+    let relax = |sim: &mut Simulation, s: &crate::stepper::BatchStats| -> Result<f64> {
+        // Adaptive viscous relaxation: critical damping α = 2ω of the current displacement
+        // shape (Rayleigh quotient), unconditionally stable in the v/(1 + α dt) form.
+        if adaptive {
+            if let Some(omega) = s.displacement_frequency() {
+                sim.set_damping(2.0 * omega)?;
+            }
+        }
+        Ok(s.residual_norm() / s.external_norm().max(f64::MIN_POSITIVE))
+    };
     if until_static {
         // Residual of the initial state: a body already in equilibrium stops at once.
         if let Advance::Done(s) = sim.advance(1)? {
-            let r = s.residual_norm() / s.external_norm().max(f64::MIN_POSITIVE);
-            residual = Some(r);
+            residual = Some(relax(&mut sim, &s)?);
         }
     }
     while sim.steps_done < target_steps {
@@ -257,7 +287,7 @@ pub fn run(scene: &Scene, opts: &RunOptions) -> Result<RunSummary> {
         match sim.advance(batch as u32)? {
             Advance::Done(s) => {
                 if until_static {
-                    residual = Some(s.residual_norm() / s.external_norm().max(f64::MIN_POSITIVE));
+                    residual = Some(relax(&mut sim, &s)?);
                 }
             }
             Advance::Diverged { step, vertex } => {
@@ -324,7 +354,7 @@ pub fn run(scene: &Scene, opts: &RunOptions) -> Result<RunSummary> {
         sim_seconds: sim.time,
         wall_seconds: wall,
         steps_per_second: sim.steps_done as f64 / wall.max(1e-9),
-        max_displacement: max_displacement(&model.rest, &state.positions),
+        max_displacement: max_displacement(&state.displacements),
         kinetic_energy: sim.last.kinetic_energy(),
         elastic_energy: sim.last.elastic_energy(),
         static_residual: if until_static { residual } else { None },

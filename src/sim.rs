@@ -26,8 +26,6 @@ pub struct SimOptions {
     pub dt: Option<f64>,
     /// Accept a dt above the stability bound.
     pub allow_unstable: bool,
-    /// Zero velocities after each kinetic-energy peak (dynamic relaxation, `--until-static`).
-    pub kinetic_damping: bool,
     /// A GPU context to reuse (else one is opened for the GPU backend).
     pub gpu: Option<Arc<GpuContext>>,
 }
@@ -56,8 +54,6 @@ pub struct Simulation {
     pub dt: f64,
     /// Mass-proportional damping α, 1/s.
     pub damping: f64,
-    /// Kinetic damping on.
-    pub kinetic_damping: bool,
     /// Steps taken so far.
     pub steps_done: u64,
     /// Simulated time so far, s.
@@ -92,7 +88,7 @@ impl Simulation {
 
     /// Build from a prepared model and a time step.
     pub fn from_model(model: Arc<Model>, backend: Backend, dt: f64, damping: f64, opts: SimOptions) -> Result<Simulation> {
-        let params = model.step_params(dt, damping, opts.kinetic_damping);
+        let params = model.step_params(dt, damping);
         let stepper: Box<dyn Stepper> = match backend {
             Backend::Cpu => Box::new(CpuStepper::new(model.clone(), params)),
             Backend::Gpu => {
@@ -108,7 +104,6 @@ impl Simulation {
             stepper,
             dt,
             damping,
-            kinetic_damping: opts.kinetic_damping,
             steps_done: 0,
             time: 0.0,
             last: BatchStats::default(),
@@ -123,8 +118,13 @@ impl Simulation {
     /// Change the time step (e.g. after a divergence).
     pub fn set_dt(&mut self, dt: f64) -> Result<()> {
         self.dt = dt;
-        self.stepper
-            .set_params(&self.model.step_params(dt, self.damping, self.kinetic_damping))
+        self.stepper.set_params(&self.model.step_params(dt, self.damping))
+    }
+
+    /// Change the mass-proportional damping α, 1/s.
+    pub fn set_damping(&mut self, damping: f64) -> Result<()> {
+        self.damping = damping;
+        self.stepper.set_params(&self.model.step_params(self.dt, damping))
     }
 
     /// Run `steps` steps in one batch. On a non-finite value, roll back to the batch start
@@ -159,12 +159,12 @@ impl Simulation {
         Ok(Advance::Done(self.last))
     }
 
-    /// Current positions and velocities.
+    /// Current displacements and velocities.
     pub fn state(&mut self) -> Result<State> {
         self.stepper.read_state()
     }
 
-    /// Overwrite positions and velocities.
+    /// Overwrite displacements and velocities.
     pub fn set_state(&mut self, state: &State) -> Result<()> {
         self.stepper.write_state(state)
     }

@@ -4,11 +4,11 @@
 use crate::error::Result;
 use crate::params::{stat, StepParams};
 
-/// Positions and velocities, packed xyz, f32.
+/// Displacements and velocities, packed xyz, f32.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct State {
-    /// Deformed positions, m.
-    pub positions: Vec<f32>,
+    /// Displacements u = x − X from the rest positions, m.
+    pub displacements: Vec<f32>,
     /// Velocities, m/s.
     pub velocities: Vec<f32>,
 }
@@ -43,6 +43,12 @@ impl BatchStats {
     pub fn external_norm(&self) -> f64 {
         (self.stats[stat::EXTERNAL_SQ] as f64).sqrt()
     }
+    /// Rayleigh-quotient estimate of the frequency of the current displacement shape,
+    /// ω = sqrt(2·elastic / Σ m|u|²), rad/s; None at rest.
+    pub fn displacement_frequency(&self) -> Option<f64> {
+        let m = self.stats[stat::MASS_DISPLACEMENT_SQ] as f64;
+        (m > 0.0).then(|| (2.0 * self.elastic_energy() / m).sqrt())
+    }
 }
 
 /// A backend that advances the model.
@@ -51,13 +57,12 @@ pub trait Stepper {
     fn name(&self) -> String;
     /// Set the parameters used by the following batches.
     fn set_params(&mut self, params: &StepParams) -> Result<()>;
-    /// Snapshot the state, run `steps` steps, reduce (after every step when kinetic damping
-    /// is on, else after the last), and report.
+    /// Snapshot the state, run `steps` steps, reduce after the last, and report.
     fn run(&mut self, steps: u32) -> Result<BatchStats>;
     /// Restore the state saved at the start of the last `run`.
     fn restore(&mut self) -> Result<()>;
     /// Read the current state.
     fn read_state(&mut self) -> Result<State>;
-    /// Overwrite the current state (and reset the kinetic-damping memory).
+    /// Overwrite the current state.
     fn write_state(&mut self, state: &State) -> Result<()>;
 }

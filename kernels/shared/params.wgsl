@@ -10,7 +10,7 @@ struct StepParams {
     mu: f32,              // Pa
     phi: f32,             // Pa s
     psi: f32,             // Pa s
-    kinetic_damping: u32, // 1: zero velocities after a kinetic-energy peak
+    _pad0: u32,
 }
 
 // Slots of the 8-float stats buffer (src/params.rs `stat`).
@@ -19,5 +19,4 @@ const STAT_ELASTIC: u32 = 1u;
 const STAT_MAX_SPEED: u32 = 2u;
 const STAT_RESIDUAL_SQ: u32 = 3u;
 const STAT_EXTERNAL_SQ: u32 = 4u;
-const STAT_PREV_KINETIC: u32 = 5u;
-const STAT_RESET_VELOCITY: u32 = 6u;
+const STAT_MASS_DISPLACEMENT_SQ: u32 = 5u;

@@ -31,7 +31,7 @@ enum Command {
         /// Simulated time, s.
         #[arg(long, conflicts_with = "until_static")]
         duration: Option<f64>,
-        /// Run with kinetic damping until the residual force is below the scene's tolerance.
+        /// Run with critical viscous damping until the residual force is below the scene's tolerance.
         #[arg(long)]
         until_static: bool,
         /// Step cap for --until-static.

@@ -1,8 +1,8 @@
-//! CPU twin of `kernels/fem_forces.wgsl`: per tet, F = Ds·Dm⁻¹, E, Ė, S, P = F·S and the four
-//! corner forces −V·P·Dm⁻ᵀ (paper eq. 1–6), plus the tet's elastic energy V·Ψ(E).
+//! CPU twin of `kernels/fem_forces.wgsl`: per tet, H = Du·Dm⁻¹, F = I + H, E, Ė, S, P = F·S
+//! and the four corner forces −V·P·Dm⁻ᵀ (paper eq. 1–6), plus the elastic energy V·Ψ(E).
 
 use super::{load3, store3};
-use crate::material::{green_strain, green_strain_rate, stvk_energy_density, stvk_second_piola};
+use crate::material::{green_strain_from_gradient, green_strain_rate, stvk_energy_density, stvk_second_piola};
 use crate::params::StepParams;
 use glam::{Mat3, Vec3};
 
@@ -12,21 +12,22 @@ pub fn load_dm_inv(dm_inv: &[f32], e: usize) -> Mat3 {
     Mat3::from_cols_slice(&dm_inv[9 * e..9 * e + 9])
 }
 
-/// Corner forces and energy of one tet from its corner positions and velocities.
+/// Corner forces and energy of one tet from its corner displacements `u` and velocities.
 ///
 /// Returns ([f₀, f₁, f₂, f₃], V·Ψ). `viscous` selects the viscous-stress variant.
 #[allow(clippy::too_many_arguments)]
 pub fn tet_forces(
     params: &StepParams,
-    x: [Vec3; 4],
+    u: [Vec3; 4],
     v: [Vec3; 4],
     dmi: Mat3,
     volume: f32,
     viscous: bool,
 ) -> ([Vec3; 4], f32) {
-    let ds = Mat3::from_cols(x[1] - x[0], x[2] - x[0], x[3] - x[0]);
-    let f = ds * dmi;
-    let strain = green_strain(f);
+    let du = Mat3::from_cols(u[1] - u[0], u[2] - u[0], u[3] - u[0]);
+    let h = du * dmi;
+    let f = Mat3::IDENTITY + h;
+    let strain = green_strain_from_gradient(h);
     let rate = if viscous {
         let dv = Mat3::from_cols(v[1] - v[0], v[2] - v[0], v[3] - v[0]);
         green_strain_rate(f, dv * dmi)
@@ -36,10 +37,10 @@ pub fn tet_forces(
     let (phi, psi) = if viscous { (params.phi, params.psi) } else { (0.0, 0.0) };
     let s = stvk_second_piola(strain, rate, params.lambda, params.mu, phi, psi);
     let p = f * s;
-    let h = p * dmi.transpose() * (-volume);
-    let f1 = h.x_axis;
-    let f2 = h.y_axis;
-    let f3 = h.z_axis;
+    let g = p * dmi.transpose() * (-volume);
+    let f1 = g.x_axis;
+    let f2 = g.y_axis;
+    let f3 = g.z_axis;
     let f0 = -(f1 + f2 + f3);
     let energy = volume * stvk_energy_density(strain, params.lambda, params.mu);
     ([f0, f1, f2, f3], energy)
@@ -49,7 +50,7 @@ pub fn tet_forces(
 #[allow(clippy::too_many_arguments)]
 pub fn fem_forces(
     params: &StepParams,
-    positions: &[f32],
+    displacements: &[f32],
     velocities: &[f32],
     tets: &[[u32; 4]],
     dm_inv: &[f32],
@@ -60,9 +61,9 @@ pub fn fem_forces(
 ) {
     for e in 0..params.n_tets as usize {
         let t = tets[e];
-        let x = t.map(|i| load3(positions, i as usize));
+        let u = t.map(|i| load3(displacements, i as usize));
         let v = t.map(|i| load3(velocities, i as usize));
-        let (forces, energy) = tet_forces(params, x, v, load_dm_inv(dm_inv, e), rest_volume[e], viscous);
+        let (forces, energy) = tet_forces(params, u, v, load_dm_inv(dm_inv, e), rest_volume[e], viscous);
         for (c, f) in forces.iter().enumerate() {
             store3(corner_forces, 4 * e + c, *f);
         }

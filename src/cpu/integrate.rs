@@ -1,9 +1,9 @@
 //! CPU twin of `kernels/integrate.wgsl`: symplectic Euler (paper eq. 12) with
-//! mass-proportional damping, fixed vertices (inverse mass 0), kinetic-damping resets, and a
-//! non-finite check that records the lowest offending vertex.
+//! mass-proportional damping, fixed vertices (inverse mass 0), and a non-finite check that
+//! records the lowest offending vertex.
 
 use super::{load3, store3};
-use crate::params::{stat, StepParams};
+use crate::params::StepParams;
 use glam::Vec3;
 
 /// Status word meaning "all finite".
@@ -15,22 +15,21 @@ pub fn is_finite3(v: Vec3) -> bool {
     v.is_finite()
 }
 
-/// Per vertex i: v ← (v + dt·f/m) / (1 + α·dt), x ← x + dt·v; fixed vertices (inverse mass 0)
-/// keep v = 0. `status[0]` becomes min(status[0], i) when x or v is not finite.
+/// Per vertex i: v ← (v + dt·f/m) / (1 + α·dt), u ← u + dt·v (u = x − X, the displacement);
+/// fixed vertices (inverse mass 0) keep v = 0. `status[0]` becomes min(status[0], i) when u or
+/// v is not finite.
 pub fn integrate(
     params: &StepParams,
     forces: &[f32],
     inv_mass: &[f32],
-    positions: &mut [f32],
+    displacements: &mut [f32],
     velocities: &mut [f32],
-    stats: &[f32],
     status: &mut [u32],
 ) {
-    let reset = params.kinetic_damping != 0 && stats[stat::RESET_VELOCITY] > 0.5;
     for i in 0..params.n_vertices as usize {
         let w = inv_mass[i];
-        let mut v = if reset { Vec3::ZERO } else { load3(velocities, i) };
-        let mut x = load3(positions, i);
+        let mut v = load3(velocities, i);
+        let mut x = load3(displacements, i);
         if w > 0.0 {
             v = (v + load3(forces, i) * (params.dt * w)) / (1.0 + params.damping * params.dt);
             x += v * params.dt;
@@ -38,7 +37,7 @@ pub fn integrate(
             v = Vec3::ZERO;
         }
         store3(velocities, i, v);
-        store3(positions, i, x);
+        store3(displacements, i, x);
         if !(is_finite3(x) && is_finite3(v)) {
             status[0] = status[0].min(i as u32);
         }

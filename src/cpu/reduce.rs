@@ -1,6 +1,6 @@
 //! CPU twin of `kernels/reduce.wgsl`: a two-level tree reduction (blocks of 256, then one
-//! block over the partials) of kinetic energy, elastic energy, max speed, residual and
-//! external load, in the same order as the GPU so sums agree closely.
+//! block over the partials) of kinetic energy, elastic energy, max speed, residual, external
+//! load and mass-weighted squared displacement, in the same order as the GPU.
 
 use super::load3;
 use crate::params::{stat, StepParams};
@@ -8,8 +8,8 @@ use glam::Vec3;
 
 /// Threads per reduce workgroup.
 pub const REDUCE_WORKGROUP: usize = 256;
-/// Quantities per partial: ke, elastic, max speed, residual², external².
-pub const PARTIAL_LEN: usize = 5;
+/// Quantities per partial: ke, elastic, max speed, residual², external², Σ m|u|².
+pub const PARTIAL_LEN: usize = 6;
 
 /// Number of partials `reduce_partial` writes.
 pub fn n_partials(params: &StepParams) -> usize {
@@ -28,15 +28,18 @@ fn tree(lanes: &mut [[f32; PARTIAL_LEN]; REDUCE_WORKGROUP]) -> [f32; PARTIAL_LEN
             a[2] = a[2].max(o[2]);
             a[3] += o[3];
             a[4] += o[4];
+            a[5] += o[5];
         }
         s /= 2;
     }
     lanes[0]
 }
 
-/// Per block of 256 indices i (vertex i and tet i): write 5 partial sums to `partials`.
+/// Per block of 256 indices i (vertex i and tet i): write 6 partial sums to `partials`.
+#[allow(clippy::too_many_arguments)]
 pub fn reduce_partial(
     params: &StepParams,
+    displacements: &[f32],
     velocities: &[f32],
     mass: &[f32],
     inv_mass: &[f32],
@@ -59,6 +62,8 @@ pub fn reduce_partial(
                     let w = g * mass[i];
                     lane[4] = w.dot(w);
                 }
+                let u = load3(displacements, i);
+                lane[5] = mass[i] * u.dot(u);
             }
             if i < params.n_tets as usize {
                 lane[1] = tet_energy[i];
@@ -69,8 +74,7 @@ pub fn reduce_partial(
     }
 }
 
-/// One block: lane l sums partials l, l+256, …; then the tree. Writes `stats` and updates
-/// the kinetic-damping state: reset when KE fell since the previous reduce.
+/// One block: lane l sums partials l, l+256, …; then the tree. Writes `stats`.
 pub fn reduce_final(params: &StepParams, partials: &[f32], stats: &mut [f32]) {
     let n = n_partials(params);
     let mut lanes = [[0.0f32; PARTIAL_LEN]; REDUCE_WORKGROUP];
@@ -83,6 +87,7 @@ pub fn reduce_final(params: &StepParams, partials: &[f32], stats: &mut [f32]) {
             lane[2] = lane[2].max(p[2]);
             lane[3] += p[3];
             lane[4] += p[4];
+            lane[5] += p[5];
             k += REDUCE_WORKGROUP;
         }
     }
@@ -92,11 +97,5 @@ pub fn reduce_final(params: &StepParams, partials: &[f32], stats: &mut [f32]) {
     stats[stat::MAX_SPEED] = r[2];
     stats[stat::RESIDUAL_SQ] = r[3];
     stats[stat::EXTERNAL_SQ] = r[4];
-    if r[0] < stats[stat::PREV_KINETIC] {
-        stats[stat::RESET_VELOCITY] = 1.0;
-        stats[stat::PREV_KINETIC] = 0.0;
-    } else {
-        stats[stat::RESET_VELOCITY] = 0.0;
-        stats[stat::PREV_KINETIC] = r[0];
-    }
+    stats[stat::MASS_DISPLACEMENT_SQ] = r[5];
 }

@@ -28,7 +28,7 @@ impl CpuStepper {
     /// A stepper at rest.
     pub fn new(model: Arc<Model>, params: StepParams) -> CpuStepper {
         let state = State {
-            positions: model.rest.clone(),
+            displacements: vec![0.0; model.rest.len()],
             velocities: vec![0.0; model.rest.len()],
         };
         CpuStepper {
@@ -52,7 +52,7 @@ impl CpuStepper {
         let p = &self.params;
         fem_forces(
             p,
-            &self.state.positions,
+            &self.state.displacements,
             &self.state.velocities,
             &m.tets,
             &m.dm_inv,
@@ -66,13 +66,21 @@ impl CpuStepper {
             p,
             &self.forces,
             &m.inv_mass,
-            &mut self.state.positions,
+            &mut self.state.displacements,
             &mut self.state.velocities,
-            &self.stats,
             &mut self.status,
         );
         if reduce {
-            reduce_partial(p, &self.state.velocities, &m.mass, &m.inv_mass, &self.forces, &self.tet_energy, &mut self.partials);
+            reduce_partial(
+                p,
+                &self.state.displacements,
+                &self.state.velocities,
+                &m.mass,
+                &m.inv_mass,
+                &self.forces,
+                &self.tet_energy,
+                &mut self.partials,
+            );
             reduce_final(p, &self.partials, &mut self.stats);
         }
     }
@@ -96,9 +104,8 @@ impl Stepper for CpuStepper {
     fn run(&mut self, steps: u32) -> Result<BatchStats> {
         self.snapshot = (self.state.clone(), self.stats.clone());
         self.status[0] = ALL_FINITE;
-        let every = self.params.kinetic_damping != 0;
         for s in 0..steps {
-            self.step(every || s + 1 == steps);
+            self.step(s + 1 == steps);
         }
         let mut out = BatchStats::default();
         out.stats.copy_from_slice(&self.stats);

@@ -18,8 +18,8 @@ const STORAGE: U = U::STORAGE.union(U::COPY_DST).union(U::COPY_SRC);
 pub struct SimBuffers {
     /// `StepParams` uniform.
     pub params: wgpu::Buffer,
-    /// Deformed positions, 3 f32 per vertex.
-    pub positions: wgpu::Buffer,
+    /// Displacements u = x − X, 3 f32 per vertex.
+    pub displacements: wgpu::Buffer,
     /// Velocities, 3 f32 per vertex.
     pub velocities: wgpu::Buffer,
     /// Tets, 4 u32 each.
@@ -48,15 +48,15 @@ pub struct SimBuffers {
     pub stats: wgpu::Buffer,
     /// status[0]: lowest non-finite vertex, or u32::MAX.
     pub status: wgpu::Buffer,
-    /// Snapshot of positions at the start of a batch.
-    pub snapshot_positions: wgpu::Buffer,
+    /// Snapshot of displacements at the start of a batch.
+    pub snapshot_displacements: wgpu::Buffer,
     /// Snapshot of velocities at the start of a batch.
     pub snapshot_velocities: wgpu::Buffer,
     /// Snapshot of stats at the start of a batch.
     pub snapshot_stats: wgpu::Buffer,
     /// Host-readable copy of stats + status (48 bytes).
     pub readback_small: wgpu::Buffer,
-    /// Host-readable copy of positions and velocities.
+    /// Host-readable copy of displacements and velocities.
     pub readback_state: wgpu::Buffer,
 }
 
@@ -80,7 +80,7 @@ impl SimBuffers {
             x as u64 * y as u64
         };
         let sizes: [(&str, u64); 10] = [
-            ("positions", 12 * n),
+            ("displacements", 12 * n),
             ("tets", 16 * m),
             ("dm_inv", 36 * m),
             ("corner_forces", 48 * m),
@@ -125,11 +125,10 @@ impl SimBuffers {
             })
         };
         let zeros3 = vec![0f32; 3 * n as usize];
-        let mut stats_init = [0f32; stat::LEN];
-        stats_init[stat::PREV_KINETIC] = 0.0;
+        let stats_init = [0f32; stat::LEN];
         let bufs = SimBuffers {
             params: init("params", bytemuck::bytes_of(params), U::UNIFORM | U::COPY_DST),
-            positions: init("positions", bytemuck::cast_slice(&model.rest), STORAGE),
+            displacements: init("displacements", bytemuck::cast_slice(&zeros3), STORAGE),
             velocities: init("velocities", bytemuck::cast_slice(&zeros3), STORAGE),
             tets: init("tets", bytemuck::cast_slice(&model.tets), STORAGE),
             dm_inv: init("dm_inv", bytemuck::cast_slice(&model.dm_inv), STORAGE),
@@ -144,7 +143,7 @@ impl SimBuffers {
             partials: empty("partials", 4 * PARTIAL_LEN as u64 * blocks, STORAGE),
             stats: init("stats", bytemuck::cast_slice(&stats_init), STORAGE),
             status: init("status", bytemuck::cast_slice(&[u32::MAX; 4]), STORAGE),
-            snapshot_positions: empty("snapshot_positions", 12 * n, STORAGE),
+            snapshot_displacements: empty("snapshot_displacements", 12 * n, STORAGE),
             snapshot_velocities: empty("snapshot_velocities", 12 * n, STORAGE),
             snapshot_stats: empty("snapshot_stats", STATS_BYTES, STORAGE),
             readback_small: empty("readback_small", STATS_BYTES + STATUS_BYTES, U::MAP_READ | U::COPY_DST),

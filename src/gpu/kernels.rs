@@ -30,7 +30,7 @@ impl FemForces {
             ctx,
             &[
                 ("params", &b.params, PARAMS_BYTES),
-                ("positions", &b.positions, 12 * n),
+                ("displacements", &b.displacements, 12 * n),
                 ("velocities", &b.velocities, 12 * n),
                 ("tets", &b.tets, 16 * m),
                 ("dm_inv", &b.dm_inv, 36 * m),
@@ -96,9 +96,8 @@ impl Integrate {
                 ("params", &b.params, PARAMS_BYTES),
                 ("forces", &b.forces, 12 * n),
                 ("inv_mass", &b.inv_mass, 4 * n),
-                ("positions", &b.positions, 12 * n),
+                ("displacements", &b.displacements, 12 * n),
                 ("velocities", &b.velocities, 12 * n),
-                ("stats", &b.stats, STATS_BYTES),
                 ("status", &b.status, STATUS_BYTES),
             ],
             n as u32,
@@ -129,12 +128,13 @@ impl Reduce {
         let list = |_k: &ComputeKernel| {
             [
                 ("params", &b.params, PARAMS_BYTES),
+                ("displacements", &b.displacements, 12 * n),
                 ("velocities", &b.velocities, 12 * n),
                 ("mass", &b.mass, 4 * n),
                 ("inv_mass", &b.inv_mass, 4 * n),
                 ("forces", &b.forces, 12 * n),
                 ("tet_energy", &b.tet_energy, 4 * m),
-                ("partials", &b.partials, 20 * blocks),
+                ("partials", &b.partials, 4 * crate::cpu::reduce::PARTIAL_LEN as u64 * blocks),
                 ("stats", &b.stats, STATS_BYTES),
             ]
         };

@@ -87,7 +87,6 @@ impl GpuStepper {
     pub fn record_steps(&self, encoder: &mut wgpu::CommandEncoder, steps: u32) {
         let p = &self.pipelines;
         let b = &self.bound;
-        let every = self.params.kinetic_damping != 0;
         let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: Some("steps"),
             timestamp_writes: None,
@@ -96,7 +95,7 @@ impl GpuStepper {
             p.fem_forces.fem_forces.record(&mut pass, &b.fem_forces);
             p.gather.gather.record(&mut pass, &b.gather);
             p.integrate.integrate.record(&mut pass, &b.integrate);
-            if every || s + 1 == steps {
+            if s + 1 == steps {
                 p.reduce.reduce_partial.record(&mut pass, &b.reduce_partial);
                 p.reduce.reduce_final.record_one(&mut pass, &b.reduce_final);
             }
@@ -118,7 +117,7 @@ impl GpuStepper {
             "forces" => &b.forces,
             "corner_forces" => &b.corner_forces,
             "tet_energy" => &b.tet_energy,
-            "positions" => &b.positions,
+            "displacements" => &b.displacements,
             "velocities" => &b.velocities,
             "stats" => &b.stats,
             other => return Err(PalpateError::Gpu(format!("no buffer '{other}'"))),
@@ -159,7 +158,7 @@ impl Stepper for GpuStepper {
             label: Some("batch"),
         });
         let state_bytes = 12 * self.n;
-        enc.copy_buffer_to_buffer(&b.positions, 0, &b.snapshot_positions, 0, state_bytes);
+        enc.copy_buffer_to_buffer(&b.displacements, 0, &b.snapshot_displacements, 0, state_bytes);
         enc.copy_buffer_to_buffer(&b.velocities, 0, &b.snapshot_velocities, 0, state_bytes);
         enc.copy_buffer_to_buffer(&b.stats, 0, &b.snapshot_stats, 0, STATS_BYTES);
         self.record_steps(&mut enc, steps);
@@ -179,7 +178,7 @@ impl Stepper for GpuStepper {
         let b = &self.buffers;
         let mut enc = self.ctx.device.create_command_encoder(&Default::default());
         let state_bytes = 12 * self.n;
-        enc.copy_buffer_to_buffer(&b.snapshot_positions, 0, &b.positions, 0, state_bytes);
+        enc.copy_buffer_to_buffer(&b.snapshot_displacements, 0, &b.displacements, 0, state_bytes);
         enc.copy_buffer_to_buffer(&b.snapshot_velocities, 0, &b.velocities, 0, state_bytes);
         enc.copy_buffer_to_buffer(&b.snapshot_stats, 0, &b.stats, 0, STATS_BYTES);
         self.ctx.queue.submit([enc.finish()]);
@@ -190,14 +189,14 @@ impl Stepper for GpuStepper {
         let b = &self.buffers;
         let bytes = 12 * self.n;
         let mut enc = self.ctx.device.create_command_encoder(&Default::default());
-        enc.copy_buffer_to_buffer(&b.positions, 0, &b.readback_state, 0, bytes);
+        enc.copy_buffer_to_buffer(&b.displacements, 0, &b.readback_state, 0, bytes);
         enc.copy_buffer_to_buffer(&b.velocities, 0, &b.readback_state, bytes, bytes);
         self.ctx.queue.submit([enc.finish()]);
         let data = self.ctx.read_mapped(&b.readback_state, 2 * bytes)?;
         let all: &[f32] = bytemuck::cast_slice(&data);
         let k = 3 * self.n as usize;
         Ok(State {
-            positions: all[..k].to_vec(),
+            displacements: all[..k].to_vec(),
             velocities: all[k..].to_vec(),
         })
     }
@@ -205,7 +204,7 @@ impl Stepper for GpuStepper {
     fn write_state(&mut self, state: &State) -> Result<()> {
         let b = &self.buffers;
         let q = &self.ctx.queue;
-        q.write_buffer(&b.positions, 0, bytemuck::cast_slice(&state.positions));
+        q.write_buffer(&b.displacements, 0, bytemuck::cast_slice(&state.displacements));
         q.write_buffer(&b.velocities, 0, bytemuck::cast_slice(&state.velocities));
         q.write_buffer(&b.stats, 0, bytemuck::cast_slice(&[0f32; stat::LEN]));
         self.ctx.wait()
