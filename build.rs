@@ -31,12 +31,18 @@ fn main() {
             .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
         let module = naga::front::wgsl::parse_str(&source)
             .unwrap_or_else(|e| panic!("{}: {}", path.display(), e.emit_to_string(&source)));
-        naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::all())
-            .validate(&module)
-            .unwrap_or_else(|e| panic!("{}: {}", path.display(), e.emit_to_string(&source)));
+        naga::valid::Validator::new(
+            naga::valid::ValidationFlags::all(),
+            naga::valid::Capabilities::all(),
+        )
+        .validate(&module)
+        .unwrap_or_else(|e| panic!("{}: {}", path.display(), e.emit_to_string(&source)));
         let out = Path::new(&out_dir).join(format!("{name}.wgsl"));
         fs::write(&out, &source).expect("write preprocessed kernel");
-        table.push_str(&format!("    ({name:?}, include_str!({:?})),\n", out.display().to_string()));
+        table.push_str(&format!(
+            "    ({name:?}, include_str!({:?})),\n",
+            out.display().to_string()
+        ));
     }
     table.push_str("];\n");
     fs::write(Path::new(&out_dir).join("kernels.rs"), table).expect("write kernels.rs");

@@ -30,7 +30,10 @@ impl MaterialParams {
     /// λ = Eν / ((1+ν)(1−2ν)), μ = E / (2(1+ν)).
     pub fn lame_from_young(youngs_modulus: f64, poisson_ratio: f64) -> (f64, f64) {
         let (e, nu) = (youngs_modulus, poisson_ratio);
-        (e * nu / ((1.0 + nu) * (1.0 - 2.0 * nu)), e / (2.0 * (1.0 + nu)))
+        (
+            e * nu / ((1.0 + nu) * (1.0 - 2.0 * nu)),
+            e / (2.0 * (1.0 + nu)),
+        )
     }
 
     /// Dilatational (P-) wave speed c_p = sqrt((λ + 2μ)/ρ), m/s.
@@ -62,17 +65,12 @@ pub fn green_strain_rate(f: Mat3, f_dot: Mat3) -> Mat3 {
 
 /// St. Venant–Kirchhoff second Piola–Kirchhoff stress with viscosity:
 /// S = λ tr(E) I + 2μ E + φ tr(Ė) I + 2ψ Ė.
-pub fn stvk_second_piola(
-    e: Mat3,
-    e_dot: Mat3,
-    lambda: f32,
-    mu: f32,
-    phi: f32,
-    psi: f32,
-) -> Mat3 {
+pub fn stvk_second_piola(e: Mat3, e_dot: Mat3, lambda: f32, mu: f32, phi: f32, psi: f32) -> Mat3 {
     let tr = e.x_axis.x + e.y_axis.y + e.z_axis.z;
     let tr_dot = e_dot.x_axis.x + e_dot.y_axis.y + e_dot.z_axis.z;
-    Mat3::from_diagonal(glam::Vec3::splat(lambda * tr + phi * tr_dot)) + e * (2.0 * mu) + e_dot * (2.0 * psi)
+    Mat3::from_diagonal(glam::Vec3::splat(lambda * tr + phi * tr_dot))
+        + e * (2.0 * mu)
+        + e_dot * (2.0 * psi)
 }
 
 /// St. Venant–Kirchhoff energy density Ψ = μ E:E + ½ λ tr(E)², J/m³.

@@ -39,7 +39,12 @@ pub struct Model {
 
 impl Model {
     /// Build from a mesh, per-vertex fixed flags, material and gravity.
-    pub fn new(mesh: &TetMesh, fixed: &[bool], material: MaterialParams, gravity: [f64; 3]) -> Model {
+    pub fn new(
+        mesh: &TetMesh,
+        fixed: &[bool],
+        material: MaterialParams,
+        gravity: [f64; 3],
+    ) -> Model {
         let n = mesh.n_vertices();
         let m = mesh.n_tets();
         let mut dm_inv = Vec::with_capacity(9 * m);
@@ -76,11 +81,21 @@ impl Model {
         let inv_mass = mass
             .iter()
             .zip(fixed)
-            .map(|(&mv, &f)| if f || mv <= 0.0 { 0.0 } else { (1.0 / mv) as f32 })
+            .map(|(&mv, &f)| {
+                if f || mv <= 0.0 {
+                    0.0
+                } else {
+                    (1.0 / mv) as f32
+                }
+            })
             .collect();
         let bounds = TimeStepBounds::new(&material, mesh.min_altitude(), mesh.min_edge());
         Model {
-            rest: mesh.positions.iter().flat_map(|p| p.to_array().map(|c| c as f32)).collect(),
+            rest: mesh
+                .positions
+                .iter()
+                .flat_map(|p| p.to_array().map(|c| c as f32))
+                .collect(),
             tets: mesh.tets.clone(),
             regions: mesh.regions.clone(),
             dm_inv,

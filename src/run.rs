@@ -151,9 +151,14 @@ struct Progress {
 impl Progress {
     fn new(enabled: bool, total: Option<u64>) -> Progress {
         let bar = enabled.then(|| {
-            let b = indicatif::ProgressBar::with_draw_target(total, indicatif::ProgressDrawTarget::hidden());
-            let style = indicatif::ProgressStyle::with_template("{spinner} [{elapsed_precise}] {wide_bar} {pos}/{len} steps {msg}")
-                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar());
+            let b = indicatif::ProgressBar::with_draw_target(
+                total,
+                indicatif::ProgressDrawTarget::hidden(),
+            );
+            let style = indicatif::ProgressStyle::with_template(
+                "{spinner} [{elapsed_precise}] {wide_bar} {pos}/{len} steps {msg}",
+            )
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar());
             b.set_style(style);
             b
         });
@@ -179,7 +184,14 @@ impl Progress {
     }
 }
 
-fn write_frame(dir: &Path, index: usize, model: &Model, state: &State, time: f64, frames: &mut Vec<(f64, String)>) -> Result<()> {
+fn write_frame(
+    dir: &Path,
+    index: usize,
+    model: &Model,
+    state: &State,
+    time: f64,
+    frames: &mut Vec<(f64, String)>,
+) -> Result<()> {
     let name = format!("frame_{index:04}.vtu");
     output::write_atomic(&dir.join(&name), state_vtu(model, state).as_bytes())?;
     frames.push((time, name));
@@ -197,7 +209,8 @@ pub const RELAXATION_HIGH_MODE_DAMPING: f64 = 0.3;
 pub fn relaxation_scene(scene: &Scene) -> Scene {
     let mut s = scene.clone();
     let m = &scene.material;
-    let bounds = crate::timestep::TimeStepBounds::new(m, scene.mesh.min_altitude(), scene.mesh.min_edge());
+    let bounds =
+        crate::timestep::TimeStepBounds::new(m, scene.mesh.min_altitude(), scene.mesh.min_edge());
     let omega_max = 2.0 * bounds.p_wave_speed / bounds.h_altitude;
     let psi = 2.0 * RELAXATION_HIGH_MODE_DAMPING * (m.lambda + 2.0 * m.mu) / omega_max;
     s.material.psi = m.psi.max(psi);
@@ -233,7 +246,9 @@ pub fn run(scene: &Scene, opts: &RunOptions) -> Result<RunSummary> {
         RunLength::Steps(n) => (n, n),
         RunLength::Duration(t) => {
             if !(t.is_finite() && t >= 0.0) {
-                return Err(PalpateError::Usage(format!("--duration must be >= 0 s, got {t}")));
+                return Err(PalpateError::Usage(format!(
+                    "--duration must be >= 0 s, got {t}"
+                )));
             }
             let n = (t / dt0).ceil() as u64;
             (n, n)
@@ -302,7 +317,10 @@ pub fn run(scene: &Scene, opts: &RunOptions) -> Result<RunSummary> {
                     let remaining = (target_time - sim.time).max(0.0);
                     target_steps = sim.steps_done + (remaining / dt).ceil() as u64;
                     target_time = sim.time + remaining;
-                    log::warn!("{what}; retrying from step {} at dt = {dt:.3e} s", sim.steps_done);
+                    log::warn!(
+                        "{what}; retrying from step {} at dt = {dt:.3e} s",
+                        sim.steps_done
+                    );
                     continue;
                 }
                 status = format!("{what}; last finite state written");
@@ -311,12 +329,21 @@ pub fn run(scene: &Scene, opts: &RunOptions) -> Result<RunSummary> {
         }
         if sim.steps_done >= next_frame && opts.frames >= 2 {
             state = sim.state()?;
-            write_frame(&opts.out, frames.len(), &model, &state, sim.time, &mut frames)?;
+            write_frame(
+                &opts.out,
+                frames.len(),
+                &model,
+                &state,
+                sim.time,
+                &mut frames,
+            )?;
             next_frame += frame_every;
         }
         progress.update(
             sim.steps_done,
-            residual.map(|r| format!("residual {r:.2e}")).unwrap_or_default(),
+            residual
+                .map(|r| format!("residual {r:.2e}"))
+                .unwrap_or_default(),
         );
     }
     progress.finish();
@@ -330,14 +357,27 @@ pub fn run(scene: &Scene, opts: &RunOptions) -> Result<RunSummary> {
     }
     state = sim.state()?;
     if frames.last().is_none_or(|(t, _)| *t < sim.time) && opts.frames >= 2 {
-        write_frame(&opts.out, frames.len(), &model, &state, sim.time, &mut frames)?;
+        write_frame(
+            &opts.out,
+            frames.len(),
+            &model,
+            &state,
+            sim.time,
+            &mut frames,
+        )?;
     }
     if opts.frames == 1 {
         write_frame(&opts.out, 0, &model, &state, sim.time, &mut frames)?;
     }
-    output::write_atomic(&opts.out.join("final.vtu"), state_vtu(&model, &state).as_bytes())?;
+    output::write_atomic(
+        &opts.out.join("final.vtu"),
+        state_vtu(&model, &state).as_bytes(),
+    )?;
     if !frames.is_empty() {
-        output::write_atomic(&opts.out.join("series.pvd"), output::pvd(&frames).as_bytes())?;
+        output::write_atomic(
+            &opts.out.join("series.pvd"),
+            output::pvd(&frames).as_bytes(),
+        )?;
     }
     let summary = RunSummary {
         scene: scene.name.clone(),
@@ -361,7 +401,8 @@ pub fn run(scene: &Scene, opts: &RunOptions) -> Result<RunSummary> {
         static_tolerance: until_static.then_some(tolerance),
         status,
     };
-    let json = serde_json::to_string_pretty(&summary).map_err(|e| PalpateError::Gpu(e.to_string()))?;
+    let json =
+        serde_json::to_string_pretty(&summary).map_err(|e| PalpateError::Gpu(e.to_string()))?;
     output::write_atomic(&opts.out.join("summary.json"), json.as_bytes())?;
     Ok(summary)
 }

@@ -64,11 +64,18 @@ pub struct Simulation {
 
 /// The time step a scene runs at: `override_dt`, else the scene's dt, else safety × bound.
 /// A given dt above the bound is refused unless `allow_unstable`.
-pub fn choose_dt(scene: &Scene, model: &Model, override_dt: Option<f64>, allow_unstable: bool) -> Result<f64> {
+pub fn choose_dt(
+    scene: &Scene,
+    model: &Model,
+    override_dt: Option<f64>,
+    allow_unstable: bool,
+) -> Result<f64> {
     let bound = model.bounds.dt_bound;
     match override_dt.or(scene.solver.dt) {
         None => Ok(scene.solver.safety * bound),
-        Some(dt) if !(dt.is_finite() && dt > 0.0) => Err(PalpateError::Usage(format!("--dt must be > 0 s, got {dt}"))),
+        Some(dt) if !(dt.is_finite() && dt > 0.0) => {
+            Err(PalpateError::Usage(format!("--dt must be > 0 s, got {dt}")))
+        }
         Some(dt) if dt > bound && !allow_unstable => Err(PalpateError::UnstableTimeStep {
             dt,
             bound,
@@ -87,7 +94,13 @@ impl Simulation {
     }
 
     /// Build from a prepared model and a time step.
-    pub fn from_model(model: Arc<Model>, backend: Backend, dt: f64, damping: f64, opts: SimOptions) -> Result<Simulation> {
+    pub fn from_model(
+        model: Arc<Model>,
+        backend: Backend,
+        dt: f64,
+        damping: f64,
+        opts: SimOptions,
+    ) -> Result<Simulation> {
         let params = model.step_params(dt, damping);
         let stepper: Box<dyn Stepper> = match backend {
             Backend::Cpu => Box::new(CpuStepper::new(model.clone(), params)),
@@ -118,13 +131,15 @@ impl Simulation {
     /// Change the time step (e.g. after a divergence).
     pub fn set_dt(&mut self, dt: f64) -> Result<()> {
         self.dt = dt;
-        self.stepper.set_params(&self.model.step_params(dt, self.damping))
+        self.stepper
+            .set_params(&self.model.step_params(dt, self.damping))
     }
 
     /// Change the mass-proportional damping α, 1/s.
     pub fn set_damping(&mut self, damping: f64) -> Result<()> {
         self.damping = damping;
-        self.stepper.set_params(&self.model.step_params(self.dt, damping))
+        self.stepper
+            .set_params(&self.model.step_params(self.dt, damping))
     }
 
     /// Run `steps` steps in one batch. On a non-finite value, roll back to the batch start

@@ -9,7 +9,11 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 #[derive(Parser)]
-#[command(name = "palpate", version, about = "GPU soft-tissue simulation for haptic interaction")]
+#[command(
+    name = "palpate",
+    version,
+    about = "GPU soft-tissue simulation for haptic interaction"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -60,6 +64,11 @@ enum Command {
 }
 
 fn main() -> ExitCode {
+    // Mesa's Vulkan WSI probes Wayland and prints a spurious "XDG_RUNTIME_DIR is invalid"
+    // line when the variable is unset (headless machines); point it at the temp dir.
+    if std::env::var_os("XDG_RUNTIME_DIR").is_none() {
+        std::env::set_var("XDG_RUNTIME_DIR", std::env::temp_dir());
+    }
     let cli = Cli::parse();
     match execute(cli) {
         Ok(()) => ExitCode::SUCCESS,
@@ -87,10 +96,17 @@ fn execute(cli: Cli) -> Result<()> {
         } => {
             let scene = Scene::load(&scene)?;
             for t in scene.mesh_report.reoriented.iter().take(3) {
-                eprintln!("warning: {}: tet {t} was inverted and has been reoriented", scene.origin);
+                eprintln!(
+                    "warning: {}: tet {t} was inverted and has been reoriented",
+                    scene.origin
+                );
             }
             if scene.mesh_report.reoriented.len() > 3 {
-                eprintln!("warning: {}: {} tets reoriented in all", scene.origin, scene.mesh_report.reoriented.len());
+                eprintln!(
+                    "warning: {}: {} tets reoriented in all",
+                    scene.origin,
+                    scene.mesh_report.reoriented.len()
+                );
             }
             let length = match (steps, duration, until_static) {
                 (Some(n), _, _) => RunLength::Steps(n),
@@ -119,12 +135,21 @@ fn execute(cli: Cli) -> Result<()> {
                 s.max_displacement,
                 s.kinetic_energy,
                 s.elastic_energy,
-                s.static_residual.map(|r| format!(", residual {r:.2e}")).unwrap_or_default(),
+                s.static_residual
+                    .map(|r| format!(", residual {r:.2e}"))
+                    .unwrap_or_default(),
                 s.status
             );
-            println!("wrote {}/final.vtu, {}/summary.json", out.display(), out.display());
+            println!(
+                "wrote {}/final.vtu, {}/summary.json",
+                out.display(),
+                out.display()
+            );
             if s.status != "ok" {
-                return Err(PalpateError::Usage(format!("run did not finish cleanly: {}", s.status)));
+                return Err(PalpateError::Usage(format!(
+                    "run did not finish cleanly: {}",
+                    s.status
+                )));
             }
             Ok(())
         }
@@ -141,7 +166,10 @@ fn execute(cli: Cli) -> Result<()> {
             }
             for a in &adapters {
                 let i = a.get_info();
-                println!("adapter: {} ({:?}, {:?}, driver {} {})", i.name, i.backend, i.device_type, i.driver, i.driver_info);
+                println!(
+                    "adapter: {} ({:?}, {:?}, driver {} {})",
+                    i.name, i.backend, i.device_type, i.driver, i.driver_info
+                );
             }
             let ctx = palpate::gpu::GpuContext::new()?;
             let l = &ctx.limits;

@@ -2,7 +2,9 @@
 //! and the four corner forces −V·P·Dm⁻ᵀ (paper eq. 1–6), plus the elastic energy V·Ψ(E).
 
 use super::{load3, store3};
-use crate::material::{green_strain_from_gradient, green_strain_rate, stvk_energy_density, stvk_second_piola};
+use crate::material::{
+    green_strain_from_gradient, green_strain_rate, stvk_energy_density, stvk_second_piola,
+};
 use crate::params::StepParams;
 use glam::{Mat3, Vec3};
 
@@ -34,7 +36,11 @@ pub fn tet_forces(
     } else {
         Mat3::ZERO
     };
-    let (phi, psi) = if viscous { (params.phi, params.psi) } else { (0.0, 0.0) };
+    let (phi, psi) = if viscous {
+        (params.phi, params.psi)
+    } else {
+        (0.0, 0.0)
+    };
     let s = stvk_second_piola(strain, rate, params.lambda, params.mu, phi, psi);
     let p = f * s;
     let g = p * dmi.transpose() * (-volume);
@@ -63,7 +69,14 @@ pub fn fem_forces(
         let t = tets[e];
         let u = t.map(|i| load3(displacements, i as usize));
         let v = t.map(|i| load3(velocities, i as usize));
-        let (forces, energy) = tet_forces(params, u, v, load_dm_inv(dm_inv, e), rest_volume[e], viscous);
+        let (forces, energy) = tet_forces(
+            params,
+            u,
+            v,
+            load_dm_inv(dm_inv, e),
+            rest_volume[e],
+            viscous,
+        );
         for (c, f) in forces.iter().enumerate() {
             store3(corner_forces, 4 * e + c, *f);
         }

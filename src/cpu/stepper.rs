@@ -61,7 +61,14 @@ impl CpuStepper {
             &mut self.tet_energy,
             self.viscous,
         );
-        gather(p, &self.corner_forces, &m.incidence_offsets, &m.incidence, &m.mass, &mut self.forces);
+        gather(
+            p,
+            &self.corner_forces,
+            &m.incidence_offsets,
+            &m.incidence,
+            &m.mass,
+            &mut self.forces,
+        );
         integrate(
             p,
             &self.forces,

@@ -95,7 +95,12 @@ impl SimBuffers {
             let (limit, what) = if name == "readback_state" {
                 (ctx.limits.max_buffer_size, "buffer")
             } else {
-                (ctx.limits.max_storage_buffer_binding_size.min(ctx.limits.max_buffer_size), "storage binding")
+                (
+                    ctx.limits
+                        .max_storage_buffer_binding_size
+                        .min(ctx.limits.max_buffer_size),
+                    "storage binding",
+                )
             };
             if bytes > limit || n > u32::MAX as u64 / 4 || m > u32::MAX as u64 / 4 {
                 return Err(PalpateError::TooBigForAdapter {
@@ -127,15 +132,27 @@ impl SimBuffers {
         let zeros3 = vec![0f32; 3 * n as usize];
         let stats_init = [0f32; stat::LEN];
         let bufs = SimBuffers {
-            params: init("params", bytemuck::bytes_of(params), U::UNIFORM | U::COPY_DST),
+            params: init(
+                "params",
+                bytemuck::bytes_of(params),
+                U::UNIFORM | U::COPY_DST,
+            ),
             displacements: init("displacements", bytemuck::cast_slice(&zeros3), STORAGE),
             velocities: init("velocities", bytemuck::cast_slice(&zeros3), STORAGE),
             tets: init("tets", bytemuck::cast_slice(&model.tets), STORAGE),
             dm_inv: init("dm_inv", bytemuck::cast_slice(&model.dm_inv), STORAGE),
-            rest_volume: init("rest_volume", bytemuck::cast_slice(&model.rest_volume), STORAGE),
+            rest_volume: init(
+                "rest_volume",
+                bytemuck::cast_slice(&model.rest_volume),
+                STORAGE,
+            ),
             corner_forces: empty("corner_forces", 48 * m, STORAGE),
             tet_energy: empty("tet_energy", 4 * m, STORAGE),
-            incidence_offsets: init("incidence_offsets", bytemuck::cast_slice(&model.incidence_offsets), STORAGE),
+            incidence_offsets: init(
+                "incidence_offsets",
+                bytemuck::cast_slice(&model.incidence_offsets),
+                STORAGE,
+            ),
             incidence: init("incidence", bytemuck::cast_slice(&model.incidence), STORAGE),
             mass: init("mass", bytemuck::cast_slice(&model.mass), STORAGE),
             inv_mass: init("inv_mass", bytemuck::cast_slice(&model.inv_mass), STORAGE),
@@ -146,7 +163,11 @@ impl SimBuffers {
             snapshot_displacements: empty("snapshot_displacements", 12 * n, STORAGE),
             snapshot_velocities: empty("snapshot_velocities", 12 * n, STORAGE),
             snapshot_stats: empty("snapshot_stats", STATS_BYTES, STORAGE),
-            readback_small: empty("readback_small", STATS_BYTES + STATUS_BYTES, U::MAP_READ | U::COPY_DST),
+            readback_small: empty(
+                "readback_small",
+                STATS_BYTES + STATUS_BYTES,
+                U::MAP_READ | U::COPY_DST,
+            ),
             readback_state: empty("readback_state", 24 * n, U::MAP_READ | U::COPY_DST),
         };
         if let Some(e) = pollster::block_on(scope.pop()) {

@@ -93,17 +93,25 @@ impl GpuContext {
     pub fn new() -> Result<GpuContext> {
         let mut adapters = list_adapters()?;
         if let Ok(want) = std::env::var("PALPATE_ADAPTER") {
-            adapters.retain(|a| a.get_info().name.to_lowercase().contains(&want.to_lowercase()));
+            adapters.retain(|a| {
+                a.get_info()
+                    .name
+                    .to_lowercase()
+                    .contains(&want.to_lowercase())
+            });
         }
-        let adapter = adapters.into_iter().next().ok_or_else(|| PalpateError::NoAdapter {
-            detail: format!(
-                "backends {:?}{}",
-                backends_from_env().unwrap_or(wgpu::Backends::all()),
-                std::env::var("PALPATE_ADAPTER")
-                    .map(|a| format!(", PALPATE_ADAPTER='{a}'"))
-                    .unwrap_or_default()
-            ),
-        })?;
+        let adapter = adapters
+            .into_iter()
+            .next()
+            .ok_or_else(|| PalpateError::NoAdapter {
+                detail: format!(
+                    "backends {:?}{}",
+                    backends_from_env().unwrap_or(wgpu::Backends::all()),
+                    std::env::var("PALPATE_ADAPTER")
+                        .map(|a| format!(", PALPATE_ADAPTER='{a}'"))
+                        .unwrap_or_default()
+                ),
+            })?;
         let info = adapter.get_info();
         let limits = adapter.limits();
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
@@ -134,12 +142,18 @@ impl GpuContext {
 
     /// One line naming the adapter and backend.
     pub fn describe(&self) -> String {
-        format!("{} ({:?}, {:?})", self.info.name, self.info.backend, self.info.device_type)
+        format!(
+            "{} ({:?}, {:?})",
+            self.info.name, self.info.backend, self.info.device_type
+        )
     }
 
     /// Return the first wgpu error captured since the last check, if any.
     pub fn check_errors(&self) -> Result<()> {
-        let mut v = self.errors.lock().map_err(|_| PalpateError::Gpu("error sink poisoned".into()))?;
+        let mut v = self
+            .errors
+            .lock()
+            .map_err(|_| PalpateError::Gpu("error sink poisoned".into()))?;
         let first = v.drain(..).next();
         match first {
             Some(e) => Err(PalpateError::Gpu(e)),

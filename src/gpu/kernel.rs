@@ -29,14 +29,21 @@ pub fn reflect(source: &str, entry: &str) -> Result<(Vec<ReflectedBinding>, u32)
     for (_, var) in module.global_variables.iter() {
         let Some(rb) = &var.binding else { continue };
         if rb.group != 0 {
-            return Err(PalpateError::Gpu(format!("binding group {} unsupported", rb.group)));
+            return Err(PalpateError::Gpu(format!(
+                "binding group {} unsupported",
+                rb.group
+            )));
         }
         let ty = match var.space {
             naga::AddressSpace::Uniform => wgpu::BufferBindingType::Uniform,
             naga::AddressSpace::Storage { access } => wgpu::BufferBindingType::Storage {
                 read_only: !access.contains(naga::StorageAccess::STORE),
             },
-            other => return Err(PalpateError::Gpu(format!("unsupported address space {other:?}"))),
+            other => {
+                return Err(PalpateError::Gpu(format!(
+                    "unsupported address space {other:?}"
+                )))
+            }
         };
         out.push(ReflectedBinding {
             binding: rb.binding,
@@ -74,7 +81,12 @@ pub struct BoundKernel {
 
 impl ComputeKernel {
     /// Build the pipeline for `entry` in kernel file `file`, with pipeline-overridable constants.
-    pub fn new(ctx: &GpuContext, file: &str, entry: &str, constants: &[(&str, f64)]) -> Result<ComputeKernel> {
+    pub fn new(
+        ctx: &GpuContext,
+        file: &str,
+        entry: &str,
+        constants: &[(&str, f64)],
+    ) -> Result<ComputeKernel> {
         let label = format!("{file}::{entry}");
         let source = crate::gpu::kernel_source(file)
             .ok_or_else(|| PalpateError::Gpu(format!("no kernel file '{file}'")))?;
@@ -129,7 +141,12 @@ impl ComputeKernel {
 
     /// Make the bind group from `(name, buffer, minimum bytes)` in binding order. Each name
     /// must match the shader's variable and each buffer must hold at least its minimum.
-    pub fn bind(&self, ctx: &GpuContext, buffers: &[(&str, &wgpu::Buffer, u64)], items: u32) -> Result<BoundKernel> {
+    pub fn bind(
+        &self,
+        ctx: &GpuContext,
+        buffers: &[(&str, &wgpu::Buffer, u64)],
+        items: u32,
+    ) -> Result<BoundKernel> {
         if buffers.len() != self.bindings.len() {
             return Err(PalpateError::Gpu(format!(
                 "{}: {} buffers given for {} bindings",
@@ -170,7 +187,11 @@ impl ComputeKernel {
         Ok(BoundKernel {
             bind_group,
             items,
-            grid: grid_for(items, self.workgroup_size, ctx.limits.max_compute_workgroups_per_dimension),
+            grid: grid_for(
+                items,
+                self.workgroup_size,
+                ctx.limits.max_compute_workgroups_per_dimension,
+            ),
         })
     }
 

@@ -123,7 +123,13 @@ impl Reduce {
     }
 
     /// Bind both entry points for `n` vertices and `m` tets.
-    pub fn bind(&self, ctx: &GpuContext, b: &SimBuffers, n: u64, m: u64) -> Result<(BoundKernel, BoundKernel)> {
+    pub fn bind(
+        &self,
+        ctx: &GpuContext,
+        b: &SimBuffers,
+        n: u64,
+        m: u64,
+    ) -> Result<(BoundKernel, BoundKernel)> {
         let blocks = n.max(m).div_ceil(crate::cpu::REDUCE_WORKGROUP as u64);
         let list = |_k: &ComputeKernel| {
             [
@@ -134,14 +140,20 @@ impl Reduce {
                 ("inv_mass", &b.inv_mass, 4 * n),
                 ("forces", &b.forces, 12 * n),
                 ("tet_energy", &b.tet_energy, 4 * m),
-                ("partials", &b.partials, 4 * crate::cpu::reduce::PARTIAL_LEN as u64 * blocks),
+                (
+                    "partials",
+                    &b.partials,
+                    4 * crate::cpu::reduce::PARTIAL_LEN as u64 * blocks,
+                ),
                 ("stats", &b.stats, STATS_BYTES),
             ]
         };
         let items = n.max(m) as u32;
         Ok((
-            self.reduce_partial.bind(ctx, &list(&self.reduce_partial), items)?,
-            self.reduce_final.bind(ctx, &list(&self.reduce_final), items)?,
+            self.reduce_partial
+                .bind(ctx, &list(&self.reduce_partial), items)?,
+            self.reduce_final
+                .bind(ctx, &list(&self.reduce_final), items)?,
         ))
     }
 }

@@ -30,7 +30,10 @@ fn expand(
                 }
                 seen.push(name.to_string());
                 let text = lookup(name).ok_or_else(|| {
-                    format!("line {}: #import {name}: no kernels/shared/{name}.wgsl", n + 1)
+                    format!(
+                        "line {}: #import {name}: no kernels/shared/{name}.wgsl",
+                        n + 1
+                    )
                 })?;
                 out.push_str(&expand(&text, lookup, seen, depth + 1)?);
             }

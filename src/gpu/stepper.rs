@@ -36,6 +36,19 @@ impl StepPipelines {
     }
 }
 
+/// One stage of a step, for running kernels one at a time (tests, bisecting a mismatch).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Stage {
+    /// fem_forces.wgsl.
+    FemForces,
+    /// gather.wgsl.
+    Gather,
+    /// integrate.wgsl.
+    Integrate,
+    /// reduce.wgsl (both entry points).
+    Reduce,
+}
+
 struct Bound {
     fem_forces: BoundKernel,
     gather: BoundKernel,
@@ -102,6 +115,57 @@ impl GpuStepper {
         }
     }
 
+    /// Run a single stage on the current buffers and wait.
+    pub fn run_stage(&self, stage: Stage) -> Result<()> {
+        let p = &self.pipelines;
+        let b = &self.bound;
+        let mut enc = self.ctx.device.create_command_encoder(&Default::default());
+        {
+            let mut pass = enc.begin_compute_pass(&Default::default());
+            match stage {
+                Stage::FemForces => p.fem_forces.fem_forces.record(&mut pass, &b.fem_forces),
+                Stage::Gather => p.gather.gather.record(&mut pass, &b.gather),
+                Stage::Integrate => p.integrate.integrate.record(&mut pass, &b.integrate),
+                Stage::Reduce => {
+                    p.reduce.reduce_partial.record(&mut pass, &b.reduce_partial);
+                    p.reduce.reduce_final.record_one(&mut pass, &b.reduce_final);
+                }
+            }
+        }
+        self.ctx.queue.submit([enc.finish()]);
+        self.ctx.wait()
+    }
+
+    /// Overwrite a storage buffer of f32 (`forces`, `corner_forces`, `tet_energy`,
+    /// `displacements`, `velocities`, `stats`) from the start (tests and debugging).
+    pub fn write_f32(&self, which: &str, data: &[f32]) -> Result<()> {
+        let buf = self.buffer(which)?;
+        if (data.len() * 4) as u64 > buf.size() {
+            return Err(PalpateError::Gpu(format!(
+                "{} floats do not fit buffer '{which}'",
+                data.len()
+            )));
+        }
+        self.ctx
+            .queue
+            .write_buffer(buf, 0, bytemuck::cast_slice(data));
+        self.ctx.wait()
+    }
+
+    fn buffer(&self, which: &str) -> Result<&wgpu::Buffer> {
+        let b = &self.buffers;
+        Ok(match which {
+            "forces" => &b.forces,
+            "corner_forces" => &b.corner_forces,
+            "tet_energy" => &b.tet_energy,
+            "displacements" => &b.displacements,
+            "velocities" => &b.velocities,
+            "stats" => &b.stats,
+            "status" => &b.status,
+            other => return Err(PalpateError::Gpu(format!("no buffer '{other}'"))),
+        })
+    }
+
     /// Run `steps` steps without any readback (for benchmarks); waits for completion.
     pub fn run_no_readback(&mut self, steps: u32) -> Result<()> {
         let mut enc = self.ctx.device.create_command_encoder(&Default::default());
@@ -110,18 +174,9 @@ impl GpuStepper {
         self.ctx.wait()
     }
 
-    /// Read an arbitrary storage buffer of f32 (for tests and debugging).
+    /// Read a storage buffer of f32 (see [`GpuStepper::write_f32`]; `status` reads as bits).
     pub fn read_f32(&self, which: &str) -> Result<Vec<f32>> {
-        let b = &self.buffers;
-        let buf = match which {
-            "forces" => &b.forces,
-            "corner_forces" => &b.corner_forces,
-            "tet_energy" => &b.tet_energy,
-            "displacements" => &b.displacements,
-            "velocities" => &b.velocities,
-            "stats" => &b.stats,
-            other => return Err(PalpateError::Gpu(format!("no buffer '{other}'"))),
-        };
+        let buf = self.buffer(which)?;
         let size = buf.size();
         let staging = self.ctx.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("read_f32"),
@@ -154,18 +209,29 @@ impl Stepper for GpuStepper {
         let b = &self.buffers;
         let q = &self.ctx.queue;
         q.write_buffer(&b.status, 0, bytemuck::cast_slice(&[u32::MAX; 4]));
-        let mut enc = self.ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
-            label: Some("batch"),
-        });
+        let mut enc = self
+            .ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("batch"),
+            });
         let state_bytes = 12 * self.n;
-        enc.copy_buffer_to_buffer(&b.displacements, 0, &b.snapshot_displacements, 0, state_bytes);
+        enc.copy_buffer_to_buffer(
+            &b.displacements,
+            0,
+            &b.snapshot_displacements,
+            0,
+            state_bytes,
+        );
         enc.copy_buffer_to_buffer(&b.velocities, 0, &b.snapshot_velocities, 0, state_bytes);
         enc.copy_buffer_to_buffer(&b.stats, 0, &b.snapshot_stats, 0, STATS_BYTES);
         self.record_steps(&mut enc, steps);
         enc.copy_buffer_to_buffer(&b.stats, 0, &b.readback_small, 0, STATS_BYTES);
         enc.copy_buffer_to_buffer(&b.status, 0, &b.readback_small, STATS_BYTES, STATUS_BYTES);
         q.submit([enc.finish()]);
-        let bytes = self.ctx.read_mapped(&b.readback_small, STATS_BYTES + STATUS_BYTES)?;
+        let bytes = self
+            .ctx
+            .read_mapped(&b.readback_small, STATS_BYTES + STATUS_BYTES)?;
         let floats: &[f32] = bytemuck::cast_slice(&bytes[..STATS_BYTES as usize]);
         let status: &[u32] = bytemuck::cast_slice(&bytes[STATS_BYTES as usize..]);
         let mut out = BatchStats::default();
@@ -178,7 +244,13 @@ impl Stepper for GpuStepper {
         let b = &self.buffers;
         let mut enc = self.ctx.device.create_command_encoder(&Default::default());
         let state_bytes = 12 * self.n;
-        enc.copy_buffer_to_buffer(&b.snapshot_displacements, 0, &b.displacements, 0, state_bytes);
+        enc.copy_buffer_to_buffer(
+            &b.snapshot_displacements,
+            0,
+            &b.displacements,
+            0,
+            state_bytes,
+        );
         enc.copy_buffer_to_buffer(&b.snapshot_velocities, 0, &b.velocities, 0, state_bytes);
         enc.copy_buffer_to_buffer(&b.snapshot_stats, 0, &b.stats, 0, STATS_BYTES);
         self.ctx.queue.submit([enc.finish()]);
@@ -204,7 +276,11 @@ impl Stepper for GpuStepper {
     fn write_state(&mut self, state: &State) -> Result<()> {
         let b = &self.buffers;
         let q = &self.ctx.queue;
-        q.write_buffer(&b.displacements, 0, bytemuck::cast_slice(&state.displacements));
+        q.write_buffer(
+            &b.displacements,
+            0,
+            bytemuck::cast_slice(&state.displacements),
+        );
         q.write_buffer(&b.velocities, 0, bytemuck::cast_slice(&state.velocities));
         q.write_buffer(&b.stats, 0, bytemuck::cast_slice(&[0f32; stat::LEN]));
         self.ctx.wait()

@@ -35,7 +35,10 @@ fn read_text(path: &Path) -> Result<String> {
     String::from_utf8(bytes).map_err(|e| {
         file_err(
             path,
-            format!("not a text file (invalid UTF-8 at byte {})", e.utf8_error().valid_up_to()),
+            format!(
+                "not a text file (invalid UTF-8 at byte {})",
+                e.utf8_error().valid_up_to()
+            ),
         )
     })
 }
@@ -49,10 +52,19 @@ fn tetgen_lines(text: &str) -> impl Iterator<Item = (usize, Vec<&str>)> {
     })
 }
 
-fn parse<T: std::str::FromStr>(path: &Path, line: usize, tok: Option<&&str>, what: &str) -> Result<T> {
+fn parse<T: std::str::FromStr>(
+    path: &Path,
+    line: usize,
+    tok: Option<&&str>,
+    what: &str,
+) -> Result<T> {
     let tok = tok.ok_or_else(|| file_err(path, format!("line {line}: missing {what}")))?;
-    tok.parse()
-        .map_err(|_| file_err(path, format!("line {line}: {what} '{tok}' is not a valid number")))
+    tok.parse().map_err(|_| {
+        file_err(
+            path,
+            format!("line {line}: {what} '{tok}' is not a valid number"),
+        )
+    })
 }
 
 /// TetGen `.node` + `.ele` (either path may be given; the other is found beside it).
@@ -69,7 +81,10 @@ pub fn read_tetgen(path: &Path) -> Result<TetMesh> {
     let n: usize = parse(&node_path, hl, header.first(), "node count")?;
     let dim: usize = parse(&node_path, hl, header.get(1), "dimension")?;
     if dim != 3 {
-        return Err(file_err(&node_path, format!("line {hl}: dimension {dim}, expected 3")));
+        return Err(file_err(
+            &node_path,
+            format!("line {hl}: dimension {dim}, expected 3"),
+        ));
     }
     let mut positions = Vec::with_capacity(n.min(node_text.len() / 8 + 1));
     let mut first_index = None;
@@ -77,7 +92,10 @@ pub fn read_tetgen(path: &Path) -> Result<TetMesh> {
         let idx: i64 = parse(&node_path, ln, toks.first(), "node index")?;
         let base = *first_index.get_or_insert(idx);
         if idx - base != positions.len() as i64 {
-            return Err(file_err(&node_path, format!("line {ln}: node index {idx} out of sequence")));
+            return Err(file_err(
+                &node_path,
+                format!("line {ln}: node index {idx} out of sequence"),
+            ));
         }
         let mut p = [0.0; 3];
         for (k, c) in p.iter_mut().enumerate() {
@@ -88,12 +106,18 @@ pub fn read_tetgen(path: &Path) -> Result<TetMesh> {
     if positions.len() != n {
         return Err(file_err(
             &node_path,
-            format!("header declares {n} nodes but the file has {}", positions.len()),
+            format!(
+                "header declares {n} nodes but the file has {}",
+                positions.len()
+            ),
         ));
     }
     let base = first_index.unwrap_or(0);
     if base != 0 && base != 1 {
-        return Err(file_err(&node_path, format!("first node index {base}: expected 0 or 1")));
+        return Err(file_err(
+            &node_path,
+            format!("first node index {base}: expected 0 or 1"),
+        ));
     }
     let ele_text = read_text(&ele_path)?;
     let mut lines = tetgen_lines(&ele_text);
@@ -103,7 +127,10 @@ pub fn read_tetgen(path: &Path) -> Result<TetMesh> {
     let m: usize = parse(&ele_path, hl, header.first(), "element count")?;
     let npe: usize = parse(&ele_path, hl, header.get(1), "nodes per element")?;
     if npe != 4 && npe != 10 {
-        return Err(file_err(&ele_path, format!("line {hl}: {npe} nodes per element, expected 4 or 10")));
+        return Err(file_err(
+            &ele_path,
+            format!("line {hl}: {npe} nodes per element, expected 4 or 10"),
+        ));
     }
     let n_attr: usize = match header.get(2) {
         Some(_) => parse(&ele_path, hl, header.get(2), "attribute count")?,
@@ -119,7 +146,10 @@ pub fn read_tetgen(path: &Path) -> Result<TetMesh> {
             if local < 0 || local >= n as i64 {
                 return Err(file_err(
                     &ele_path,
-                    format!("line {ln}: node index {i} out of range ({base}..{})", n as i64 + base - 1),
+                    format!(
+                        "line {ln}: node index {i} out of range ({base}..{})",
+                        n as i64 + base - 1
+                    ),
                 ));
             }
             *v = local as u32;
@@ -135,7 +165,10 @@ pub fn read_tetgen(path: &Path) -> Result<TetMesh> {
     if tets.len() != m {
         return Err(file_err(
             &ele_path,
-            format!("header declares {m} elements but the file has {}", tets.len()),
+            format!(
+                "header declares {m} elements but the file has {}",
+                tets.len()
+            ),
         ));
     }
     if tets.is_empty() {

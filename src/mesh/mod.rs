@@ -168,7 +168,10 @@ impl TetMesh {
             )));
         }
         if self.positions.len() > u32::MAX as usize / 2 {
-            return Err(err(format!("{} vertices is too many", self.positions.len())));
+            return Err(err(format!(
+                "{} vertices is too many",
+                self.positions.len()
+            )));
         }
         for (i, p) in self.positions.iter().enumerate() {
             if !p.is_finite() {
@@ -317,7 +320,10 @@ pub struct TetQuality {
 /// Quality of the tet with corners `c`.
 pub fn tet_quality(c: &[DVec3; 4]) -> TetQuality {
     let volume = signed_volume(c[0], c[1], c[2], c[3]);
-    let edges: Vec<f64> = TET_EDGES.iter().map(|e| c[e[0]].distance(c[e[1]])).collect();
+    let edges: Vec<f64> = TET_EDGES
+        .iter()
+        .map(|e| c[e[0]].distance(c[e[1]]))
+        .collect();
     let min_edge = edges.iter().cloned().fold(f64::INFINITY, f64::min);
     let max_edge = edges.iter().cloned().fold(0.0, f64::max);
     let normals: Vec<DVec3> = TET_FACES
@@ -331,7 +337,9 @@ pub fn tet_quality(c: &[DVec3; 4]) -> TetQuality {
     for a in 0..4 {
         for b in a + 1..4 {
             // dihedral angle at the edge shared by faces a and b = π − angle between outward normals
-            let cos = normals[a].normalize_or_zero().dot(normals[b].normalize_or_zero());
+            let cos = normals[a]
+                .normalize_or_zero()
+                .dot(normals[b].normalize_or_zero());
             let angle = (std::f64::consts::PI - cos.clamp(-1.0, 1.0).acos()).to_degrees();
             min_d = min_d.min(angle);
             max_d = max_d.max(angle);

@@ -15,7 +15,11 @@ const B64: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz012
 pub fn base64(data: &[u8]) -> String {
     let mut out = String::with_capacity(data.len().div_ceil(3) * 4);
     for chunk in data.chunks(3) {
-        let b = [chunk[0], *chunk.get(1).unwrap_or(&0), *chunk.get(2).unwrap_or(&0)];
+        let b = [
+            chunk[0],
+            *chunk.get(1).unwrap_or(&0),
+            *chunk.get(2).unwrap_or(&0),
+        ];
         let n = (b[0] as u32) << 16 | (b[1] as u32) << 8 | b[2] as u32;
         for k in 0..4 {
             if k <= chunk.len() {
@@ -48,11 +52,19 @@ fn array_xml(a: &DataArray) -> String {
 }
 
 /// A `.vtu` document for points (packed xyz) and tets with point and cell data.
-pub fn vtu(points: &[f32], tets: &[[u32; 4]], point_data: &[DataArray], cell_data: &[DataArray]) -> String {
+pub fn vtu(
+    points: &[f32],
+    tets: &[[u32; 4]],
+    point_data: &[DataArray],
+    cell_data: &[DataArray],
+) -> String {
     let n = points.len() / 3;
     let mut s = String::new();
     s.push_str("<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"1.0\" byte_order=\"LittleEndian\" header_type=\"UInt64\">\n  <UnstructuredGrid>\n");
-    s.push_str(&format!("    <Piece NumberOfPoints=\"{n}\" NumberOfCells=\"{}\">\n", tets.len()));
+    s.push_str(&format!(
+        "    <Piece NumberOfPoints=\"{n}\" NumberOfCells=\"{}\">\n",
+        tets.len()
+    ));
     s.push_str("      <PointData>\n");
     for a in point_data {
         s.push_str(&array_xml(a));

@@ -240,19 +240,35 @@ impl Scene {
     }
 
     /// Parse and validate scene TOML. `origin` names it in errors; `dir` resolves mesh files.
-    pub fn from_toml(text: &str, origin: &str, default_name: &str, dir: Option<&Path>) -> Result<Scene> {
+    pub fn from_toml(
+        text: &str,
+        origin: &str,
+        default_name: &str,
+        dir: Option<&Path>,
+    ) -> Result<Scene> {
         let file: SceneFile = toml::from_str(text).map_err(|e| {
-            let line = e.span().map(|s| format!("line {}: ", line_of(text, s.start)));
+            let line = e
+                .span()
+                .map(|s| format!("line {}: ", line_of(text, s.start)));
             PalpateError::SceneParse {
                 origin: origin.to_string(),
-                message: format!("{}{}", line.unwrap_or_default(), e.message().trim().replace('\n', " ")),
+                message: format!(
+                    "{}{}",
+                    line.unwrap_or_default(),
+                    e.message().trim().replace('\n', " ")
+                ),
             }
         })?;
         Scene::from_file(file, origin, default_name, dir)
     }
 
     /// Validate a parsed scene file and build its mesh.
-    pub fn from_file(file: SceneFile, origin: &str, default_name: &str, dir: Option<&Path>) -> Result<Scene> {
+    pub fn from_file(
+        file: SceneFile,
+        origin: &str,
+        default_name: &str,
+        dir: Option<&Path>,
+    ) -> Result<Scene> {
         let bad = |item: &str, message: String| PalpateError::SceneValue {
             origin: origin.to_string(),
             item: item.to_string(),
@@ -330,7 +346,8 @@ fn resolve_material(m: &MaterialSpec, bad: &Bad) -> Result<MaterialParams> {
     let density = positive(
         bad,
         "material.density",
-        m.density.ok_or_else(|| bad("material.density", "is required (kg/m³)".into()))?,
+        m.density
+            .ok_or_else(|| bad("material.density", "is required (kg/m³)".into()))?,
         "kg/m³",
     )?;
     let [phi, psi] = m.viscosity.unwrap_or([0.0, 0.0]);
@@ -452,7 +469,13 @@ fn build_mesh(
                 only_keys(
                     spec,
                     "generator lv",
-                    &["short_radius", "long_radius", "base_z", "cells", "resolution"],
+                    &[
+                        "short_radius",
+                        "long_radius",
+                        "base_z",
+                        "cells",
+                        "resolution",
+                    ],
                     bad,
                 )?;
                 let mut geo = generators::LvGeometry::default();
@@ -465,16 +488,25 @@ fn build_mesh(
                 if let Some(z) = spec.base_z {
                     geo.base_z = z;
                 }
-                for (item, r) in [("mesh.short_radius", geo.short_radius), ("mesh.long_radius", geo.long_radius)] {
+                for (item, r) in [
+                    ("mesh.short_radius", geo.short_radius),
+                    ("mesh.long_radius", geo.long_radius),
+                ] {
                     positive(bad, item, r[0], "m")?;
                     if !(r[1] > r[0]) || !r[1].is_finite() {
-                        return Err(bad(item, format!("epicardium must exceed endocardium, got {r:?}")));
+                        return Err(bad(
+                            item,
+                            format!("epicardium must exceed endocardium, got {r:?}"),
+                        ));
                     }
                 }
                 if !(geo.base_z.is_finite() && geo.base_z.abs() < geo.long_radius[0]) {
                     return Err(bad(
                         "mesh.base_z",
-                        format!("must lie inside the endocardium (|base_z| < {}), got {}", geo.long_radius[0], geo.base_z),
+                        format!(
+                            "must lie inside the endocardium (|base_z| < {}), got {}",
+                            geo.long_radius[0], geo.base_z
+                        ),
                     ));
                 }
                 let (layers, disk) = match (spec.resolution, &spec.cells) {
@@ -530,20 +562,30 @@ fn select_fixed(specs: &[FixedSpec], mesh: &TetMesh, bad: &Bad) -> Result<Vec<bo
     let diag = (hi - lo).length();
     for (k, spec) in specs.iter().enumerate() {
         let item = format!("fixed[{k}]");
-        let chosen = [spec.plane.is_some(), spec.bbox.is_some(), spec.tag.is_some()]
-            .iter()
-            .filter(|b| **b)
-            .count();
+        let chosen = [
+            spec.plane.is_some(),
+            spec.bbox.is_some(),
+            spec.tag.is_some(),
+        ]
+        .iter()
+        .filter(|b| **b)
+        .count();
         if chosen != 1 {
             return Err(bad(&item, "give exactly one of plane, box or tag".into()));
         }
         if spec.tolerance.is_some() && spec.plane.is_none() {
-            return Err(bad(&format!("{item}.tolerance"), "applies to a plane only".into()));
+            return Err(bad(
+                &format!("{item}.tolerance"),
+                "applies to a plane only".into(),
+            ));
         }
         let select: Box<dyn Fn(usize, DVec3) -> bool> = if let Some(plane) = &spec.plane {
             let n = DVec3::from_array(plane.normal);
             if !(n.length() > 0.0) || !n.is_finite() {
-                return Err(bad(&format!("{item}.plane.normal"), "must be a non-zero vector".into()));
+                return Err(bad(
+                    &format!("{item}.plane.normal"),
+                    "must be a non-zero vector".into(),
+                ));
             }
             let n = n.normalize();
             let tol = spec.tolerance.unwrap_or(1e-6 * diag);
@@ -561,7 +603,10 @@ fn select_fixed(specs: &[FixedSpec], mesh: &TetMesh, bad: &Bad) -> Result<Vec<bo
                 )
             })?;
             if mesh.vertex_tags.is_empty() {
-                return Err(bad(&format!("{item}.tag"), "this mesh carries no vertex tags".into()));
+                return Err(bad(
+                    &format!("{item}.tag"),
+                    "this mesh carries no vertex tags".into(),
+                ));
             }
             let tags_of = mesh.vertex_tags.clone();
             Box::new(move |i, _| tags_of[i] & bit != 0)
@@ -585,17 +630,26 @@ fn resolve_solver(s: &SolverSpec, bad: &Bad) -> Result<SolverSettings> {
         None => None,
         Some(DtSpec::Word(w)) if w == "auto" => None,
         Some(DtSpec::Word(w)) => {
-            return Err(bad("solver.dt", format!("must be \"auto\" or seconds, got \"{w}\"")))
+            return Err(bad(
+                "solver.dt",
+                format!("must be \"auto\" or seconds, got \"{w}\""),
+            ))
         }
         Some(DtSpec::Seconds(v)) => Some(positive(bad, "solver.dt", *v, "s")?),
     };
     let safety = s.safety.unwrap_or(crate::timestep::DEFAULT_SAFETY);
     if !(safety > 0.0 && safety <= 1.0) {
-        return Err(bad("solver.safety", format!("must be in (0, 1], got {safety}")));
+        return Err(bad(
+            "solver.safety",
+            format!("must be in (0, 1], got {safety}"),
+        ));
     }
     let damping = s.damping.unwrap_or(0.0);
     if !(damping.is_finite() && damping >= 0.0) {
-        return Err(bad("solver.damping", format!("must be >= 0 1/s, got {damping}")));
+        return Err(bad(
+            "solver.damping",
+            format!("must be >= 0 1/s, got {damping}"),
+        ));
     }
     let static_tolerance = s.static_tolerance.unwrap_or(1e-3);
     positive(bad, "solver.static_tolerance", static_tolerance, "")?;

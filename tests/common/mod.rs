@@ -1,0 +1,88 @@
+//! Helpers shared by the integration tests.
+#![allow(dead_code)]
+
+use glam::DVec3;
+use palpate::material::MaterialParams;
+use palpate::mesh::{generators, TetMesh};
+use palpate::model::Model;
+use std::sync::Arc;
+
+/// Small deterministic PRNG (xorshift64*), uniform in [0, 1).
+pub struct Rng(pub u64);
+
+impl Rng {
+    pub fn next(&mut self) -> f64 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        (self.0.wrapping_mul(0x2545F4914F6CDD1D) >> 11) as f64 / (1u64 << 53) as f64
+    }
+    /// Uniform in [-1, 1).
+    pub fn sym(&mut self) -> f64 {
+        2.0 * self.next() - 1.0
+    }
+    pub fn vec(&mut self) -> DVec3 {
+        DVec3::new(self.sym(), self.sym(), self.sym())
+    }
+}
+
+/// A soft-tissue material, SI.
+pub fn tissue() -> MaterialParams {
+    let (lambda, mu) = MaterialParams::lame_from_young(3.0e5, 0.4);
+    MaterialParams {
+        lambda,
+        mu,
+        phi: 0.0,
+        psi: 0.0,
+        density: 1000.0,
+    }
+}
+
+/// A beam mesh with interior vertices jittered by up to 15 % of a cell, so that tets are
+/// not all alike.
+pub fn jittered_beam(cells: [usize; 3], seed: u64) -> TetMesh {
+    let size = [0.03, 0.02, 0.02];
+    let mut mesh = generators::beam(size, cells);
+    let h = size[0] / cells[0] as f64;
+    let mut rng = Rng(seed);
+    let boundary = mesh.boundary_vertices();
+    for (i, p) in mesh.positions.iter_mut().enumerate() {
+        if boundary.binary_search(&(i as u32)).is_err() {
+            *p += rng.vec() * 0.15 * h;
+        }
+    }
+    mesh.validate("jittered beam").expect("valid jittered mesh");
+    mesh
+}
+
+/// A model with no fixed vertex and no gravity.
+pub fn free_model(mesh: &TetMesh, material: MaterialParams) -> Arc<Model> {
+    Arc::new(Model::new(
+        mesh,
+        &vec![false; mesh.n_vertices()],
+        material,
+        [0.0; 3],
+    ))
+}
+
+/// max |a − b| / max |b|.
+pub fn rel_err(a: &[f32], b: &[f32]) -> f64 {
+    assert_eq!(a.len(), b.len());
+    let num = a
+        .iter()
+        .zip(b)
+        .map(|(x, y)| (*x as f64 - *y as f64).abs())
+        .fold(0.0, f64::max);
+    let den = b.iter().map(|y| (*y as f64).abs()).fold(0.0, f64::max);
+    num / den.max(f64::MIN_POSITIVE)
+}
+
+/// A GPU context, or a failure that says how to get a software adapter.
+pub fn gpu() -> Arc<palpate::gpu::GpuContext> {
+    match palpate::gpu::GpuContext::new() {
+        Ok(c) => Arc::new(c),
+        Err(e) => panic!(
+            "GPU tests need an adapter: {e}. On Debian/Ubuntu install the software Vulkan adapter with `sudo apt-get install -y mesa-vulkan-drivers` (lavapipe), or set PALPATE_BACKEND=gl to use llvmpipe through EGL."
+        ),
+    }
+}
