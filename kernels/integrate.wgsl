@@ -1,7 +1,8 @@
 // Stage 6: symplectic Euler (paper eq. 12): v <- (v + dt f/m) / (1 + alpha dt), u <- u + dt v
 // (the state is the displacement u = x - X).
 // Fixed vertices have inverse mass 0 and keep v = 0.
-// status[0] <- min(status[0], i) when u or v is not finite.
+// status[0] <- min(status[0], i) when u or v is not finite or |v| exceeds the speed limit
+// (an instability caught long before it overflows to Inf/NaN).
 // CPU twin: src/cpu/integrate.rs.
 #import params
 #import index
@@ -37,7 +38,7 @@ fn integrate(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgro
     displacements[3u * i] = x.x;
     displacements[3u * i + 1u] = x.y;
     displacements[3u * i + 2u] = x.z;
-    if !(finite3(x) && finite3(v)) {
+    if !(finite3(x) && finite3(v)) || dot(v, v) > params.speed_limit * params.speed_limit {
         atomicMin(&status[0], i);
     }
 }

@@ -138,7 +138,7 @@ impl Model {
             mu: m.mu as f32,
             phi: m.phi as f32,
             psi: m.psi as f32,
-            _pad0: 0,
+            speed_limit: (2.0 * m.p_wave_speed()) as f32,
         }
     }
 }

@@ -307,18 +307,21 @@ pub fn run(scene: &Scene, opts: &RunOptions) -> Result<RunSummary> {
             }
             Advance::Diverged { step, vertex } => {
                 let what = format!(
-                    "diverged: non-finite position or velocity at step {step}, vertex {vertex} (dt = {:.3e} s, bound {:.3e} s)",
-                    sim.dt, model.bounds.dt_bound
+                    "diverged: non-finite or faster than {:.3e} m/s (2 x P-wave speed) at step {step}, vertex {vertex} (dt = {:.3e} s, bound {:.3e} s)",
+                    2.0 * model.material.p_wave_speed(),
+                    sim.dt,
+                    model.bounds.dt_bound
                 );
                 if opts.on_diverge == OnDiverge::HalveDt && halvings < 10 {
                     halvings += 1;
+                    sim.rollback_to_checkpoint()?;
                     let dt = sim.dt / 2.0;
                     sim.set_dt(dt)?;
                     let remaining = (target_time - sim.time).max(0.0);
                     target_steps = sim.steps_done + (remaining / dt).ceil() as u64;
                     target_time = sim.time + remaining;
-                    log::warn!(
-                        "{what}; retrying from step {} at dt = {dt:.3e} s",
+                    eprintln!(
+                        "warning: {what}; retrying from step {} at dt = {dt:.3e} s",
                         sim.steps_done
                     );
                     continue;

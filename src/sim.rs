@@ -60,6 +60,8 @@ pub struct Simulation {
     pub time: f64,
     /// Stats of the last batch.
     pub last: BatchStats,
+    /// State, step count and time at the start of the batch that last diverged.
+    checkpoint: Option<(State, u64, f64)>,
 }
 
 /// The time step a scene runs at: `override_dt`, else the scene's dt, else safety × bound.
@@ -120,6 +122,7 @@ impl Simulation {
             steps_done: 0,
             time: 0.0,
             last: BatchStats::default(),
+            checkpoint: None,
         })
     }
 
@@ -142,9 +145,10 @@ impl Simulation {
             .set_params(&self.model.step_params(self.dt, damping))
     }
 
-    /// Run `steps` steps in one batch. On a non-finite value, roll back to the batch start
-    /// and replay one step at a time to find the failing step; the state is left at the last
-    /// finite step.
+    /// Run `steps` steps in one batch. When a vertex becomes non-finite or exceeds the speed
+    /// limit, roll back to the batch start (kept as a checkpoint, see
+    /// [`Simulation::rollback_to_checkpoint`]) and replay one step at a time to find the
+    /// failing step; the state is left at the last step before it.
     pub fn advance(&mut self, steps: u32) -> Result<Advance> {
         if steps == 0 {
             return Ok(Advance::Done(self.last));
@@ -157,6 +161,7 @@ impl Simulation {
             return Ok(Advance::Done(stats));
         }
         self.stepper.restore()?;
+        self.checkpoint = Some((self.stepper.read_state()?, self.steps_done, self.time));
         for _ in 0..steps {
             let one = self.stepper.run(1)?;
             if let Some(vertex) = one.non_finite_vertex {
@@ -172,6 +177,20 @@ impl Simulation {
         }
         // The replay did not diverge (cannot happen on a deterministic backend).
         Ok(Advance::Done(self.last))
+    }
+
+    /// Go back to the start of the batch that last diverged (before the instability grew).
+    /// Returns false when there is no checkpoint.
+    pub fn rollback_to_checkpoint(&mut self) -> Result<bool> {
+        match self.checkpoint.take() {
+            Some((state, steps, time)) => {
+                self.stepper.write_state(&state)?;
+                self.steps_done = steps;
+                self.time = time;
+                Ok(true)
+            }
+            None => Ok(false),
+        }
     }
 
     /// Current displacements and velocities.

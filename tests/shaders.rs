@@ -126,7 +126,7 @@ fn step_params_matches_wgsl_layout() {
         ("mu", std::mem::offset_of!(StepParams, mu)),
         ("phi", std::mem::offset_of!(StepParams, phi)),
         ("psi", std::mem::offset_of!(StepParams, psi)),
-        ("_pad0", std::mem::offset_of!(StepParams, _pad0)),
+        ("speed_limit", std::mem::offset_of!(StepParams, speed_limit)),
     ];
     assert_eq!(members.len(), rust.len(), "member count: wgsl {members:?}");
     for ((wname, woff), (rname, roff)) in members.iter().zip(&rust) {

@@ -17,7 +17,7 @@ pub fn is_finite3(v: Vec3) -> bool {
 
 /// Per vertex i: v ← (v + dt·f/m) / (1 + α·dt), u ← u + dt·v (u = x − X, the displacement);
 /// fixed vertices (inverse mass 0) keep v = 0. `status[0]` becomes min(status[0], i) when u or
-/// v is not finite.
+/// v is not finite or |v| exceeds `params.speed_limit`.
 pub fn integrate(
     params: &StepParams,
     forces: &[f32],
@@ -38,7 +38,7 @@ pub fn integrate(
         }
         store3(velocities, i, v);
         store3(displacements, i, x);
-        if !(is_finite3(x) && is_finite3(v)) {
+        if !(is_finite3(x) && is_finite3(v)) || v.dot(v) > params.speed_limit * params.speed_limit {
             status[0] = status[0].min(i as u32);
         }
     }

@@ -79,7 +79,8 @@ impl SimBuffers {
             );
             x as u64 * y as u64
         };
-        let sizes: [(&str, u64); 10] = [
+        // Largest first, so the error names the buffer that overflows most.
+        let mut sizes: [(&str, u64); 10] = [
             ("displacements", 12 * n),
             ("tets", 16 * m),
             ("dm_inv", 36 * m),
@@ -91,6 +92,7 @@ impl SimBuffers {
             ("readback_state", 24 * n),
             ("tet_energy", 4 * m),
         ];
+        sizes.sort_by_key(|(_, bytes)| std::cmp::Reverse(*bytes));
         for (name, bytes) in sizes {
             let (limit, what) = if name == "readback_state" {
                 (ctx.limits.max_buffer_size, "buffer")

@@ -247,9 +247,12 @@ impl Scene {
         dir: Option<&Path>,
     ) -> Result<Scene> {
         let file: SceneFile = toml::from_str(text).map_err(|e| {
-            let line = e
-                .span()
-                .map(|s| format!("line {}: ", line_of(text, s.start)));
+            let line = e.span().map(|s| {
+                let n = line_of(text, s.start);
+                let src = text.lines().nth(n - 1).unwrap_or("");
+                let src = src.split('#').next().unwrap_or("").trim();
+                format!("line {n} `{src}`: ")
+            });
             PalpateError::SceneParse {
                 origin: origin.to_string(),
                 message: format!(
