@@ -14,27 +14,45 @@ use palpate::model::Model;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-const SIZES: [(&str, [usize; 3]); 3] = [("10k", [25, 8, 8]), ("100k", [50, 18, 18]), ("1M", [100, 40, 42])];
+const SIZES: [(&str, [usize; 3]); 3] = [
+    ("10k", [25, 8, 8]),
+    ("100k", [50, 18, 18]),
+    ("1M", [100, 40, 42]),
+];
 const GPU_BATCH: u32 = 20;
 
 fn model(cells: [usize; 3]) -> Arc<Model> {
     let mesh = generators::beam([0.1, 0.04, 0.04], cells);
     let fixed: Vec<bool> = mesh.positions.iter().map(|p| p.x == 0.0).collect();
     let (lambda, mu) = MaterialParams::lame_from_young(3.0e5, 0.4);
-    let material = MaterialParams { lambda, mu, phi: 0.0, psi: 0.0, density: 1000.0 };
+    let material = MaterialParams {
+        lambda,
+        mu,
+        phi: 0.0,
+        psi: 0.0,
+        density: 1000.0,
+    };
     Arc::new(Model::new(&mesh, &fixed, material, [0.0, 0.0, -9.81]))
 }
 
 fn fem_step(c: &mut Criterion) {
-    let ctx = Arc::new(GpuContext::new().expect("a GPU adapter (apt-get install mesa-vulkan-drivers for lavapipe)"));
+    let ctx = Arc::new(
+        GpuContext::new()
+            .expect("a GPU adapter (apt-get install mesa-vulkan-drivers for lavapipe)"),
+    );
     let mut group = c.benchmark_group("fem_step");
-    group.sample_size(10).warm_up_time(Duration::from_secs(1)).measurement_time(Duration::from_secs(4));
+    group
+        .sample_size(10)
+        .warm_up_time(Duration::from_secs(1))
+        .measurement_time(Duration::from_secs(4));
     for (name, cells) in SIZES {
         let m = model(cells);
         let params = m.step_params(0.5 * m.bounds.dt_bound, 0.0);
         group.throughput(Throughput::Elements(m.n_tets() as u64));
         let mut cpu = CpuStepper::new(m.clone(), params);
-        group.bench_function(BenchmarkId::new("cpu", name), |b| b.iter(|| cpu.step(false)));
+        group.bench_function(BenchmarkId::new("cpu", name), |b| {
+            b.iter(|| cpu.step(false))
+        });
         let mut gpu = GpuStepper::new(ctx.clone(), &m, params).expect("GPU stepper");
         group.throughput(Throughput::Elements(m.n_tets() as u64 * GPU_BATCH as u64));
         group.bench_function(BenchmarkId::new(format!("gpu_x{GPU_BATCH}"), name), |b| {
@@ -57,7 +75,10 @@ fn best(reps: usize, mut f: impl FnMut()) -> f64 {
 
 fn ratio_table() {
     let ctx = Arc::new(GpuContext::new().expect("GPU adapter"));
-    println!("\nfem_step on '{}' vs CPU reference (1 thread)", ctx.describe());
+    println!(
+        "\nfem_step on '{}' vs CPU reference (1 thread)",
+        ctx.describe()
+    );
     println!("| tets | CPU tet-steps/s | GPU tet-steps/s | GPU/CPU |");
     println!("|---:|---:|---:|---:|");
     for (_, cells) in SIZES {
@@ -67,9 +88,16 @@ fn ratio_table() {
         let t_cpu = best(5, || cpu.step(false));
         let mut gpu = GpuStepper::new(ctx.clone(), &m, params).expect("GPU stepper");
         gpu.run_no_readback(GPU_BATCH).expect("warm-up");
-        let t_gpu = best(5, || gpu.run_no_readback(GPU_BATCH).expect("GPU batch")) / GPU_BATCH as f64;
+        let t_gpu =
+            best(5, || gpu.run_no_readback(GPU_BATCH).expect("GPU batch")) / GPU_BATCH as f64;
         let n = m.n_tets() as f64;
-        println!("| {} | {:.3e} | {:.3e} | {:.2} |", m.n_tets(), n / t_cpu, n / t_gpu, t_cpu / t_gpu);
+        println!(
+            "| {} | {:.3e} | {:.3e} | {:.2} |",
+            m.n_tets(),
+            n / t_cpu,
+            n / t_gpu,
+            t_cpu / t_gpu
+        );
     }
 }
 
@@ -78,5 +106,7 @@ criterion_group!(benches, fem_step);
 fn main() {
     benches();
     ratio_table();
-    criterion::Criterion::default().configure_from_args().final_summary();
+    criterion::Criterion::default()
+        .configure_from_args()
+        .final_summary();
 }

@@ -11,9 +11,10 @@
 @group(0) @binding(3) var<storage, read> mass: array<f32>;
 @group(0) @binding(4) var<storage, read> inv_mass: array<f32>;
 @group(0) @binding(5) var<storage, read> forces: array<f32>;
-@group(0) @binding(6) var<storage, read> tet_energy: array<f32>;
-@group(0) @binding(7) var<storage, read_write> partials: array<f32>;
-@group(0) @binding(8) var<storage, read_write> stats: array<f32>;
+@group(0) @binding(6) var<storage, read> external_forces: array<f32>;
+@group(0) @binding(7) var<storage, read> tet_energy: array<f32>;
+@group(0) @binding(8) var<storage, read_write> partials: array<f32>;
+@group(0) @binding(9) var<storage, read_write> stats: array<f32>;
 
 const WORKGROUP: u32 = 256u;
 const PARTIAL_LEN: u32 = 6u;
@@ -55,7 +56,8 @@ fn reduce_partial(
         if inv_mass[i] > 0.0 {
             let f = vec3<f32>(forces[3u * i], forces[3u * i + 1u], forces[3u * i + 2u]);
             lane[3] = dot(f, f);
-            let w = params.gravity * mass[i];
+            let w = params.gravity * mass[i]
+                + vec3<f32>(external_forces[3u * i], external_forces[3u * i + 1u], external_forces[3u * i + 2u]);
             lane[4] = dot(w, w);
         }
         let u = vec3<f32>(displacements[3u * i], displacements[3u * i + 1u], displacements[3u * i + 2u]);

@@ -33,17 +33,32 @@ pub struct Model {
     pub material: MaterialParams,
     /// Gravity, m/s².
     pub gravity: [f32; 3],
+    /// Constant external force per vertex (surface pressures), packed xyz, N.
+    pub external_forces: Vec<f32>,
+    /// Fibre direction per tet, packed xyz (empty when the mesh has none).
+    pub fibres: Vec<f32>,
     /// Stability bounds of this mesh and material.
     pub bounds: TimeStepBounds,
 }
 
 impl Model {
-    /// Build from a mesh, per-vertex fixed flags, material and gravity.
+    /// Build from a mesh, per-vertex fixed flags, material and gravity (no other load).
     pub fn new(
         mesh: &TetMesh,
         fixed: &[bool],
         material: MaterialParams,
         gravity: [f64; 3],
+    ) -> Model {
+        Model::with_loads(mesh, fixed, material, gravity, &[])
+    }
+
+    /// Build with constant external vertex forces `external` (N; empty for none).
+    pub fn with_loads(
+        mesh: &TetMesh,
+        fixed: &[bool],
+        material: MaterialParams,
+        gravity: [f64; 3],
+        external: &[glam::DVec3],
     ) -> Model {
         let n = mesh.n_vertices();
         let m = mesh.n_tets();
@@ -106,13 +121,32 @@ impl Model {
             incidence,
             material,
             gravity: gravity.map(|g| g as f32),
+            external_forces: if external.is_empty() {
+                vec![0.0; 3 * n]
+            } else {
+                external
+                    .iter()
+                    .flat_map(|f| f.to_array().map(|c| c as f32))
+                    .collect()
+            },
+            fibres: mesh
+                .fibres
+                .iter()
+                .flat_map(|f| f.to_array().map(|c| c as f32))
+                .collect(),
             bounds,
         }
     }
 
     /// Build from a validated scene.
     pub fn from_scene(scene: &Scene) -> Model {
-        Model::new(&scene.mesh, &scene.fixed, scene.material, scene.gravity)
+        Model::with_loads(
+            &scene.mesh,
+            &scene.fixed,
+            scene.material,
+            scene.gravity,
+            &scene.external_forces,
+        )
     }
 
     /// Number of vertices.

@@ -15,7 +15,7 @@ pub mod stat {
     pub const MAX_SPEED: usize = 2;
     /// Σ |f|² over free vertices, N².
     pub const RESIDUAL_SQ: usize = 3;
-    /// Σ |m g|² over free vertices, N².
+    /// Σ |m g + f_ext|² over free vertices, N².
     pub const EXTERNAL_SQ: usize = 4;
     /// Σ m |x − X|², kg·m² (with the elastic energy, a Rayleigh-quotient estimate of the
     /// dominant frequency: ω² ≈ 2·elastic / Σ m|u|²).

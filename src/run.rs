@@ -130,6 +130,10 @@ pub fn max_displacement(displacements: &[f32]) -> f64 {
 pub fn state_vtu(model: &Model, state: &State) -> String {
     let fixed: Vec<i32> = model.inv_mass.iter().map(|&w| (w == 0.0) as i32).collect();
     let material: Vec<i32> = model.regions.iter().map(|&r| r as i32).collect();
+    let mut cell_data = vec![vtu::DataArray::I32("material", &material)];
+    if !model.fibres.is_empty() {
+        cell_data.push(vtu::DataArray::F32("fibres", 3, &model.fibres));
+    }
     vtu::vtu(
         &model.rest,
         &model.tets,
@@ -138,7 +142,7 @@ pub fn state_vtu(model: &Model, state: &State) -> String {
             vtu::DataArray::F32("velocity", 3, &state.velocities),
             vtu::DataArray::I32("fixed", &fixed),
         ],
-        &[vtu::DataArray::I32("material", &material)],
+        &cell_data,
     )
 }
 

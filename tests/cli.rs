@@ -6,7 +6,10 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 fn palpate(args: &[&str]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_palpate")).args(args).output().expect("run palpate");
+    let out = Command::new(env!("CARGO_BIN_EXE_palpate"))
+        .args(args)
+        .output()
+        .expect("run palpate");
     (
         out.status.success(),
         String::from_utf8_lossy(&out.stdout).into_owned(),
@@ -35,9 +38,17 @@ fn assert_one_line_error(args: &[&str], must_contain: &[&str]) {
     assert!(!ok, "{args:?} should fail");
     assert!(!err.contains("panicked"), "{args:?} panicked: {err}");
     let lines = error_lines(&err);
-    assert_eq!(lines.len(), 1, "{args:?}: expected one error line, got {err}");
+    assert_eq!(
+        lines.len(),
+        1,
+        "{args:?}: expected one error line, got {err}"
+    );
     for m in must_contain {
-        assert!(lines[0].contains(m), "{args:?}: error {:?} lacks {m:?}", lines[0]);
+        assert!(
+            lines[0].contains(m),
+            "{args:?}: error {:?} lacks {m:?}",
+            lines[0]
+        );
     }
 }
 
@@ -52,12 +63,34 @@ fn scene_file(dir: &Path, name: &str, text: &str) -> String {
 #[test]
 fn steps_zero_writes_initial_state_and_summary() {
     let d = tmp("zero");
-    let (ok, out, err) = palpate(&["run", "beam", "--steps", "0", "--backend", "cpu", "--out", d.to_str().unwrap()]);
+    let (ok, out, err) = palpate(&[
+        "run",
+        "beam",
+        "--steps",
+        "0",
+        "--backend",
+        "cpu",
+        "--out",
+        d.to_str().unwrap(),
+    ]);
     assert!(ok, "{out}{err}");
     let s = summary(&d);
     for key in [
-        "scene", "backend", "adapter", "tets", "vertices", "particles", "steps", "dt", "sim_seconds", "wall_seconds",
-        "steps_per_second", "max_displacement", "kinetic_energy", "elastic_energy", "status",
+        "scene",
+        "backend",
+        "adapter",
+        "tets",
+        "vertices",
+        "particles",
+        "steps",
+        "dt",
+        "sim_seconds",
+        "wall_seconds",
+        "steps_per_second",
+        "max_displacement",
+        "kinetic_energy",
+        "elastic_energy",
+        "status",
     ] {
         assert!(s.get(key).is_some(), "summary lacks {key}: {s}");
     }
@@ -67,14 +100,26 @@ fn steps_zero_writes_initial_state_and_summary() {
     let vtu = std::fs::read_to_string(d.join("final.vtu")).unwrap();
     assert!(vtu.contains("NumberOfPoints=\"525\"") && vtu.contains("NumberOfCells=\"1920\""));
     for name in ["displacement", "velocity", "material"] {
-        assert!(vtu.contains(&format!("Name=\"{name}\"")), "final.vtu lacks {name}");
+        assert!(
+            vtu.contains(&format!("Name=\"{name}\"")),
+            "final.vtu lacks {name}"
+        );
     }
 }
 
 #[test]
 fn gpu_run_with_frames_writes_a_series() {
     let d = tmp("frames");
-    let (ok, out, err) = palpate(&["run", "beam", "--steps", "60", "--frames", "3", "--out", d.to_str().unwrap()]);
+    let (ok, out, err) = palpate(&[
+        "run",
+        "beam",
+        "--steps",
+        "60",
+        "--frames",
+        "3",
+        "--out",
+        d.to_str().unwrap(),
+    ]);
     assert!(ok, "{out}{err}");
     let pvd = std::fs::read_to_string(d.join("series.pvd")).unwrap();
     assert_eq!(pvd.matches("<DataSet").count(), 3, "{pvd}");
@@ -90,7 +135,18 @@ fn gpu_run_with_frames_writes_a_series() {
 #[test]
 fn duration_runs_the_right_number_of_steps() {
     let d = tmp("duration");
-    let (ok, out, err) = palpate(&["run", "beam", "--duration", "0.01", "--dt", "1e-4", "--backend", "cpu", "--out", d.to_str().unwrap()]);
+    let (ok, out, err) = palpate(&[
+        "run",
+        "beam",
+        "--duration",
+        "0.01",
+        "--dt",
+        "1e-4",
+        "--backend",
+        "cpu",
+        "--out",
+        d.to_str().unwrap(),
+    ]);
     assert!(ok, "{out}{err}");
     assert_eq!(summary(&d)["steps"], 100);
 }
@@ -99,27 +155,61 @@ fn duration_runs_the_right_number_of_steps() {
 fn scenes_and_info_list_things() {
     let (ok, out, _) = palpate(&["scenes"]);
     assert!(ok);
-    assert!(out.lines().any(|l| l.starts_with("beam")) && out.lines().any(|l| l.starts_with("ed0")), "{out}");
+    assert!(
+        out.lines().any(|l| l.starts_with("beam")) && out.lines().any(|l| l.starts_with("ed0")),
+        "{out}"
+    );
     let (ok, out, err) = palpate(&["info"]);
     assert!(ok, "{err}");
-    assert!(out.contains("chosen:") && out.contains("max_storage_buffer_binding_size"), "{out}");
+    assert!(
+        out.contains("chosen:") && out.contains("max_storage_buffer_binding_size"),
+        "{out}"
+    );
 }
 
 #[test]
 fn bad_scene_values_give_one_line_errors_naming_file_and_key() {
     let d = tmp("bad");
     let cases: &[(&str, &str, &[&str])] = &[
-        ("youngs_modulus = 3.0e5", "youngs_modulus = 3.0e5\nstiffness = 2.0", &["line", "stiffness"]),
-        ("youngs_modulus = 3.0e5", "youngs_modulus = \"soft\"", &["line", "youngs_modulus"]),
-        ("youngs_modulus = 3.0e5", "youngs_modulus = -1.0", &["material.youngs_modulus", "> 0"]),
-        ("poisson_ratio = 0.4", "poisson_ratio = 0.5", &["material.poisson_ratio"]),
-        ("poisson_ratio = 0.4", "poisson_ratio = -1.0", &["material.poisson_ratio"]),
+        (
+            "youngs_modulus = 3.0e5",
+            "youngs_modulus = 3.0e5\nstiffness = 2.0",
+            &["line", "stiffness"],
+        ),
+        (
+            "youngs_modulus = 3.0e5",
+            "youngs_modulus = \"soft\"",
+            &["line", "youngs_modulus"],
+        ),
+        (
+            "youngs_modulus = 3.0e5",
+            "youngs_modulus = -1.0",
+            &["material.youngs_modulus", "> 0"],
+        ),
+        (
+            "poisson_ratio = 0.4",
+            "poisson_ratio = 0.5",
+            &["material.poisson_ratio"],
+        ),
+        (
+            "poisson_ratio = 0.4",
+            "poisson_ratio = -1.0",
+            &["material.poisson_ratio"],
+        ),
         ("density = 1000.0", "density = 0.0", &["material.density"]),
         ("dt = \"auto\"", "dt = 0.0", &["solver.dt"]),
         ("dt = \"auto\"", "dt = \"fast\"", &["solver.dt"]),
-        ("generator = \"beam\"", "generator = \"banana\"", &["mesh.generator", "banana"]),
+        (
+            "generator = \"beam\"",
+            "generator = \"banana\"",
+            &["mesh.generator", "banana"],
+        ),
         ("cells = [20, 4, 4]", "cells = [20, 0, 4]", &["mesh.cells"]),
-        ("offset = 0.0 }", "offset = 5.0 }", &["fixed[0]", "selects no vertex"]),
+        (
+            "offset = 0.0 }",
+            "offset = 5.0 }",
+            &["fixed[0]", "selects no vertex"],
+        ),
         ("[loads]", "[loadz]", &["loadz"]),
     ];
     for (i, (from, to, want)) in cases.iter().enumerate() {
@@ -127,17 +217,37 @@ fn bad_scene_values_give_one_line_errors_naming_file_and_key() {
         let path = scene_file(&d, &format!("case{i}.toml"), &BEAM.replacen(from, to, 1));
         let mut must: Vec<&str> = want.to_vec();
         must.push(&path);
-        assert_one_line_error(&["run", &path, "--steps", "1", "--backend", "cpu", "--out", d.to_str().unwrap()], &must);
+        assert_one_line_error(
+            &[
+                "run",
+                &path,
+                "--steps",
+                "1",
+                "--backend",
+                "cpu",
+                "--out",
+                d.to_str().unwrap(),
+            ],
+            &must,
+        );
     }
 }
 
 #[test]
 fn missing_files_and_unknown_scenes_are_clear_errors() {
     let d = tmp("missing");
-    assert_one_line_error(&["run", "no_such_scene", "--steps", "1"], &["no_such_scene", "built-in"]);
+    assert_one_line_error(
+        &["run", "no_such_scene", "--steps", "1"],
+        &["no_such_scene", "built-in"],
+    );
     let path = scene_file(&d, "file.toml", &BEAM.replacen("generator = \"beam\"\nsize = [0.1, 0.02, 0.02]      # m\ncells = [20, 4, 4]            # 6 tets per cell: 1920 tets", "file = \"nowhere.node\"", 1));
-    assert!(std::fs::read_to_string(&path).unwrap().contains("nowhere.node"));
-    assert_one_line_error(&["run", &path, "--steps", "1", "--backend", "cpu"], &["nowhere"]);
+    assert!(std::fs::read_to_string(&path)
+        .unwrap()
+        .contains("nowhere.node"));
+    assert_one_line_error(
+        &["run", &path, "--steps", "1", "--backend", "cpu"],
+        &["nowhere"],
+    );
     assert_one_line_error(&["run", "beam", "--steps", "1", "--dt", "0"], &["--dt"]);
 }
 
@@ -145,40 +255,94 @@ fn missing_files_and_unknown_scenes_are_clear_errors() {
 fn dt_above_the_bound_is_refused_unless_allowed_and_divergence_is_caught() {
     let d = tmp("unstable");
     let out = d.to_str().unwrap();
-    assert_one_line_error(&["run", "beam", "--steps", "10", "--dt", "1e-3", "--backend", "cpu", "--out", out], &["above the stability bound", "--allow-unstable"]);
+    assert_one_line_error(
+        &[
+            "run",
+            "beam",
+            "--steps",
+            "10",
+            "--dt",
+            "1e-3",
+            "--backend",
+            "cpu",
+            "--out",
+            out,
+        ],
+        &["above the stability bound", "--allow-unstable"],
+    );
     // Allowed, it diverges; the run stops, says where, and writes the last finite state.
-    let (ok, _, err) = palpate(&["run", "beam", "--steps", "400", "--dt", "1e-3", "--allow-unstable", "--backend", "gpu", "--out", out]);
+    let (ok, _, err) = palpate(&[
+        "run",
+        "beam",
+        "--steps",
+        "400",
+        "--dt",
+        "1e-3",
+        "--allow-unstable",
+        "--backend",
+        "gpu",
+        "--out",
+        out,
+    ]);
     assert!(!ok);
     let s = summary(&d);
     let status = s["status"].as_str().unwrap();
-    assert!(status.contains("diverged") && status.contains("step") && status.contains("vertex"), "{status}");
+    assert!(
+        status.contains("diverged") && status.contains("step") && status.contains("vertex"),
+        "{status}"
+    );
     assert!(error_lines(&err).len() == 1, "{err}");
     // The written state is the last one before the flag: finite and below a body length.
     assert!(d.join("final.vtu").exists());
     let umax = s["max_displacement"].as_f64().unwrap();
     assert!(umax.is_finite() && umax < 0.1, "{s}");
     // With halve-dt it rolls back, retries at smaller steps, and completes the duration.
-    let (ok, o, err) = palpate(&["run", "beam", "--duration", "0.02", "--dt", "4e-4", "--allow-unstable", "--on-diverge", "halve-dt", "--backend", "gpu", "--out", out]);
+    let (ok, o, err) = palpate(&[
+        "run",
+        "beam",
+        "--duration",
+        "0.02",
+        "--dt",
+        "4e-4",
+        "--allow-unstable",
+        "--on-diverge",
+        "halve-dt",
+        "--backend",
+        "gpu",
+        "--out",
+        out,
+    ]);
     assert!(ok, "{o}{err}");
     let s = summary(&d);
     assert_eq!(s["status"], "ok");
     assert!(s["dt_halvings"].as_u64().unwrap() >= 1, "{s}");
-    assert!((s["sim_seconds"].as_f64().unwrap() - 0.02).abs() < 1e-6, "{s}");
+    assert!(
+        (s["sim_seconds"].as_f64().unwrap() - 0.02).abs() < 1e-6,
+        "{s}"
+    );
 }
 
 #[test]
 fn mesh_too_big_for_the_adapter_is_a_clear_error() {
     use palpate::gpu::{GpuContext, GpuStepper};
-    let ctx = GpuContext::new().unwrap_or_else(|e| panic!("{e}; install mesa-vulkan-drivers for a software adapter"));
+    let ctx = GpuContext::new()
+        .unwrap_or_else(|e| panic!("{e}; install mesa-vulkan-drivers for a software adapter"));
     let mut ctx = ctx;
     // Pretend the adapter allows only 64 KiB per storage binding.
     ctx.limits.max_storage_buffer_binding_size = 1 << 16;
     let scene = palpate::Scene::load("beam").unwrap();
     let model = palpate::model::Model::from_scene(&scene);
-    let err = match GpuStepper::new(std::sync::Arc::new(ctx), &model, model.step_params(1e-5, 0.0)) {
+    let err = match GpuStepper::new(
+        std::sync::Arc::new(ctx),
+        &model,
+        model.step_params(1e-5, 0.0),
+    ) {
         Ok(_) => panic!("a 92 KiB corner-force buffer must not fit a 64 KiB binding"),
         Err(e) => e.to_string(),
     };
-    assert!(err.contains("too big") && err.contains("corner_forces") && err.contains("65536"), "{err}");
+    assert!(
+        err.contains("too big") && err.contains("corner_forces") && err.contains("65536"),
+        "{err}"
+    );
     assert_eq!(err.lines().count(), 1);
 }

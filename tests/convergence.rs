@@ -9,9 +9,13 @@ const BEAM: &str = include_str!("../scenes/beam.toml");
 
 /// Mean vertical displacement of the vertices at the free end x = L, m.
 fn tip_deflection(cells: [usize; 3]) -> (f64, palpate::run::RunSummary) {
-    let text = BEAM.replace("cells = [20, 4, 4]", &format!("cells = [{}, {}, {}]", cells[0], cells[1], cells[2]));
+    let text = BEAM.replace(
+        "cells = [20, 4, 4]",
+        &format!("cells = [{}, {}, {}]", cells[0], cells[1], cells[2]),
+    );
     let scene = Scene::from_toml(&text, "beam (convergence)", "beam", None).unwrap();
-    let out = std::env::temp_dir().join(format!("palpate-conv-{}-{}", std::process::id(), cells[0]));
+    let out =
+        std::env::temp_dir().join(format!("palpate-conv-{}-{}", std::process::id(), cells[0]));
     let opts = RunOptions {
         backend: Backend::Cpu,
         length: RunLength::UntilStatic { max_steps: 100_000 },
@@ -26,7 +30,9 @@ fn tip_deflection(cells: [usize; 3]) -> (f64, palpate::run::RunSummary) {
     let model = palpate::model::Model::from_scene(&scene);
     let u = read_displacement(&vtu);
     let l = 0.1f32;
-    let tip: Vec<usize> = (0..model.n_vertices()).filter(|&i| (model.rest[3 * i] - l).abs() < 1e-6).collect();
+    let tip: Vec<usize> = (0..model.n_vertices())
+        .filter(|&i| (model.rest[3 * i] - l).abs() < 1e-6)
+        .collect();
     let d = -tip.iter().map(|&i| u[3 * i + 2] as f64).sum::<f64>() / tip.len() as f64;
     (d, summary)
 }
@@ -79,7 +85,18 @@ fn static_tip_deflection_converges_under_refinement() {
         );
         d.push(tip);
     }
-    assert!(d[0] < d[1] && d[1] < d[2], "deflection must grow as locking eases: {d:?}");
-    assert!(d[2] - d[1] < d[1] - d[0], "increments must shrink (convergence): {d:?}");
-    assert!((d[2] - euler_bernoulli).abs() < 0.15 * euler_bernoulli, "finest {:.4} mm vs Euler-Bernoulli {:.4} mm", d[2] * 1e3, euler_bernoulli * 1e3);
+    assert!(
+        d[0] < d[1] && d[1] < d[2],
+        "deflection must grow as locking eases: {d:?}"
+    );
+    assert!(
+        d[2] - d[1] < d[1] - d[0],
+        "increments must shrink (convergence): {d:?}"
+    );
+    assert!(
+        (d[2] - euler_bernoulli).abs() < 0.15 * euler_bernoulli,
+        "finest {:.4} mm vs Euler-Bernoulli {:.4} mm",
+        d[2] * 1e3,
+        euler_bernoulli * 1e3
+    );
 }

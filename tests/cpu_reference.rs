@@ -39,6 +39,7 @@ fn forces_and_energy(model: &Model, u: &[f32], v: &[f32]) -> (Vec<f32>, f64) {
         &model.incidence_offsets,
         &model.incidence,
         &model.mass,
+        &model.external_forces,
         &mut f,
     );
     (f, energy.iter().map(|&e| e as f64).sum())

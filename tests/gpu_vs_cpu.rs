@@ -23,7 +23,15 @@ fn model(viscous: bool) -> Arc<Model> {
         material.psi = 25.0;
     }
     let fixed: Vec<bool> = mesh.positions.iter().map(|p| p.x == 0.0).collect();
-    Arc::new(Model::new(&mesh, &fixed, material, [0.0, -3.0, -9.81]))
+    let mut rng = Rng(77);
+    let external: Vec<glam::DVec3> = (0..mesh.n_vertices()).map(|_| rng.vec() * 1e-3).collect();
+    Arc::new(Model::with_loads(
+        &mesh,
+        &fixed,
+        material,
+        [0.0, -3.0, -9.81],
+        &external,
+    ))
 }
 
 fn random(n: usize, amp: f64, rng: &mut Rng) -> Vec<f32> {
@@ -93,6 +101,7 @@ fn gather_kernel_matches_cpu_twin() {
         &m.incidence_offsets,
         &m.incidence,
         &m.mass,
+        &m.external_forces,
         &mut f,
     );
     let gf = g.read_f32("forces").unwrap();
@@ -168,7 +177,17 @@ fn reduce_kernel_matches_cpu_twin() {
     g.run_stage(Stage::Reduce).unwrap();
     let mut partials = vec![0.0; 6 * cpu::reduce::n_partials(&p)];
     let mut stats = vec![0.0; palpate::params::stat::LEN];
-    cpu::reduce_partial(&p, &u, &v, &m.mass, &m.inv_mass, &f, &te, &mut partials);
+    cpu::reduce_partial(
+        &p,
+        &u,
+        &v,
+        &m.mass,
+        &m.inv_mass,
+        &f,
+        &m.external_forces,
+        &te,
+        &mut partials,
+    );
     cpu::reduce_final(&p, &partials, &mut stats);
     let gs = g.read_f32("stats").unwrap();
     for k in 0..6 {

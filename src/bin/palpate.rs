@@ -24,7 +24,7 @@ enum Command {
     /// Simulate a scene and write final.vtu, summary.json (and series.pvd with --frames).
     Run {
         /// Built-in scene name or path to a scene TOML file.
-        #[arg(default_value = "beam")]
+        #[arg(default_value = scene::DEFAULT_SCENE)]
         scene: String,
         /// Backend that steps the model.
         #[arg(long, value_enum, default_value = "gpu")]
@@ -56,6 +56,14 @@ enum Command {
         /// Output directory.
         #[arg(long, default_value = "out")]
         out: PathBuf,
+    },
+    /// Mesh statistics and quality of a scene; optionally export the mesh (.vtu).
+    Mesh {
+        /// Built-in scene name or path to a scene TOML file.
+        scene: String,
+        /// Write the mesh to this file (.vtu, or any format `palpate::mesh::io::write` takes).
+        #[arg(long)]
+        out: Option<PathBuf>,
     },
     /// List the built-in scenes.
     Scenes,
@@ -112,7 +120,11 @@ fn execute(cli: Cli) -> Result<()> {
                 (Some(n), _, _) => RunLength::Steps(n),
                 (_, Some(t), _) => RunLength::Duration(t),
                 (_, _, true) => RunLength::UntilStatic { max_steps },
-                _ => RunLength::Steps(1000),
+                _ => scene
+                    .solver
+                    .duration
+                    .map(RunLength::Duration)
+                    .unwrap_or(RunLength::Steps(1000)),
             };
             let opts = RunOptions {
                 backend,
@@ -150,6 +162,16 @@ fn execute(cli: Cli) -> Result<()> {
                     "run did not finish cleanly: {}",
                     s.status
                 )));
+            }
+            Ok(())
+        }
+        Command::Mesh { scene, out } => {
+            let scene = Scene::load(&scene)?;
+            let report = palpate::mesh::quality::report(&scene);
+            print!("{report}");
+            if let Some(path) = out {
+                palpate::mesh::io::write(&path, &scene.mesh)?;
+                println!("wrote {}", path.display());
             }
             Ok(())
         }

@@ -1,22 +1,23 @@
-//! CPU twin of `kernels/gather.wgsl`: per vertex, f = m·g + Σ incident corner forces,
+//! CPU twin of `kernels/gather.wgsl`: per vertex, f = m·g + f_ext + Σ incident corner forces,
 //! summed in CSR order (no atomics, deterministic).
 
 use super::{load3, store3};
 use crate::params::StepParams;
 use glam::Vec3;
 
-/// Per vertex i: `forces[i] = mass[i]·g + Σ_{k ∈ offsets[i]..offsets[i+1]} corner_forces[incidence[k]]`.
+/// Per vertex i: `forces[i] = mass[i]·g + external_forces[i] + Σ_{k ∈ offsets[i]..offsets[i+1]} corner_forces[incidence[k]]`.
 pub fn gather(
     params: &StepParams,
     corner_forces: &[f32],
     incidence_offsets: &[u32],
     incidence: &[u32],
     mass: &[f32],
+    external_forces: &[f32],
     forces: &mut [f32],
 ) {
     let g = Vec3::from_array(params.gravity);
     for i in 0..params.n_vertices as usize {
-        let mut f = g * mass[i];
+        let mut f = g * mass[i] + load3(external_forces, i);
         for k in incidence_offsets[i]..incidence_offsets[i + 1] {
             f += load3(corner_forces, incidence[k as usize] as usize);
         }

@@ -44,6 +44,7 @@ pub fn reduce_partial(
     mass: &[f32],
     inv_mass: &[f32],
     forces: &[f32],
+    external_forces: &[f32],
     tet_energy: &[f32],
     partials: &mut [f32],
 ) {
@@ -59,7 +60,7 @@ pub fn reduce_partial(
                 if inv_mass[i] > 0.0 {
                     let f = load3(forces, i);
                     lane[3] = f.dot(f);
-                    let w = g * mass[i];
+                    let w = g * mass[i] + load3(external_forces, i);
                     lane[4] = w.dot(w);
                 }
                 let u = load3(displacements, i);

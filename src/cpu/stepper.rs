@@ -67,6 +67,7 @@ impl CpuStepper {
             &m.incidence_offsets,
             &m.incidence,
             &m.mass,
+            &m.external_forces,
             &mut self.forces,
         );
         integrate(
@@ -85,6 +86,7 @@ impl CpuStepper {
                 &m.mass,
                 &m.inv_mass,
                 &self.forces,
+                &m.external_forces,
                 &self.tet_energy,
                 &mut self.partials,
             );

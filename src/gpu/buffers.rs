@@ -40,6 +40,8 @@ pub struct SimBuffers {
     pub mass: wgpu::Buffer,
     /// Inverse mass per vertex (0 = fixed).
     pub inv_mass: wgpu::Buffer,
+    /// Constant external force per vertex, 3 f32.
+    pub external_forces: wgpu::Buffer,
     /// Per-vertex force, 3 f32.
     pub forces: wgpu::Buffer,
     /// Reduction partials, 5 f32 per block of 256.
@@ -159,6 +161,11 @@ impl SimBuffers {
             mass: init("mass", bytemuck::cast_slice(&model.mass), STORAGE),
             inv_mass: init("inv_mass", bytemuck::cast_slice(&model.inv_mass), STORAGE),
             forces: empty("forces", 12 * n, STORAGE),
+            external_forces: init(
+                "external_forces",
+                bytemuck::cast_slice(&model.external_forces),
+                STORAGE,
+            ),
             partials: empty("partials", 4 * PARTIAL_LEN as u64 * blocks, STORAGE),
             stats: init("stats", bytemuck::cast_slice(&stats_init), STORAGE),
             status: init("status", bytemuck::cast_slice(&[u32::MAX; 4]), STORAGE),

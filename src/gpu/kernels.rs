@@ -67,6 +67,7 @@ impl Gather {
                 ("incidence_offsets", &b.incidence_offsets, 4 * (n + 1)),
                 ("incidence", &b.incidence, 16 * m),
                 ("mass", &b.mass, 4 * n),
+                ("external_forces", &b.external_forces, 12 * n),
                 ("forces", &b.forces, 12 * n),
             ],
             n as u32,
@@ -139,6 +140,7 @@ impl Reduce {
                 ("mass", &b.mass, 4 * n),
                 ("inv_mass", &b.inv_mass, 4 * n),
                 ("forces", &b.forces, 12 * n),
+                ("external_forces", &b.external_forces, 12 * n),
                 ("tet_energy", &b.tet_energy, 4 * m),
                 (
                     "partials",

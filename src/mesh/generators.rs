@@ -5,7 +5,8 @@
 //! through layers and every prism (triangle × layer) is cut into three tets. The cut of each
 //! quadrilateral side of a prism uses the diagonal through its lowest global vertex id, so
 //! the two prisms that share a side cut it the same way and the mesh is conforming whatever
-//! the surface's topology (periodic, closed, a disk).
+//! the surface's topology (periodic, closed, a disk). How each surface quad is cut into two
+//! triangles is free (the diagonal is inside the quad); generators pick it for quality.
 
 use super::{signed_volume, tags, TetMesh};
 use glam::DVec3;
@@ -26,7 +27,12 @@ impl SurfaceGrid {
     /// diagonal through its lowest node id.
     pub fn push_quad(&mut self, q: [u32; 4]) {
         let lowest = (0..4).min_by_key(|&i| q[i]).unwrap_or(0);
-        if lowest % 2 == 0 {
+        self.push_quad_split(q, lowest % 2 == 0);
+    }
+
+    /// Add the quad (a, b, c, d) as two triangles, split along a–c when `diagonal_ac`, else b–d.
+    pub fn push_quad_split(&mut self, q: [u32; 4], diagonal_ac: bool) {
+        if diagonal_ac {
             self.triangles.push([q[0], q[1], q[2]]);
             self.triangles.push([q[0], q[2], q[3]]);
         } else {
@@ -146,9 +152,24 @@ pub fn cubed_sphere(n: usize) -> (SurfaceGrid, Vec<DVec3>) {
     (grid, dirs)
 }
 
+/// Region id of a tet in wall layer `layer` of `layers`: the inner half of the wall is
+/// [`REGION_INNER_WALL`], the outer half [`REGION_OUTER_WALL`].
+pub fn wall_region(layer: u32, layers: usize) -> u32 {
+    if (layer as usize) < layers.div_ceil(2) {
+        REGION_INNER_WALL
+    } else {
+        REGION_OUTER_WALL
+    }
+}
+
+/// Region id of tets in the inner half of a shell wall (the FEM core of the hybrid model).
+pub const REGION_INNER_WALL: u32 = 0;
+/// Region id of tets in the outer half of a shell wall (the particle zone of the hybrid model).
+pub const REGION_OUTER_WALL: u32 = 1;
+
 /// Two concentric ellipsoids (semi-axes `inner` and `outer`, m) with the shell between them
 /// filled with tets: `layers` through the wall, `n` cells along each cube-face edge.
-/// Vertex tags: inner surface = endocardium, outer = epicardium. Region = layer.
+/// Vertex tags: inner surface = endocardium, outer = epicardium. Regions: inner/outer wall.
 pub fn ellipsoid_shell(inner: [f64; 3], outer: [f64; 3], layers: usize, n: usize) -> TetMesh {
     let (grid, dirs) = cubed_sphere(n);
     let (a, b) = (DVec3::from_array(inner), DVec3::from_array(outer));
@@ -164,7 +185,7 @@ pub fn ellipsoid_shell(inner: [f64; 3], outer: [f64; 3], layers: usize, n: usize
     TetMesh {
         positions,
         tets,
-        regions: layer_of,
+        regions: layer_of.iter().map(|&l| wall_region(l, layers)).collect(),
         vertex_tags,
         ..Default::default()
     }
@@ -209,6 +230,16 @@ impl Default for LvGeometry {
 }
 
 impl LvGeometry {
+    /// Analytic volume of the wall: V(epi) − V(endo), with V the volume of the prolate
+    /// spheroid (r_s, r_s, r_l) below z_base: π r_s² [(z_b + r_l) − (z_b³ + r_l³)/(3 r_l²)], m³.
+    pub fn wall_volume(&self) -> f64 {
+        let v = |rs: f64, rl: f64| {
+            let zb = self.base_z;
+            PI * rs * rs * ((zb + rl) - (zb.powi(3) + rl.powi(3)) / (3.0 * rl * rl))
+        };
+        v(self.short_radius[1], self.long_radius[1]) - v(self.short_radius[0], self.long_radius[0])
+    }
+
     /// Point at wall fraction t ∈ [0,1] (endo → epi), disk radius ρ ∈ [0,1] (apex → base)
     /// and angle v: x = r_s sin u cos v, y = r_s sin u sin v, z = r_l cos u with
     /// u = −π + ρ (π − arccos(z_base / r_l)).
@@ -221,9 +252,15 @@ impl LvGeometry {
     }
 }
 
+/// Fibre helix angle at the endocardium, degrees (linear to −60° at the epicardium).
+pub const HELIX_ENDO_DEG: f64 = 60.0;
+
 /// Idealised left ventricle: `layers` through the wall, a `disk`×`disk` square grid mapped
 /// onto the apex-to-base surface by [`concentric_disk`] (disk/2 rings apex → base, 4·disk
-/// cells around). Tags: endocardium, epicardium, base. Region = layer.
+/// cells around, no seam and no polar fan). Tags: endocardium, epicardium, base. Regions:
+/// inner/outer wall. Fibres: helix angle α(t) = 60° − 120° t (t = wall fraction, endo → epi)
+/// from the circumferential direction towards the apex-to-base direction,
+/// f = cos α e_circ + sin α e_long, at each tet's centroid.
 pub fn lv(geometry: LvGeometry, layers: usize, disk: usize) -> TetMesh {
     let m = disk + 1;
     let mut grid = SurfaceGrid {
@@ -231,11 +268,6 @@ pub fn lv(geometry: LvGeometry, layers: usize, disk: usize) -> TetMesh {
         ..Default::default()
     };
     let id = |i: usize, j: usize| (i + j * m) as u32;
-    for j in 0..disk {
-        for i in 0..disk {
-            grid.push_quad([id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1)]);
-        }
-    }
     let polar: Vec<(f64, f64)> = (0..m * m)
         .map(|s| {
             let (i, j) = (s % m, s / m);
@@ -244,6 +276,27 @@ pub fn lv(geometry: LvGeometry, layers: usize, disk: usize) -> TetMesh {
             concentric_disk(a, b)
         })
         .collect();
+    let on_rim = |s: u32| {
+        let (i, j) = (s as usize % m, s as usize / m);
+        i == 0 || j == 0 || i == disk || j == disk
+    };
+    let mid = |s: u32| geometry.point(0.5, polar[s as usize].0, polar[s as usize].1);
+    for j in 0..disk {
+        for i in 0..disk {
+            let q = [id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1)];
+            // A triangle with all three nodes on the base rim would extrude into a flat
+            // prism in the base plane: at the square's corners take the other diagonal.
+            // Elsewhere, the split whose worse triangle is better (on the mid-wall surface).
+            let rim_ac = (on_rim(q[0]) && on_rim(q[1]) && on_rim(q[2]))
+                || (on_rim(q[0]) && on_rim(q[2]) && on_rim(q[3]));
+            let rim_bd = (on_rim(q[1]) && on_rim(q[2]) && on_rim(q[3]))
+                || (on_rim(q[1]) && on_rim(q[3]) && on_rim(q[0]));
+            let p = q.map(mid);
+            let ac = triangle_quality(p[0], p[1], p[2]).min(triangle_quality(p[0], p[2], p[3]));
+            let bd = triangle_quality(p[1], p[2], p[3]).min(triangle_quality(p[1], p[3], p[0]));
+            grid.push_quad_split(q, if rim_ac != rim_bd { rim_bd } else { ac >= bd });
+        }
+    }
     let (positions, tets, layer_of) = extrude(&grid, layers, |k, s| {
         let (rho, v) = polar[s];
         geometry.point(k as f64 / layers as f64, rho, v)
@@ -264,11 +317,52 @@ pub fn lv(geometry: LvGeometry, layers: usize, disk: usize) -> TetMesh {
             }
         }
     }
+    let param: Vec<(f64, f64, f64)> = (0..positions.len())
+        .map(|g| {
+            let (k, s) = (g / (m * m), g % (m * m));
+            (k as f64 / layers as f64, polar[s].0, polar[s].1)
+        })
+        .collect();
+    let fibres = tets
+        .iter()
+        .map(|t| lv_fibre(&geometry, t.map(|i| param[i as usize])))
+        .collect();
     TetMesh {
         positions,
         tets,
-        regions: layer_of,
+        regions: layer_of.iter().map(|&l| wall_region(l, layers)).collect(),
         vertex_tags,
-        ..Default::default()
+        fibres,
     }
+}
+
+/// Triangle shape quality 4√3·area / Σ edge², 1 for equilateral, 0 for degenerate.
+pub fn triangle_quality(a: DVec3, b: DVec3, c: DVec3) -> f64 {
+    let area = 0.5 * (b - a).cross(c - a).length();
+    let s = (b - a).length_squared() + (c - b).length_squared() + (a - c).length_squared();
+    4.0 * 3f64.sqrt() * area / s.max(f64::MIN_POSITIVE)
+}
+
+/// Fibre direction of a tet from its corners' (t, ρ, v) parameters (see [`lv`]).
+fn lv_fibre(geometry: &LvGeometry, corners: [(f64, f64, f64); 4]) -> DVec3 {
+    let t = corners.iter().map(|c| c.0).sum::<f64>() / 4.0;
+    let mut e_circ = DVec3::ZERO;
+    let mut e_long = DVec3::ZERO;
+    let h = 1e-6;
+    for (ct, rho, v) in corners {
+        let p = geometry.point(ct, rho, v);
+        let dv = geometry.point(ct, rho, v + h) - p;
+        let drho = geometry.point(ct, (rho + h).min(1.0), v)
+            - geometry.point(ct, (rho + h).min(1.0) - h, v);
+        // The circumferential direction is undefined on the axis (apex): skip it there.
+        if dv.length() > 1e-14 {
+            e_circ += dv.normalize();
+        }
+        e_long += drho.normalize_or_zero();
+    }
+    let e_long = e_long.normalize_or(DVec3::Z);
+    let e_circ =
+        (e_circ - e_long * e_circ.dot(e_long)).normalize_or(e_long.any_orthonormal_vector());
+    let alpha = (HELIX_ENDO_DEG - 2.0 * HELIX_ENDO_DEG * t).to_radians();
+    (e_circ * alpha.cos() + e_long * alpha.sin()).normalize()
 }

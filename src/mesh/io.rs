@@ -181,3 +181,41 @@ pub fn read_tetgen(path: &Path) -> Result<TetMesh> {
         ..Default::default()
     })
 }
+
+/// Write a mesh; the format follows the extension (`.vtu`).
+pub fn write(path: &Path, mesh: &TetMesh) -> Result<()> {
+    let ext = path
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    match ext.as_str() {
+        "vtu" => {
+            use crate::output::vtu::{vtu, DataArray};
+            let points: Vec<f32> = mesh
+                .positions
+                .iter()
+                .flat_map(|p| p.to_array().map(|c| c as f32))
+                .collect();
+            let regions: Vec<i32> = mesh.regions.iter().map(|&r| r as i32).collect();
+            let tags: Vec<i32> = mesh.vertex_tags.iter().map(|&t| t as i32).collect();
+            let fibres: Vec<f32> = mesh
+                .fibres
+                .iter()
+                .flat_map(|f| f.to_array().map(|c| c as f32))
+                .collect();
+            let mut pd = Vec::new();
+            if !tags.is_empty() {
+                pd.push(DataArray::I32("vertex_tags", &tags));
+            }
+            let mut cd = vec![DataArray::I32("material", &regions)];
+            if !fibres.is_empty() {
+                cd.push(DataArray::F32("fibres", 3, &fibres));
+            }
+            crate::output::write_atomic(path, vtu(&points, &mesh.tets, &pd, &cd).as_bytes())
+        }
+        _ => Err(PalpateError::MeshFile {
+            path: path.to_path_buf(),
+            message: format!("cannot write '.{ext}' (supported: .vtu)"),
+        }),
+    }
+}

@@ -6,6 +6,7 @@
 
 pub mod generators;
 pub mod io;
+pub mod quality;
 
 use crate::error::{PalpateError, Result};
 use glam::DVec3;

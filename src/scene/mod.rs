@@ -11,11 +11,17 @@ use glam::DVec3;
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
 
-/// The built-in scenes: (name, one-line description, TOML text).
+/// The built-in scenes: (name, TOML text).
 pub const BUILTIN: &[(&str, &str)] = &[
     ("beam", include_str!("../../scenes/beam.toml")),
     ("ed0", include_str!("../../scenes/ed0.toml")),
+    ("lv", include_str!("../../scenes/lv.toml")),
+    ("hm1", include_str!("../../scenes/hm1.toml")),
+    ("hm2", include_str!("../../scenes/hm2.toml")),
 ];
+
+/// The scene `palpate run` uses when none is named.
+pub const DEFAULT_SCENE: &str = "lv";
 
 /// `[mesh]`: exactly one of `generator` (with its parameters) or `file`.
 #[derive(Clone, Debug, Default, Deserialize)]
@@ -101,12 +107,26 @@ pub struct FixedSpec {
     pub tag: Option<String>,
 }
 
+/// `[[loads.pressure]]`: a pressure on the boundary faces whose vertices all carry `tag`,
+/// pushing into the solid (a dead load: set on the rest shape, constant in direction).
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PressureSpec {
+    /// Surface tag (`endocardium`, `epicardium`, `base`).
+    pub tag: String,
+    /// Pressure, Pa.
+    pub pascals: f64,
+}
+
 /// `[loads]`.
 #[derive(Clone, Debug, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct LoadsSpec {
     /// Gravity, m/s².
     pub gravity: Option<[f64; 3]>,
+    /// Surface pressures.
+    #[serde(default)]
+    pub pressure: Vec<PressureSpec>,
 }
 
 /// `dt`: `"auto"` or seconds.
@@ -131,6 +151,8 @@ pub struct SolverSpec {
     pub damping: Option<f64>,
     /// `--until-static` stops when ‖residual force‖ ≤ tolerance · ‖external load‖.
     pub static_tolerance: Option<f64>,
+    /// Simulated time `palpate run` uses when no length is given, s.
+    pub duration: Option<f64>,
 }
 
 /// The whole scene file.
@@ -167,6 +189,8 @@ pub struct SolverSettings {
     pub damping: f64,
     /// Relative residual tolerance for `--until-static`.
     pub static_tolerance: f64,
+    /// Default run length, s.
+    pub duration: Option<f64>,
 }
 
 /// A validated scene, ready to build a simulation from.
@@ -188,6 +212,8 @@ pub struct Scene {
     pub fixed: Vec<bool>,
     /// Gravity, m/s².
     pub gravity: [f64; 3],
+    /// Constant external force per vertex (surface pressures), N.
+    pub external_forces: Vec<DVec3>,
     /// Solver settings.
     pub solver: SolverSettings,
 }
@@ -285,6 +311,7 @@ impl Scene {
             return Err(bad("loads.gravity", "must be finite".into()));
         }
         let solver = resolve_solver(&file.solver, &bad)?;
+        let external_forces = pressure_forces(&file.loads.pressure, &mesh, &bad)?;
         Ok(Scene {
             name: file.name.unwrap_or_else(|| default_name.to_string()),
             origin: origin.to_string(),
@@ -294,6 +321,7 @@ impl Scene {
             material,
             fixed,
             gravity,
+            external_forces,
             solver,
         })
     }
@@ -628,6 +656,61 @@ fn select_fixed(specs: &[FixedSpec], mesh: &TetMesh, bad: &Bad) -> Result<Vec<bo
     Ok(fixed)
 }
 
+/// Nodal forces of the pressures: each tagged boundary face (outward normal n, area A)
+/// gives −p·A·n/3 to each of its vertices.
+fn pressure_forces(specs: &[PressureSpec], mesh: &TetMesh, bad: &Bad) -> Result<Vec<DVec3>> {
+    let mut f = vec![DVec3::ZERO; mesh.n_vertices()];
+    if specs.is_empty() {
+        return Ok(f);
+    }
+    let faces = mesh.boundary_faces();
+    for (k, spec) in specs.iter().enumerate() {
+        let item = format!("loads.pressure[{k}]");
+        if !spec.pascals.is_finite() {
+            return Err(bad(&format!("{item}.pascals"), "must be finite".into()));
+        }
+        let bit = tags::by_name(&spec.tag).ok_or_else(|| {
+            bad(
+                &format!("{item}.tag"),
+                format!(
+                    "unknown tag '{}' (known: endocardium, epicardium, base)",
+                    spec.tag
+                ),
+            )
+        })?;
+        if mesh.vertex_tags.is_empty() {
+            return Err(bad(
+                &format!("{item}.tag"),
+                "this mesh carries no vertex tags".into(),
+            ));
+        }
+        let mut count = 0;
+        for face in &faces {
+            if face
+                .iter()
+                .all(|&v| mesh.vertex_tags[v as usize] & bit != 0)
+            {
+                let [a, b, c] = face.map(|v| mesh.positions[v as usize]);
+                let area_normal = (b - a).cross(c - a) * 0.5;
+                for &v in face {
+                    f[v as usize] -= area_normal * (spec.pascals / 3.0);
+                }
+                count += 1;
+            }
+        }
+        if count == 0 {
+            return Err(bad(
+                &item,
+                format!(
+                    "no boundary face has all its vertices tagged '{}'",
+                    spec.tag
+                ),
+            ));
+        }
+    }
+    Ok(f)
+}
+
 fn resolve_solver(s: &SolverSpec, bad: &Bad) -> Result<SolverSettings> {
     let dt = match &s.dt {
         None => None,
@@ -656,10 +739,15 @@ fn resolve_solver(s: &SolverSpec, bad: &Bad) -> Result<SolverSettings> {
     }
     let static_tolerance = s.static_tolerance.unwrap_or(1e-3);
     positive(bad, "solver.static_tolerance", static_tolerance, "")?;
+    let duration = match s.duration {
+        Some(d) => Some(positive(bad, "solver.duration", d, "s")?),
+        None => None,
+    };
     Ok(SolverSettings {
         dt,
         safety,
         damping,
         static_tolerance,
+        duration,
     })
 }
