@@ -31,6 +31,7 @@ fn model(cells: [usize; 3]) -> Arc<Model> {
         phi: 0.0,
         psi: 0.0,
         density: 1000.0,
+        model: Default::default(),
     };
     Arc::new(Model::new(&mesh, &fixed, material, [0.0, 0.0, -9.81]))
 }

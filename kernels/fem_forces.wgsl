@@ -1,9 +1,10 @@
-// Stage 1: per tet, St. Venant–Kirchhoff forces with the paper's viscous stress (eq. 1–6).
+// Stage 1: per tet, element forces (paper eq. 1-6) for the scene's material.
 // The state is the displacement u = x - X (finer f32 resolution than positions):
-// H = Du Dm^-1, F = I + H, E = (H + H^T + H^T H)/2 (= (F^T F - I)/2 without cancellation),
-// Edot = (Fdot^T F + F^T Fdot)/2 with Fdot = Dv Dm^-1,
-// S = lambda tr(E) I + 2 mu E + phi tr(Edot) I + 2 psi Edot, P = F S,
-// corner forces [f1 f2 f3] = -V P Dm^-T, f0 = -(f1 + f2 + f3); energy V (mu E:E + lambda/2 tr(E)^2).
+// H = Du Dm^-1, F = I + H; P = first Piola-Kirchhoff stress of the material
+// (MATERIAL 0: St. Venant-Kirchhoff, 1: stable Neo-Hookean, 2: corotational; see
+// src/material.rs for the formulas), plus the viscous F S_v, S_v = phi tr(Edot) I + 2 psi Edot,
+// Edot = (Fdot^T F + F^T Fdot)/2, Fdot = Dv Dm^-1 (eq. 3-4);
+// corner forces [f1 f2 f3] = -V P Dm^-T, f0 = -(f1 + f2 + f3); energy V Psi.
 // CPU twin: src/cpu/fem_forces.rs.
 #import params
 #import index
@@ -17,10 +18,12 @@
 @group(0) @binding(6) var<storage, read_write> corner_forces: array<f32>;
 @group(0) @binding(7) var<storage, read_write> tet_energy: array<f32>;
 
-// Pipeline constant: false compiles the kernel without the viscous terms.
+// Pipeline constants: the material model, and whether the viscous terms are compiled in.
+override MATERIAL: u32 = 0u;
 override VISCOUS: bool = true;
 
 const WORKGROUP: u32 = 64u;
+const ROTATION_ITERATIONS: u32 = 24u;
 
 fn displacement(i: u32) -> vec3<f32> {
     return vec3<f32>(displacements[3u * i], displacements[3u * i + 1u], displacements[3u * i + 2u]);
@@ -40,6 +43,87 @@ fn trace3(m: mat3x3<f32>) -> f32 {
     return m[0].x + m[1].y + m[2].z;
 }
 
+fn ddot(a: mat3x3<f32>, b: mat3x3<f32>) -> f32 {
+    return dot(a[0], b[0]) + dot(a[1], b[1]) + dot(a[2], b[2]);
+}
+
+fn cofactor(a: mat3x3<f32>) -> mat3x3<f32> {
+    return mat3x3<f32>(cross(a[1], a[2]), cross(a[2], a[0]), cross(a[0], a[1]));
+}
+
+fn identity3() -> mat3x3<f32> {
+    return mat3x3<f32>(vec3<f32>(1.0, 0.0, 0.0), vec3<f32>(0.0, 1.0, 0.0), vec3<f32>(0.0, 0.0, 1.0));
+}
+
+struct StressEnergy {
+    p: mat3x3<f32>,
+    psi: f32,
+}
+
+// St. Venant-Kirchhoff: E = (H + H^T + H^T H)/2, S = lambda tr(E) I + 2 mu E, P = F S.
+fn stvk(h: mat3x3<f32>) -> StressEnergy {
+    let e = (h + transpose(h) + transpose(h) * h) * 0.5;
+    let tr = trace3(e);
+    let s = identity3() * (params.lambda * tr) + e * (2.0 * params.mu);
+    return StressEnergy((identity3() + h) * s, params.mu * ddot(e, e) + 0.5 * params.lambda * tr * tr);
+}
+
+// Stable Neo-Hookean with lambda_hat = lambda + mu, written in H to avoid cancellation.
+fn stable_neohookean(h: mat3x3<f32>) -> StressEnergy {
+    let lambda_hat = params.lambda + params.mu;
+    let tr = trace3(h);
+    let j_minus_1 = tr + 0.5 * (tr * tr - trace3(h * h)) + determinant(h);
+    let f_minus_cof = h + transpose(h) - identity3() * tr - cofactor(h);
+    let p = f_minus_cof * params.mu + cofactor(identity3() + h) * (lambda_hat * j_minus_1);
+    let psi = 0.5 * params.mu * (2.0 * tr + ddot(h, h)) - params.mu * j_minus_1 + 0.5 * lambda_hat * j_minus_1 * j_minus_1;
+    return StressEnergy(p, psi);
+}
+
+fn quat_to_mat(q: vec4<f32>) -> mat3x3<f32> {
+    let x = q.x;
+    let y = q.y;
+    let z = q.z;
+    let w = q.w;
+    return mat3x3<f32>(
+        vec3<f32>(1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y + w * z), 2.0 * (x * z - w * y)),
+        vec3<f32>(2.0 * (x * y - w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z + w * x)),
+        vec3<f32>(2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y)),
+    );
+}
+
+fn quat_mul(a: vec4<f32>, b: vec4<f32>) -> vec4<f32> {
+    return vec4<f32>(a.w * b.xyz + b.w * a.xyz + cross(a.xyz, b.xyz), a.w * b.w - dot(a.xyz, b.xyz));
+}
+
+// The rotation nearest F (Mueller et al. 2016), from the identity.
+fn extract_rotation(f: mat3x3<f32>) -> mat3x3<f32> {
+    var q = vec4<f32>(0.0, 0.0, 0.0, 1.0);
+    for (var k = 0u; k < ROTATION_ITERATIONS; k++) {
+        let r = quat_to_mat(q);
+        let num = cross(r[0], f[0]) + cross(r[1], f[1]) + cross(r[2], f[2]);
+        let den = abs(dot(r[0], f[0]) + dot(r[1], f[1]) + dot(r[2], f[2])) + 1e-9;
+        let omega = num / den;
+        let w = length(omega);
+        if w < 1e-9 {
+            break;
+        }
+        let axis = omega / w;
+        let dq = vec4<f32>(axis * sin(0.5 * w), cos(0.5 * w));
+        q = normalize(quat_mul(dq, q));
+    }
+    return quat_to_mat(q);
+}
+
+// Corotational: P = 2 mu (F - R) + lambda tr(R^T F - I) R.
+fn corotational(h: mat3x3<f32>) -> StressEnergy {
+    let f = identity3() + h;
+    let r = extract_rotation(f);
+    let f_minus_r = f - r;
+    let tr = trace3(transpose(r) * f) - 3.0;
+    let p = f_minus_r * (2.0 * params.mu) + r * (params.lambda * tr);
+    return StressEnergy(p, params.mu * ddot(f_minus_r, f_minus_r) + 0.5 * params.lambda * tr * tr);
+}
+
 @compute @workgroup_size(64)
 fn fem_forces(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let e = linear_index(gid, nwg, WORKGROUP);
@@ -56,24 +140,28 @@ fn fem_forces(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgr
         vec3<f32>(dm_inv[b + 6u], dm_inv[b + 7u], dm_inv[b + 8u]),
     );
     let volume = rest_volume[e];
-    let identity = mat3x3<f32>(vec3<f32>(1.0, 0.0, 0.0), vec3<f32>(0.0, 1.0, 0.0), vec3<f32>(0.0, 0.0, 1.0));
-    let h_grad = du * dmi;
-    let f = identity + h_grad;
-    let strain = (h_grad + transpose(h_grad) + transpose(h_grad) * h_grad) * 0.5;
-    let tr = trace3(strain);
-    var s = identity * (params.lambda * tr) + strain * (2.0 * params.mu);
+    let h = du * dmi;
+    var se: StressEnergy;
+    if MATERIAL == 1u {
+        se = stable_neohookean(h);
+    } else if MATERIAL == 2u {
+        se = corotational(h);
+    } else {
+        se = stvk(h);
+    }
+    var p = se.p;
     if VISCOUS {
+        let f = identity3() + h;
         let v0 = velocity(t.x);
         let dv = mat3x3<f32>(velocity(t.y) - v0, velocity(t.z) - v0, velocity(t.w) - v0);
         let f_dot = dv * dmi;
         let rate = (transpose(f_dot) * f + transpose(f) * f_dot) * 0.5;
-        s = s + identity * (params.phi * trace3(rate)) + rate * (2.0 * params.psi);
+        p = p + f * (identity3() * (params.phi * trace3(rate)) + rate * (2.0 * params.psi));
     }
-    let h = (f * s) * transpose(dmi) * (-volume);
-    store_corner(4u * e, -(h[0] + h[1] + h[2]));
-    store_corner(4u * e + 1u, h[0]);
-    store_corner(4u * e + 2u, h[1]);
-    store_corner(4u * e + 3u, h[2]);
-    let ee = dot(strain[0], strain[0]) + dot(strain[1], strain[1]) + dot(strain[2], strain[2]);
-    tet_energy[e] = volume * (params.mu * ee + 0.5 * params.lambda * tr * tr);
+    let g = p * transpose(dmi) * (-volume);
+    store_corner(4u * e, -(g[0] + g[1] + g[2]));
+    store_corner(4u * e + 1u, g[0]);
+    store_corner(4u * e + 2u, g[1]);
+    store_corner(4u * e + 3u, g[2]);
+    tet_energy[e] = volume * se.psi;
 }

@@ -1,4 +1,7 @@
-//! Materials: Lamé parameters, St. Venant–Kirchhoff stress with the paper's viscous stress.
+//! Materials: Lamé parameters, and the first Piola–Kirchhoff stress and energy density of
+//! each constitutive model, all with the paper's viscous stress added (eq. 3–4).
+//!
+//! ## St. Venant–Kirchhoff (`stvk`, the paper's model)
 //!
 //! Paper eq. (1)–(4) use ε = FᵀF − I and σ = λ tr(ε) I + 2μ ε, with f = vol/2 Σ … in eq. (6).
 //! With the Green strain E = ½(FᵀF − I) this is exactly St. Venant–Kirchhoff:
@@ -7,8 +10,62 @@
 //! * first Piola–Kirchhoff stress P = F S,
 //! * energy density Ψ = μ E:E + ½ λ tr(E)²,
 //! * corner forces f₁..₃ = columns of −V P Dm⁻ᵀ, f₀ = −(f₁ + f₂ + f₃).
+//!
+//! It loses resistance under strong compression and has no restoring force for inverted
+//! elements. ## Stable Neo-Hookean (`stable_neohookean`, Smith, de Goes & Kim 2018)
+//!
+//! Ψ = μ/2 (I_C − 3) − μ (J − 1) + λ̂/2 (J − 1)², λ̂ = λ + μ (so that it linearises to the
+//! given λ, μ), I_C = tr FᵀF, J = det F;
+//! P = μ (F − cof F) + λ̂ (J − 1) cof F, cof F = ∂J/∂F. Defined and restoring for J ≤ 0.
+//! Computed from H = F − I without cancellation: I_C − 3 = 2 tr H + |H|², J − 1 = tr H +
+//! ½((tr H)² − tr H²) + det H, F − cof F = H + Hᵀ − (tr H) I − cof H.
+//!
+//! ## Corotational linear elasticity (`corotational`)
+//!
+//! F = R S (R the rotation nearest F); Ψ = μ |F − R|² + λ/2 tr(RᵀF − I)²,
+//! P = 2μ (F − R) + λ tr(RᵀF − I) R. R is found by the quaternion iteration of Müller et al.
+//! 2016 ("A robust method to extract the rotational part of deformations"), which always
+//! returns a proper rotation, also for inverted elements.
+//!
+//! Viscous stress, all models: P_v = F S_v, S_v = φ tr(Ė) I + 2ψ Ė.
 
-use glam::Mat3;
+use glam::{Mat3, Quat, Vec3};
+
+/// Constitutive model; the value is the `MATERIAL` pipeline constant of `fem_forces.wgsl`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MaterialModel {
+    /// St. Venant–Kirchhoff (paper eq. 1–6).
+    #[default]
+    Stvk = 0,
+    /// Stable Neo-Hookean (Smith, de Goes, Kim 2018).
+    StableNeohookean = 1,
+    /// Corotational linear elasticity.
+    Corotational = 2,
+}
+
+impl MaterialModel {
+    /// All models.
+    pub const ALL: [MaterialModel; 3] = [
+        MaterialModel::Stvk,
+        MaterialModel::StableNeohookean,
+        MaterialModel::Corotational,
+    ];
+
+    /// The scene-file name.
+    pub fn name(self) -> &'static str {
+        match self {
+            MaterialModel::Stvk => "stvk",
+            MaterialModel::StableNeohookean => "stable_neohookean",
+            MaterialModel::Corotational => "corotational",
+        }
+    }
+
+    /// Parse a scene-file name.
+    pub fn from_name(name: &str) -> Option<MaterialModel> {
+        MaterialModel::ALL.into_iter().find(|m| m.name() == name)
+    }
+}
 
 /// Lamé parameters and viscosity of one material, SI units (Pa, Pa·s, kg/m³).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
@@ -23,6 +80,8 @@ pub struct MaterialParams {
     pub psi: f64,
     /// Rest density ρ, kg/m³.
     pub density: f64,
+    /// Constitutive model.
+    pub model: MaterialModel,
 }
 
 impl MaterialParams {
@@ -78,4 +137,84 @@ pub fn stvk_energy_density(e: Mat3, lambda: f32, mu: f32) -> f32 {
     let tr = e.x_axis.x + e.y_axis.y + e.z_axis.z;
     let ee = e.x_axis.dot(e.x_axis) + e.y_axis.dot(e.y_axis) + e.z_axis.dot(e.z_axis);
     mu * ee + 0.5 * lambda * tr * tr
+}
+
+/// Trace of a 3×3 matrix.
+#[inline]
+pub fn trace(m: Mat3) -> f32 {
+    m.x_axis.x + m.y_axis.y + m.z_axis.z
+}
+
+/// Frobenius product A:B.
+#[inline]
+pub fn ddot(a: Mat3, b: Mat3) -> f32 {
+    a.x_axis.dot(b.x_axis) + a.y_axis.dot(b.y_axis) + a.z_axis.dot(b.z_axis)
+}
+
+/// Cofactor matrix (columns c₀ = a₁×a₂, c₁ = a₂×a₀, c₂ = a₀×a₁) = det(A) A⁻ᵀ = ∂det/∂A.
+#[inline]
+pub fn cofactor(a: Mat3) -> Mat3 {
+    Mat3::from_cols(
+        a.y_axis.cross(a.z_axis),
+        a.z_axis.cross(a.x_axis),
+        a.x_axis.cross(a.y_axis),
+    )
+}
+
+/// Stable Neo-Hookean P and Ψ from the displacement gradient H (see module docs).
+pub fn snh_stress_energy(h: Mat3, lambda: f32, mu: f32) -> (Mat3, f32) {
+    let lambda_hat = lambda + mu;
+    let f = Mat3::IDENTITY + h;
+    let tr = trace(h);
+    let j_minus_1 = tr + 0.5 * (tr * tr - trace(h * h)) + h.determinant();
+    let f_minus_cof = h + h.transpose() - Mat3::from_diagonal(Vec3::splat(tr)) - cofactor(h);
+    let p = f_minus_cof * mu + cofactor(f) * (lambda_hat * j_minus_1);
+    let ic_minus_3 = 2.0 * tr + ddot(h, h);
+    let psi = 0.5 * mu * ic_minus_3 - mu * j_minus_1 + 0.5 * lambda_hat * j_minus_1 * j_minus_1;
+    (p, psi)
+}
+
+/// Iterations of the rotation extraction, from the identity.
+pub const ROTATION_ITERATIONS: u32 = 24;
+
+/// The rotation R nearest F (Müller et al. 2016): q ← exp(ω) q with
+/// ω = Σᵢ rᵢ × fᵢ / (|Σᵢ rᵢ·fᵢ| + 1e-9), rᵢ, fᵢ the columns of R(q) and F.
+pub fn extract_rotation(f: Mat3) -> Mat3 {
+    let mut q = Quat::IDENTITY;
+    for _ in 0..ROTATION_ITERATIONS {
+        let r = Mat3::from_quat(q);
+        let num = r.x_axis.cross(f.x_axis) + r.y_axis.cross(f.y_axis) + r.z_axis.cross(f.z_axis);
+        let den =
+            (r.x_axis.dot(f.x_axis) + r.y_axis.dot(f.y_axis) + r.z_axis.dot(f.z_axis)).abs() + 1e-9;
+        let omega = num / den;
+        let w = omega.length();
+        if w < 1e-9 {
+            break;
+        }
+        q = (Quat::from_axis_angle(omega / w, w) * q).normalize();
+    }
+    Mat3::from_quat(q)
+}
+
+/// Corotational P and Ψ from the displacement gradient H (see module docs).
+pub fn corotational_stress_energy(h: Mat3, lambda: f32, mu: f32) -> (Mat3, f32) {
+    let f = Mat3::IDENTITY + h;
+    let r = extract_rotation(f);
+    let f_minus_r = f - r;
+    let tr = trace(r.transpose() * f) - 3.0;
+    let p = f_minus_r * (2.0 * mu) + r * (lambda * tr);
+    (p, mu * ddot(f_minus_r, f_minus_r) + 0.5 * lambda * tr * tr)
+}
+
+/// First Piola–Kirchhoff stress and energy density of `model` (elastic part only).
+pub fn elastic_stress_energy(model: MaterialModel, h: Mat3, lambda: f32, mu: f32) -> (Mat3, f32) {
+    match model {
+        MaterialModel::Stvk => {
+            let e = green_strain_from_gradient(h);
+            let s = stvk_second_piola(e, Mat3::ZERO, lambda, mu, 0.0, 0.0);
+            ((Mat3::IDENTITY + h) * s, stvk_energy_density(e, lambda, mu))
+        }
+        MaterialModel::StableNeohookean => snh_stress_energy(h, lambda, mu),
+        MaterialModel::Corotational => corotational_stress_energy(h, lambda, mu),
+    }
 }

@@ -149,6 +149,14 @@ impl Model {
         )
     }
 
+    /// The `fem_forces` kernel variant this model needs (material, viscous or not).
+    pub fn fem_variant(&self) -> crate::cpu::fem_forces::FemVariant {
+        crate::cpu::fem_forces::FemVariant {
+            model: self.material.model,
+            viscous: self.material.is_viscous(),
+        }
+    }
+
     /// Number of vertices.
     pub fn n_vertices(&self) -> usize {
         self.mass.len()

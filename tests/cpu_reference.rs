@@ -6,8 +6,9 @@ mod common;
 
 use common::{free_model, jittered_beam, tissue, Rng};
 use glam::{DMat3, DVec3, Mat3, Vec3};
-use palpate::cpu::fem_forces::{load_dm_inv, tet_forces};
+use palpate::cpu::fem_forces::{load_dm_inv, tet_forces, FemVariant};
 use palpate::cpu::{fem_forces, gather, load3, CpuStepper};
+use palpate::material::MaterialModel;
 use palpate::model::Model;
 use palpate::params::StepParams;
 use palpate::stepper::{State, Stepper};
@@ -30,7 +31,7 @@ fn forces_and_energy(model: &Model, u: &[f32], v: &[f32]) -> (Vec<f32>, f64) {
         &model.rest_volume,
         &mut corner,
         &mut energy,
-        model.material.is_viscous(),
+        model.fem_variant(),
     );
     let mut f = vec![0.0; 3 * model.n_vertices()];
     gather(
@@ -163,7 +164,11 @@ fn paper_eq6_literal_equals_the_p_equals_fs_form() {
         let u = [0, 1, 2, 3].map(|k| (x[k] - rest[k]).as_vec3());
         let v = xdot.map(|q| q.as_vec3());
         let dmi = Mat3::from_cols_array(&dm.inverse().to_cols_array().map(|c| c as f32));
-        let (ours, _) = tet_forces(&p, u, v, dmi, (dm.determinant() / 6.0) as f32, true);
+        let variant = FemVariant {
+            model: MaterialModel::Stvk,
+            viscous: true,
+        };
+        let (ours, _) = tet_forces(&p, u, v, dmi, (dm.determinant() / 6.0) as f32, variant);
         let scale = lit.iter().map(|f| f.length()).fold(0.0, f64::max);
         for k in 0..4 {
             let diff = (ours[k].as_dvec3() + lit[k]).length() / scale;

@@ -6,8 +6,10 @@ mod common;
 
 use common::{gpu, jittered_beam, rel_err, tissue, Rng};
 use palpate::cpu;
+use palpate::cpu::fem_forces::FemVariant;
 use palpate::gpu::stepper::Stage;
 use palpate::gpu::GpuStepper;
+use palpate::material::MaterialModel;
 use palpate::model::Model;
 use palpate::params::StepParams;
 use palpate::sim::{Advance, Backend, SimOptions, Simulation};
@@ -15,9 +17,11 @@ use std::sync::Arc;
 
 const KERNEL_TOL: f64 = 1e-5;
 
-fn model(viscous: bool) -> Arc<Model> {
+fn model_of(variant: FemVariant) -> Arc<Model> {
+    let viscous = variant.viscous;
     let mesh = jittered_beam([6, 4, 3], 42);
     let mut material = tissue();
+    material.model = variant.model;
     if viscous {
         material.phi = 15.0;
         material.psi = 25.0;
@@ -39,51 +43,60 @@ fn random(n: usize, amp: f64, rng: &mut Rng) -> Vec<f32> {
 }
 
 fn setup(viscous: bool) -> (Arc<Model>, StepParams, GpuStepper) {
-    let m = model(viscous);
+    setup_variant(FemVariant {
+        model: MaterialModel::Stvk,
+        viscous,
+    })
+}
+
+fn setup_variant(variant: FemVariant) -> (Arc<Model>, StepParams, GpuStepper) {
+    let m = model_of(variant);
     let p = m.step_params(0.5 * m.bounds.dt_bound, 12.0);
     let g = GpuStepper::new(gpu(), &m, p).expect("GPU stepper");
     (m, p, g)
 }
 
 #[test]
-fn fem_forces_kernel_matches_cpu_twin() {
-    for viscous in [false, true] {
-        let (m, p, g) = setup(viscous);
-        let mut rng = Rng(1 + viscous as u64);
-        let n3 = 3 * m.n_vertices();
-        let u = random(n3, 2e-4, &mut rng);
-        let v = random(n3, 0.05, &mut rng);
-        g.write_f32("displacements", &u).unwrap();
-        g.write_f32("velocities", &v).unwrap();
-        g.run_stage(Stage::FemForces).unwrap();
-        let mut corner = vec![0.0; 12 * m.n_tets()];
-        let mut energy = vec![0.0; m.n_tets()];
-        cpu::fem_forces(
-            &p,
-            &u,
-            &v,
-            &m.tets,
-            &m.dm_inv,
-            &m.rest_volume,
-            &mut corner,
-            &mut energy,
-            viscous,
-        );
-        let gc = g.read_f32("corner_forces").unwrap();
-        let ge = g.read_f32("tet_energy").unwrap();
-        let (ec, ee) = (
-            rel_err(&gc[..corner.len()], &corner),
-            rel_err(&ge[..energy.len()], &energy),
-        );
-        eprintln!("fem_forces viscous={viscous}: corner forces rel err {ec:.2e}, energy {ee:.2e}");
-        assert!(
-            ec <= KERNEL_TOL,
-            "viscous={viscous}: corner forces rel err {ec:.2e}"
-        );
-        assert!(
-            ee <= KERNEL_TOL,
-            "viscous={viscous}: tet energy rel err {ee:.2e}"
-        );
+fn fem_forces_kernel_matches_cpu_twin_for_every_material_variant() {
+    for model in MaterialModel::ALL {
+        for viscous in [false, true] {
+            let variant = FemVariant { model, viscous };
+            let (m, p, g) = setup_variant(variant);
+            assert_eq!(m.fem_variant(), variant);
+            let mut rng = Rng(1 + viscous as u64 + 10 * model as u64);
+            let n3 = 3 * m.n_vertices();
+            // Large enough to rotate and stretch elements (|H| up to ~0.2).
+            let u = random(n3, 4e-4, &mut rng);
+            let v = random(n3, 0.05, &mut rng);
+            g.write_f32("displacements", &u).unwrap();
+            g.write_f32("velocities", &v).unwrap();
+            g.run_stage(Stage::FemForces).unwrap();
+            let mut corner = vec![0.0; 12 * m.n_tets()];
+            let mut energy = vec![0.0; m.n_tets()];
+            cpu::fem_forces(
+                &p,
+                &u,
+                &v,
+                &m.tets,
+                &m.dm_inv,
+                &m.rest_volume,
+                &mut corner,
+                &mut energy,
+                variant,
+            );
+            let gc = g.read_f32("corner_forces").unwrap();
+            let ge = g.read_f32("tet_energy").unwrap();
+            let (ec, ee) = (
+                rel_err(&gc[..corner.len()], &corner),
+                rel_err(&ge[..energy.len()], &energy),
+            );
+            eprintln!("fem_forces {variant:?}: corner forces rel err {ec:.2e}, energy {ee:.2e}");
+            assert!(
+                ec <= KERNEL_TOL,
+                "{variant:?}: corner forces rel err {ec:.2e}"
+            );
+            assert!(ee <= KERNEL_TOL, "{variant:?}: tet energy rel err {ee:.2e}");
+        }
     }
 }
 

@@ -1,12 +1,20 @@
-//! CPU twin of `kernels/fem_forces.wgsl`: per tet, H = Du·Dm⁻¹, F = I + H, E, Ė, S, P = F·S
-//! and the four corner forces −V·P·Dm⁻ᵀ (paper eq. 1–6), plus the elastic energy V·Ψ(E).
+//! CPU twin of `kernels/fem_forces.wgsl`: per tet, H = Du·Dm⁻¹, F = I + H, the material's
+//! first Piola–Kirchhoff stress P (plus the viscous F·S_v of paper eq. 3–4), and the four
+//! corner forces −V·P·Dm⁻ᵀ (paper eq. 6), plus the elastic energy V·Ψ.
 
 use super::{load3, store3};
-use crate::material::{
-    green_strain_from_gradient, green_strain_rate, stvk_energy_density, stvk_second_piola,
-};
+use crate::material::{elastic_stress_energy, green_strain_rate, stvk_second_piola, MaterialModel};
 use crate::params::StepParams;
 use glam::{Mat3, Vec3};
+
+/// The pipeline constants of `fem_forces.wgsl`: which material, and whether viscous terms run.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct FemVariant {
+    /// `MATERIAL` constant.
+    pub model: MaterialModel,
+    /// `VISCOUS` constant.
+    pub viscous: bool,
+}
 
 /// Dm⁻¹ of tet `e` from the packed column-major array (9 floats per tet).
 #[inline]
@@ -16,40 +24,27 @@ pub fn load_dm_inv(dm_inv: &[f32], e: usize) -> Mat3 {
 
 /// Corner forces and energy of one tet from its corner displacements `u` and velocities.
 ///
-/// Returns ([f₀, f₁, f₂, f₃], V·Ψ). `viscous` selects the viscous-stress variant.
-#[allow(clippy::too_many_arguments)]
+/// Returns ([f₀, f₁, f₂, f₃], V·Ψ) for the material and viscosity of `variant`.
 pub fn tet_forces(
     params: &StepParams,
     u: [Vec3; 4],
     v: [Vec3; 4],
     dmi: Mat3,
     volume: f32,
-    viscous: bool,
+    variant: FemVariant,
 ) -> ([Vec3; 4], f32) {
     let du = Mat3::from_cols(u[1] - u[0], u[2] - u[0], u[3] - u[0]);
     let h = du * dmi;
     let f = Mat3::IDENTITY + h;
-    let strain = green_strain_from_gradient(h);
-    let rate = if viscous {
+    let (mut p, psi_density) = elastic_stress_energy(variant.model, h, params.lambda, params.mu);
+    if variant.viscous {
         let dv = Mat3::from_cols(v[1] - v[0], v[2] - v[0], v[3] - v[0]);
-        green_strain_rate(f, dv * dmi)
-    } else {
-        Mat3::ZERO
-    };
-    let (phi, psi) = if viscous {
-        (params.phi, params.psi)
-    } else {
-        (0.0, 0.0)
-    };
-    let s = stvk_second_piola(strain, rate, params.lambda, params.mu, phi, psi);
-    let p = f * s;
+        let rate = green_strain_rate(f, dv * dmi);
+        p += f * stvk_second_piola(Mat3::ZERO, rate, 0.0, 0.0, params.phi, params.psi);
+    }
     let g = p * dmi.transpose() * (-volume);
-    let f1 = g.x_axis;
-    let f2 = g.y_axis;
-    let f3 = g.z_axis;
-    let f0 = -(f1 + f2 + f3);
-    let energy = volume * stvk_energy_density(strain, params.lambda, params.mu);
-    ([f0, f1, f2, f3], energy)
+    let (f1, f2, f3) = (g.x_axis, g.y_axis, g.z_axis);
+    ([-(f1 + f2 + f3), f1, f2, f3], volume * psi_density)
 }
 
 /// Per tet e: write corner force c to `corner_forces[(4e + c)·3 ..]` and V·Ψ to `tet_energy[e]`.
@@ -63,7 +58,7 @@ pub fn fem_forces(
     rest_volume: &[f32],
     corner_forces: &mut [f32],
     tet_energy: &mut [f32],
-    viscous: bool,
+    variant: FemVariant,
 ) {
     for e in 0..params.n_tets as usize {
         let t = tets[e];
@@ -75,7 +70,7 @@ pub fn fem_forces(
             v,
             load_dm_inv(dm_inv, e),
             rest_volume[e],
-            viscous,
+            variant,
         );
         for (c, f) in forces.iter().enumerate() {
             store3(corner_forces, 4 * e + c, *f);

@@ -1,6 +1,7 @@
 //! The CPU backend: the twins of the kernels called in the order of one GPU step.
 
 use super::{fem_forces, gather, integrate, reduce_final, reduce_partial};
+use crate::cpu::fem_forces::FemVariant;
 use crate::cpu::integrate::ALL_FINITE;
 use crate::cpu::reduce::{n_partials, PARTIAL_LEN};
 use crate::error::Result;
@@ -13,7 +14,7 @@ use std::sync::Arc;
 pub struct CpuStepper {
     model: Arc<Model>,
     params: StepParams,
-    viscous: bool,
+    variant: FemVariant,
     state: State,
     snapshot: (State, Vec<f32>),
     corner_forces: Vec<f32>,
@@ -32,7 +33,7 @@ impl CpuStepper {
             velocities: vec![0.0; model.rest.len()],
         };
         CpuStepper {
-            viscous: model.material.is_viscous(),
+            variant: model.fem_variant(),
             corner_forces: vec![0.0; 12 * model.n_tets()],
             tet_energy: vec![0.0; model.n_tets()],
             forces: vec![0.0; 3 * model.n_vertices()],
@@ -59,7 +60,7 @@ impl CpuStepper {
             &m.rest_volume,
             &mut self.corner_forces,
             &mut self.tet_energy,
-            self.viscous,
+            self.variant,
         );
         gather(
             p,

@@ -11,14 +11,17 @@ const PARAMS_BYTES: u64 = std::mem::size_of::<StepParams>() as u64;
 
 /// `kernels/fem_forces.wgsl`.
 pub struct FemForces {
-    /// Entry point `fem_forces`, specialised by the `VISCOUS` constant.
+    /// Entry point `fem_forces`, specialised by the `MATERIAL` and `VISCOUS` constants.
     pub fem_forces: ComputeKernel,
 }
 
 impl FemForces {
-    /// Build, with or without the viscous terms.
-    pub fn new(ctx: &GpuContext, viscous: bool) -> Result<Self> {
-        let constants = [("VISCOUS", if viscous { 1.0 } else { 0.0 })];
+    /// Build the variant (material model, with or without the viscous terms).
+    pub fn new(ctx: &GpuContext, variant: crate::cpu::fem_forces::FemVariant) -> Result<Self> {
+        let constants = [
+            ("MATERIAL", variant.model as u32 as f64),
+            ("VISCOUS", if variant.viscous { 1.0 } else { 0.0 }),
+        ];
         Ok(FemForces {
             fem_forces: ComputeKernel::new(ctx, "fem_forces", "fem_forces", &constants)?,
         })

@@ -25,10 +25,13 @@ pub struct StepPipelines {
 }
 
 impl StepPipelines {
-    /// Build the pipelines; `viscous` picks the fem_forces variant.
-    pub fn new(ctx: &GpuContext, viscous: bool) -> Result<StepPipelines> {
+    /// Build the pipelines; `variant` picks the fem_forces specialisation.
+    pub fn new(
+        ctx: &GpuContext,
+        variant: crate::cpu::fem_forces::FemVariant,
+    ) -> Result<StepPipelines> {
         Ok(StepPipelines {
-            fem_forces: FemForces::new(ctx, viscous)?,
+            fem_forces: FemForces::new(ctx, variant)?,
             gather: Gather::new(ctx)?,
             integrate: Integrate::new(ctx)?,
             reduce: Reduce::new(ctx)?,
@@ -71,7 +74,7 @@ impl GpuStepper {
     /// Upload `model` and build pipelines and bind groups.
     pub fn new(ctx: Arc<GpuContext>, model: &Model, params: StepParams) -> Result<GpuStepper> {
         let buffers = SimBuffers::new(&ctx, model, &params)?;
-        let pipelines = StepPipelines::new(&ctx, model.material.is_viscous())?;
+        let pipelines = StepPipelines::new(&ctx, model.fem_variant())?;
         let (n, m) = (model.n_vertices() as u64, model.n_tets() as u64);
         let (reduce_partial, reduce_final) = pipelines.reduce.bind(&ctx, &buffers, n, m)?;
         let bound = Bound {

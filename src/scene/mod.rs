@@ -5,7 +5,7 @@
 //! key, and what is wrong, on one line.
 
 use crate::error::{PalpateError, Result};
-use crate::material::MaterialParams;
+use crate::material::{MaterialModel, MaterialParams};
 use crate::mesh::{generators, tags, TetMesh, ValidationReport};
 use glam::DVec3;
 use serde::Deserialize;
@@ -56,7 +56,7 @@ pub struct MeshSpec {
 #[derive(Clone, Debug, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct MaterialSpec {
-    /// Constitutive model; `"stvk"`.
+    /// Constitutive model: `"stvk"`, `"stable_neohookean"` or `"corotational"`.
     pub model: Option<String>,
     /// Young's modulus E, Pa.
     pub youngs_modulus: Option<f64>,
@@ -338,13 +338,13 @@ fn positive(bad: &Bad, item: &str, v: f64, unit: &str) -> Result<f64> {
 }
 
 fn resolve_material(m: &MaterialSpec, bad: &Bad) -> Result<MaterialParams> {
-    let model = m.model.as_deref().unwrap_or("stvk");
-    if model != "stvk" {
-        return Err(bad(
+    let name = m.model.as_deref().unwrap_or("stvk");
+    let model = MaterialModel::from_name(name).ok_or_else(|| {
+        bad(
             "material.model",
-            format!("unknown model '{model}' (known: stvk)"),
-        ));
-    }
+            format!("unknown model '{name}' (known: stvk, stable_neohookean, corotational)"),
+        )
+    })?;
     let (lambda, mu) = match (m.youngs_modulus, m.poisson_ratio, m.lambda, m.mu) {
         (Some(e), Some(nu), None, None) => {
             positive(bad, "material.youngs_modulus", e, "Pa")?;
@@ -394,6 +394,7 @@ fn resolve_material(m: &MaterialSpec, bad: &Bad) -> Result<MaterialParams> {
         phi,
         psi,
         density,
+        model,
     })
 }
 

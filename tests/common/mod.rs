@@ -35,6 +35,7 @@ pub fn tissue() -> MaterialParams {
         phi: 0.0,
         psi: 0.0,
         density: 1000.0,
+        model: Default::default(),
     }
 }
 
