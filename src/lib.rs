@@ -5,6 +5,7 @@
 //! per-element and per-vertex stage is a WGSL kernel in `kernels/` with a CPU twin in
 //! [`cpu`]; see `ARCHITECTURE.md`.
 
+pub mod bench;
 pub mod cpu;
 pub mod error;
 pub mod gpu;

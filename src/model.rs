@@ -8,6 +8,12 @@ use crate::scene::Scene;
 use crate::timestep::TimeStepBounds;
 use glam::DMat3;
 
+/// The divergence guard's speed limit in P-wave speeds: a particle speed v = ε·c_p means a
+/// strain ε, so 10 c_p (a strain of 1000 %) is reached only by an instability or a load the
+/// body cannot hold; real instabilities grow exponentially, so the exact factor changes the
+/// detection step by only a few steps.
+pub const SPEED_LIMIT_WAVE_SPEEDS: f64 = 10.0;
+
 /// Everything the kernels read that does not change during a run.
 #[derive(Clone, Debug)]
 pub struct Model {
@@ -180,7 +186,7 @@ impl Model {
             mu: m.mu as f32,
             phi: m.phi as f32,
             psi: m.psi as f32,
-            speed_limit: (2.0 * m.p_wave_speed()) as f32,
+            speed_limit: (SPEED_LIMIT_WAVE_SPEEDS * m.p_wave_speed()) as f32,
         }
     }
 }

@@ -46,7 +46,7 @@ pub struct StepParams {
     pub phi: f32,
     /// Shear viscosity ψ, Pa·s.
     pub psi: f32,
-    /// Speed above which a vertex counts as diverged, m/s (2 × the P-wave speed: a particle
-    /// speed of 2·c_p means a strain of 200 %, which only an instability produces).
+    /// Speed above which a vertex counts as diverged, m/s
+    /// ([`crate::model::SPEED_LIMIT_WAVE_SPEEDS`] × the P-wave speed).
     pub speed_limit: f32,
 }

@@ -311,8 +311,9 @@ pub fn run(scene: &Scene, opts: &RunOptions) -> Result<RunSummary> {
             }
             Advance::Diverged { step, vertex } => {
                 let what = format!(
-                    "diverged: non-finite or faster than {:.3e} m/s (2 x P-wave speed) at step {step}, vertex {vertex} (dt = {:.3e} s, bound {:.3e} s)",
-                    2.0 * model.material.p_wave_speed(),
+                    "diverged: non-finite or faster than {:.3e} m/s ({} x P-wave speed) at step {step}, vertex {vertex} (dt = {:.3e} s, bound {:.3e} s)",
+                    crate::model::SPEED_LIMIT_WAVE_SPEEDS * model.material.p_wave_speed(),
+                    crate::model::SPEED_LIMIT_WAVE_SPEEDS,
                     sim.dt,
                     model.bounds.dt_bound
                 );

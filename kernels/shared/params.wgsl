@@ -10,7 +10,7 @@ struct StepParams {
     mu: f32,              // Pa
     phi: f32,             // Pa s
     psi: f32,             // Pa s
-    speed_limit: f32,     // m/s; |v| above it counts as diverged (2 x P-wave speed)
+    speed_limit: f32,     // m/s; |v| above it counts as diverged (10 x P-wave speed)
 }
 
 // Slots of the 8-float stats buffer (src/params.rs `stat`).

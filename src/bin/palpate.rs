@@ -65,10 +65,46 @@ enum Command {
         #[arg(long)]
         out: Option<PathBuf>,
     },
+    /// Benchmark studies that write tables and plots (default into docs/).
+    Bench {
+        #[command(subcommand)]
+        study: BenchStudy,
+    },
     /// List the built-in scenes.
     Scenes,
     /// List GPU adapters, the one chosen, and its limits.
     Info,
+}
+
+#[derive(Subcommand)]
+enum BenchStudy {
+    /// Largest stable dt per material and mesh, and stress cases: stability.csv, stability.md.
+    Stability {
+        /// Backend.
+        #[arg(long, value_enum, default_value = "cpu")]
+        backend: Backend,
+        /// CI-sized run.
+        #[arg(long)]
+        quick: bool,
+        /// Steps of the long ED0 run.
+        #[arg(long, default_value_t = 1_000_000)]
+        ed0_steps: u64,
+        /// Output directory.
+        #[arg(long, default_value = "docs")]
+        out: PathBuf,
+    },
+    /// Error against a converged reference versus run time: accuracy.csv, accuracy.png.
+    Accuracy {
+        /// Backend whose run time is measured.
+        #[arg(long, value_enum, default_value = "gpu")]
+        backend: Backend,
+        /// CI-sized run.
+        #[arg(long)]
+        quick: bool,
+        /// Output directory.
+        #[arg(long, default_value = "docs")]
+        out: PathBuf,
+    },
 }
 
 fn main() -> ExitCode {
@@ -175,6 +211,69 @@ fn execute(cli: Cli) -> Result<()> {
             }
             Ok(())
         }
+        Command::Bench { study } => {
+            match study {
+                BenchStudy::Stability {
+                    backend,
+                    quick,
+                    ed0_steps,
+                    out,
+                } => {
+                    use palpate::bench::stability;
+                    let opts = stability::StabilityOptions {
+                        backend,
+                        quick,
+                        ed0_steps,
+                    };
+                    let rows = stability::study(&opts, &mut |s| eprintln!("bench stability: {s}"))?;
+                    let header = format!(
+                    "Written by `palpate bench stability --backend {backend:?}{}` on {}. Case letters follow issue 4: (a) critical dt, (b) squash to 10 % and release, (c) random inversion, (d) probe at 10x a {} N device, (e) long ED0 run, (f) Table 1 scenes at the paper's dt.",
+                    if quick { " --quick" } else { "" },
+                    adapter_name(backend),
+                    stability::DEVICE_MAX_FORCE
+                );
+                    stability::write(&out, &rows, &header)?;
+                    for r in &rows {
+                        println!(
+                            "({}) {:<18} {:<18} {:<60} {:>12.4} {}",
+                            r.case,
+                            r.material,
+                            r.mesh,
+                            r.quantity,
+                            r.value,
+                            if r.ok { "ok" } else { "FAILED" }
+                        );
+                    }
+                    println!("wrote {0}/stability.csv, {0}/stability.md", out.display());
+                    Ok(())
+                }
+                BenchStudy::Accuracy {
+                    backend,
+                    quick,
+                    out,
+                } => {
+                    use palpate::bench::accuracy;
+                    let opts = accuracy::AccuracyOptions { backend, quick };
+                    let study = accuracy::study(&opts, &mut |s| eprintln!("bench accuracy: {s}"))?;
+                    let front = accuracy::write(&out, &study, &adapter_name(backend))?;
+                    println!(
+                    "reference {:?} at {} x bound: changes {:.2e} against the coarser mesh, {:.2e} against 2x dt",
+                    study.reference.0, study.reference.1, study.reference_mesh_change, study.reference_dt_change
+                );
+                    for (i, r) in study.runs.iter().enumerate() {
+                        println!(
+                        "{:?} {:>6} tets  dt {:.2} x bound  {:>7} steps  {:>8.3} s  error {:.3e}{}",
+                        r.cells, r.tets, r.safety, r.steps, r.wall_seconds, r.error, if front.contains(&i) { "  (Pareto)" } else { "" }
+                    );
+                    }
+                    for (c, s) in &study.diverged {
+                        println!("{c:?} at {s} x bound: diverged");
+                    }
+                    println!("wrote {0}/accuracy.csv, {0}/accuracy.png", out.display());
+                    Ok(())
+                }
+            }
+        }
         Command::Scenes => {
             for (name, desc) in scene::builtin_list() {
                 println!("{name:<10} {desc}");
@@ -202,5 +301,14 @@ fn execute(cli: Cli) -> Result<()> {
             );
             Ok(())
         }
+    }
+}
+
+fn adapter_name(backend: Backend) -> String {
+    match backend {
+        Backend::Cpu => "cpu (reference, 1 thread)".into(),
+        Backend::Gpu => palpate::gpu::GpuContext::new()
+            .map(|c| c.describe())
+            .unwrap_or_else(|e| e.to_string()),
     }
 }

@@ -1,0 +1,72 @@
+//! `palpate bench …`: studies that write tables and plots under `docs/`.
+//!
+//! * [`stability`]: the largest stable time step per material and mesh, and stress cases.
+//! * [`accuracy`]: error against a converged reference versus run time, and its Pareto front.
+
+pub mod accuracy;
+pub mod stability;
+
+use crate::error::Result;
+use crate::material::MaterialModel;
+use crate::model::Model;
+use crate::scene::Scene;
+use crate::stepper::State;
+use glam::{Mat3, Vec3};
+
+/// The built-in `beam` scene with other cells and material model.
+pub fn beam_scene(cells: [usize; 3], model: MaterialModel) -> Result<Scene> {
+    let text = include_str!("../../scenes/beam.toml")
+        .replace(
+            "cells = [20, 4, 4]",
+            &format!("cells = [{}, {}, {}]", cells[0], cells[1], cells[2]),
+        )
+        .replace("model = \"stvk\"", &format!("model = \"{}\"", model.name()));
+    Scene::from_toml(
+        &text,
+        &format!("beam {cells:?} {}", model.name()),
+        "beam",
+        None,
+    )
+}
+
+/// The built-in `lv` scene at resolution `k` with another material model.
+pub fn lv_scene(k: usize, model: MaterialModel) -> Result<Scene> {
+    let text = include_str!("../../scenes/lv.toml")
+        .replace("resolution = 3 ", &format!("resolution = {k} "))
+        .replace("model = \"stvk\"", &format!("model = \"{}\"", model.name()));
+    Scene::from_toml(&text, &format!("lv k={k} {}", model.name()), "lv", None)
+}
+
+/// Number of tets with det F ≤ 0 in a state.
+pub fn inverted_count(model: &Model, state: &State) -> usize {
+    (0..model.n_tets())
+        .filter(|&e| {
+            let t = model.tets[e];
+            let u = t.map(|i| crate::cpu::load3(&state.displacements, i as usize));
+            let h = Mat3::from_cols(u[1] - u[0], u[2] - u[0], u[3] - u[0])
+                * crate::cpu::fem_forces::load_dm_inv(&model.dm_inv, e);
+            (Mat3::IDENTITY + h).determinant() <= 0.0
+        })
+        .count()
+}
+
+/// Work of the constant loads, Σ (m g + f_ext)·u, J.
+pub fn load_work(model: &Model, state: &State) -> f64 {
+    let g = Vec3::from_array(model.gravity);
+    (0..model.n_vertices())
+        .map(|i| {
+            let f = g * model.mass[i] + crate::cpu::load3(&model.external_forces, i);
+            f.dot(crate::cpu::load3(&state.displacements, i)) as f64
+        })
+        .sum()
+}
+
+/// Kinetic energy of a state, J.
+pub fn kinetic(model: &Model, state: &State) -> f64 {
+    (0..model.n_vertices())
+        .map(|i| {
+            let v = crate::cpu::load3(&state.velocities, i);
+            0.5 * model.mass[i] as f64 * v.dot(v) as f64
+        })
+        .sum()
+}
