@@ -2,6 +2,8 @@
 //! gradient, the paper's literal eq. (6) gives the same forces, the patch test, rigid-motion
 //! invariance, momentum balance, and energy behaviour of whole trajectories.
 
+#![allow(clippy::needless_range_loop)] // the paper's formulas, index by index
+
 mod common;
 
 use common::{free_model, jittered_beam, tissue, Rng};

@@ -39,6 +39,9 @@ pub struct StabilityOptions {
     pub ed0_steps: u64,
 }
 
+/// Builds a scene for a material model.
+type SceneMaker = Box<dyn Fn(MaterialModel) -> Result<Scene>>;
+
 /// One result row.
 #[derive(Clone, Debug)]
 pub struct Row {
@@ -186,7 +189,7 @@ pub fn study(opts: &StabilityOptions, progress: &mut dyn FnMut(&str)) -> Result<
     let mut rows = Vec::new();
     let b = opts.backend;
     let (steps, rounds) = if opts.quick { (800, 4) } else { (3000, 7) };
-    let meshes: Vec<(&str, Box<dyn Fn(MaterialModel) -> Result<Scene>>)> = if opts.quick {
+    let meshes: Vec<(&str, SceneMaker)> = if opts.quick {
         vec![("beam 10x2x2", Box::new(|m| beam_scene([10, 2, 2], m)))]
     } else {
         vec![

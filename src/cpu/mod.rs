@@ -1,7 +1,9 @@
 //! The CPU reference path: one function per WGSL kernel, with the same name and the same
 //! inputs in the same order as the kernel's bindings, written to be read side by side with
 //! `kernels/<name>.wgsl`. Loops run over the same index a GPU thread would own and write only
-//! that index's outputs. f32 throughout, like the GPU.
+//! that index's outputs. f32 throughout, like the GPU. Index loops are kept on purpose, to
+//! read like the shaders.
+#![allow(clippy::needless_range_loop)]
 
 pub mod fem_forces;
 pub mod gather;

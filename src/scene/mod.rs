@@ -407,7 +407,7 @@ fn cells_n(spec: &MeshSpec, n: usize, bad: &Bad) -> Result<Vec<usize>> {
         .cells
         .clone()
         .ok_or_else(|| bad("mesh.cells", "is required by this generator".into()))?;
-    if cells.len() != n || cells.iter().any(|&c| c == 0) {
+    if cells.len() != n || cells.contains(&0) {
         return Err(bad(
             "mesh.cells",
             format!("needs {n} positive integers, got {cells:?}"),
@@ -525,7 +525,7 @@ fn build_mesh(
                     ("mesh.long_radius", geo.long_radius),
                 ] {
                     positive(bad, item, r[0], "m")?;
-                    if !(r[1] > r[0]) || !r[1].is_finite() {
+                    if r[1] <= r[0] || !r[1].is_finite() {
                         return Err(bad(
                             item,
                             format!("epicardium must exceed endocardium, got {r:?}"),
@@ -613,7 +613,7 @@ fn select_fixed(specs: &[FixedSpec], mesh: &TetMesh, bad: &Bad) -> Result<Vec<bo
         }
         let select: Box<dyn Fn(usize, DVec3) -> bool> = if let Some(plane) = &spec.plane {
             let n = DVec3::from_array(plane.normal);
-            if !(n.length() > 0.0) || !n.is_finite() {
+            if n.length() <= 0.0 || !n.is_finite() {
                 return Err(bad(
                     &format!("{item}.plane.normal"),
                     "must be a non-zero vector".into(),
