@@ -80,7 +80,17 @@ fn accuracy_study_error_falls_with_resolution_and_writes_a_plot() {
         backend: Backend::Cpu,
         quick: true,
     };
-    let study = accuracy::study(&opts, &mut |s| eprintln!("{s}")).unwrap();
+    let study = accuracy::study(accuracy::Problem::Beam, &opts, &mut |s| eprintln!("{s}")).unwrap();
+    let lv = accuracy::study(accuracy::Problem::Lv, &opts, &mut |s| eprintln!("{s}")).unwrap();
+    let lv_err = |k: usize| {
+        lv.runs
+            .iter()
+            .filter(|r| r.cells[0] == k)
+            .map(|r| r.error)
+            .fold(f64::INFINITY, f64::min)
+    };
+    eprintln!("lv: k=1 {:.3e}, k=2 {:.3e}", lv_err(1), lv_err(2));
+    assert!(lv_err(2) < lv_err(1), "LV error must fall with resolution");
     let coarse = study
         .runs
         .iter()
@@ -104,14 +114,15 @@ fn accuracy_study_error_falls_with_resolution_and_writes_a_plot() {
     // The reference is converged in time far beyond the errors it judges.
     assert!(study.reference_dt_change < 0.01 * fine);
     let dir = std::env::temp_dir().join(format!("palpate-acc-{}", std::process::id()));
-    let front = accuracy::write(&dir, &study, "cpu").unwrap();
-    assert!(!front.is_empty());
+    let fronts = accuracy::write(&dir, &[study, lv], "cpu").unwrap();
+    assert!(!fronts[0].is_empty() && !fronts[1].is_empty());
+    assert!(dir.join("accuracy_lv.png").exists());
     let png = std::fs::read(dir.join("accuracy.png")).unwrap();
     assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n");
     let csv = std::fs::read_to_string(dir.join("accuracy.csv")).unwrap();
     assert_eq!(
         csv.lines().filter(|l| l.ends_with(",true")).count(),
-        front.len()
+        fronts[0].len() + fronts[1].len()
     );
 }
 

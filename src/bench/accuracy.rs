@@ -1,28 +1,86 @@
-//! `palpate bench accuracy`: run time against error for the cantilever under gravity.
+//! `palpate bench accuracy`: run time against error for two reference problems.
 //!
-//! The reference problem is the built-in `beam` released from rest under gravity; the
-//! observable is the tip deflection (mean vertical displacement of the vertices at x = L)
-//! over the first 0.1 s, a third of the first bending period and the whole initial swing.
-//! Error = max over sample times |tip(t) − tip_ref(t)| / max |tip_ref|, with the reference
+//! * `beam`: the built-in cantilever released from rest under gravity; observable: the tip
+//!   deflection (mean vertical displacement of the vertices at x = L) over the first 0.1 s.
+//! * `lv`: the built-in left ventricle (base fixed) under a suddenly applied 1 kPa endocardial
+//!   pressure; observable: the vertical displacement of the apex (the lowest vertex) over the
+//!   first 0.05 s. Mesh parameter: the LV resolution k.
+//!
+//! Error = max over sample times |obs(t) − obs_ref(t)| / max |obs_ref|, with the reference
 //! linearly interpolated. The reference is the finest mesh at a quarter of the stable step;
 //! its own convergence is estimated by comparing it with the next-coarser mesh and with the
 //! same mesh at twice the step, and both numbers are written beside the results.
 //!
-//! Writes `accuracy.csv` and `accuracy.png` (log-log error versus wall time, Pareto front).
+//! Writes `accuracy.csv` (both problems) and `accuracy.png` / `accuracy_lv.png` (log-log error
+//! versus wall time, Pareto front).
 
-use super::beam_scene;
+use super::{beam_scene, lv_scene};
 use crate::error::{PalpateError, Result};
 use crate::material::MaterialModel;
 use crate::model::Model;
 use crate::output::png::{loglog_plot, pareto_front, PlotPoint};
+use crate::scene::Scene;
 use crate::sim::{Advance, Backend, SimOptions, Simulation};
 use std::fmt::Write;
 use std::path::Path;
 use std::sync::Arc;
 use std::time::Instant;
 
-/// Simulated time of each run, s.
-pub const DURATION: f64 = 0.1;
+/// A reference problem.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Problem {
+    /// Cantilever under gravity, tip deflection.
+    Beam,
+    /// Left ventricle under endocardial pressure, apex displacement.
+    Lv,
+}
+
+impl Problem {
+    /// Name in files.
+    pub fn name(self) -> &'static str {
+        match self {
+            Problem::Beam => "beam",
+            Problem::Lv => "lv",
+        }
+    }
+
+    /// Simulated time of each run, s.
+    pub fn duration(self) -> f64 {
+        match self {
+            Problem::Beam => 0.1,
+            Problem::Lv => 0.05,
+        }
+    }
+
+    /// The scene at mesh parameter `cells` (beam: cells; LV: cells[0] = k).
+    fn scene(self, cells: [usize; 3]) -> Result<Scene> {
+        match self {
+            Problem::Beam => beam_scene(cells, MaterialModel::Stvk),
+            Problem::Lv => lv_scene(cells[0], MaterialModel::Stvk),
+        }
+    }
+
+    /// Vertices whose mean vertical displacement is observed (downwards positive).
+    fn observed(self, model: &Model) -> Vec<usize> {
+        match self {
+            Problem::Beam => (0..model.n_vertices())
+                .filter(|&i| (model.rest[3 * i] - 0.1).abs() < 1e-6)
+                .collect(),
+            Problem::Lv => (0..model.n_vertices())
+                .min_by(|&a, &b| model.rest[3 * a + 2].total_cmp(&model.rest[3 * b + 2]))
+                .into_iter()
+                .collect(),
+        }
+    }
+
+    /// Mesh label.
+    pub fn label(self, cells: [usize; 3]) -> String {
+        match self {
+            Problem::Beam => format!("{}x{}x{}", cells[0], cells[1], cells[2]),
+            Problem::Lv => format!("k={}", cells[0]),
+        }
+    }
+}
 
 /// Options.
 #[derive(Clone, Copy, Debug)]
@@ -36,7 +94,9 @@ pub struct AccuracyOptions {
 /// One run of the sweep.
 #[derive(Clone, Debug)]
 pub struct Run {
-    /// Beam cells.
+    /// Problem.
+    pub problem: Problem,
+    /// Mesh parameter (beam cells; LV: [k, 0, 0]).
     pub cells: [usize; 3],
     /// Tets.
     pub tets: usize,
@@ -48,40 +108,31 @@ pub struct Run {
     pub steps: u64,
     /// Wall-clock seconds of stepping (sampling readbacks excluded).
     pub wall_seconds: f64,
-    /// Tip-deflection history (t, deflection m).
+    /// Observable history (t, displacement m).
     pub history: Vec<(f64, f64)>,
-    /// Relative error against the reference (NaN for the reference or a diverged run).
+    /// Relative error against the reference (NaN for the reference itself).
     pub error: f64,
 }
 
-fn tip_vertices(model: &Model) -> Vec<usize> {
-    (0..model.n_vertices())
-        .filter(|&i| (model.rest[3 * i] - 0.1).abs() < 1e-6)
-        .collect()
-}
-
-/// Run the beam with `cells` at `safety` × bound, sampling the tip `samples` times.
+/// Run `problem` on mesh `cells` at `safety` × bound, sampling the observable `samples`
+/// times; None when it diverged.
 pub fn run_case(
+    problem: Problem,
     cells: [usize; 3],
     safety: f64,
     backend: Backend,
     samples: usize,
 ) -> Result<Option<Run>> {
-    let scene = beam_scene(cells, MaterialModel::Stvk)?;
+    let scene = problem.scene(cells)?;
     let model = Arc::new(Model::from_scene(&scene));
     let dt = safety * model.bounds.dt_bound;
-    let mut sim = Simulation::from_model(
-        model.clone(),
-        backend,
-        dt,
-        0.0,
-        SimOptions {
-            allow_unstable: true,
-            ..Default::default()
-        },
-    )?;
-    let tip = tip_vertices(&model);
-    let total = (DURATION / dt).round() as u64;
+    let opts = SimOptions {
+        allow_unstable: true,
+        ..Default::default()
+    };
+    let mut sim = Simulation::from_model(model.clone(), backend, dt, 0.0, opts)?;
+    let observed = problem.observed(&model);
+    let total = (problem.duration() / dt).round() as u64;
     let mut history = vec![(0.0, 0.0)];
     let mut wall = 0.0;
     for k in 1..=samples {
@@ -96,10 +147,11 @@ pub fn run_case(
             }
         }
         let u = sim.state()?.displacements;
-        let d = -tip.iter().map(|&i| u[3 * i + 2] as f64).sum::<f64>() / tip.len() as f64;
+        let d = -observed.iter().map(|&i| u[3 * i + 2] as f64).sum::<f64>() / observed.len() as f64;
         history.push((sim.time, d));
     }
     Ok(Some(Run {
+        problem,
         cells,
         tets: model.n_tets(),
         safety,
@@ -126,55 +178,82 @@ pub fn history_error(a: &[(f64, f64)], reference: &[(f64, f64)]) -> f64 {
         / scale
 }
 
-/// The sweep: runs, and the reference's estimated errors (mesh, time step).
+/// The sweep of one problem: runs, and the reference's estimated errors (mesh, time step).
 pub struct Study {
+    /// Problem.
+    pub problem: Problem,
     /// Sweep runs.
     pub runs: Vec<Run>,
-    /// Reference cells and safety.
+    /// Reference mesh and safety.
     pub reference: ([usize; 3], f64),
     /// Reference vs next-coarser mesh (an estimate of its mesh error).
     pub reference_mesh_change: f64,
     /// Reference vs twice its step (an estimate of its time-step error).
     pub reference_dt_change: f64,
-    /// Runs that diverged: (cells, safety).
+    /// Runs that diverged: (mesh, safety).
     pub diverged: Vec<([usize; 3], f64)>,
 }
 
-/// Run the sweep.
-pub fn study(opts: &AccuracyOptions, progress: &mut dyn FnMut(&str)) -> Result<Study> {
-    let (meshes, safeties, reference, coarser): (
-        Vec<[usize; 3]>,
-        Vec<f64>,
-        [usize; 3],
-        [usize; 3],
-    ) = if opts.quick {
-        (
+/// The meshes, safety factors, reference and next-coarser mesh of a sweep.
+type Sweep = (Vec<[usize; 3]>, Vec<f64>, [usize; 3], [usize; 3]);
+
+fn sweep(problem: Problem, quick: bool) -> Sweep {
+    match (problem, quick) {
+        (Problem::Beam, true) => (
             vec![[5, 1, 1], [10, 2, 2]],
             vec![0.9, 0.5],
             [20, 4, 4],
             [10, 2, 2],
-        )
-    } else {
-        (
+        ),
+        (Problem::Beam, false) => (
             vec![[10, 2, 2], [15, 3, 3], [20, 4, 4], [30, 6, 6]],
             vec![0.9, 0.5, 0.25],
             [40, 8, 8],
             [30, 6, 6],
-        )
-    };
+        ),
+        (Problem::Lv, true) => (
+            vec![[1, 0, 0], [2, 0, 0]],
+            vec![0.9, 0.5],
+            [3, 0, 0],
+            [2, 0, 0],
+        ),
+        (Problem::Lv, false) => (
+            vec![[2, 0, 0], [3, 0, 0], [4, 0, 0], [6, 0, 0]],
+            vec![0.9, 0.5, 0.25],
+            [8, 0, 0],
+            [6, 0, 0],
+        ),
+    }
+}
+
+/// Run the sweep of `problem`.
+pub fn study(
+    problem: Problem,
+    opts: &AccuracyOptions,
+    progress: &mut dyn FnMut(&str),
+) -> Result<Study> {
+    let (meshes, safeties, reference, coarser) = sweep(problem, opts.quick);
     let fine = 200;
-    progress(&format!("reference {reference:?} at 0.25 x bound"));
+    progress(&format!(
+        "{}: reference {} at 0.25 x bound",
+        problem.name(),
+        problem.label(reference)
+    ));
     let missing = || PalpateError::Usage("the reference run diverged".into());
-    let r = run_case(reference, 0.25, opts.backend, fine)?.ok_or_else(missing)?;
-    progress("reference checks");
-    let r_dt = run_case(reference, 0.5, opts.backend, fine)?.ok_or_else(missing)?;
-    let r_mesh = run_case(coarser, 0.25, opts.backend, fine)?.ok_or_else(missing)?;
+    let r = run_case(problem, reference, 0.25, opts.backend, fine)?.ok_or_else(missing)?;
+    progress(&format!("{}: reference checks", problem.name()));
+    let r_dt = run_case(problem, reference, 0.5, opts.backend, fine)?.ok_or_else(missing)?;
+    let r_mesh = run_case(problem, coarser, 0.25, opts.backend, fine)?.ok_or_else(missing)?;
     let mut runs = Vec::new();
     let mut diverged = Vec::new();
     for &cells in &meshes {
         for &s in &safeties {
-            progress(&format!("{cells:?} at {s} x bound"));
-            match run_case(cells, s, opts.backend, 40)? {
+            progress(&format!(
+                "{}: {} at {s} x bound",
+                problem.name(),
+                problem.label(cells)
+            ));
+            match run_case(problem, cells, s, opts.backend, 40)? {
                 Some(mut run) => {
                     run.error = history_error(&run.history, &r.history);
                     runs.push(run);
@@ -184,6 +263,7 @@ pub fn study(opts: &AccuracyOptions, progress: &mut dyn FnMut(&str)) -> Result<S
         }
     }
     Ok(Study {
+        problem,
         reference_mesh_change: history_error(&r_mesh.history, &r.history),
         reference_dt_change: history_error(&r_dt.history, &r.history),
         reference: (reference, 0.25),
@@ -192,64 +272,83 @@ pub fn study(opts: &AccuracyOptions, progress: &mut dyn FnMut(&str)) -> Result<S
     })
 }
 
-/// Write `accuracy.csv` and `accuracy.png` into `dir`; returns the Pareto-optimal run indices.
-pub fn write(dir: &Path, study: &Study, adapter: &str) -> Result<Vec<usize>> {
+/// Write `accuracy.csv` (all studies) and one plot per study (`accuracy.png` for the beam,
+/// `accuracy_<problem>.png` otherwise) into `dir`; returns each study's Pareto-optimal runs.
+pub fn write(dir: &Path, studies: &[Study], adapter: &str) -> Result<Vec<Vec<usize>>> {
     std::fs::create_dir_all(dir).map_err(|source| PalpateError::OutputIo {
         path: dir.to_path_buf(),
         source,
     })?;
-    let points: Vec<PlotPoint> = study
-        .runs
-        .iter()
-        .map(|r| PlotPoint {
-            x: r.wall_seconds.max(1e-6),
-            y: r.error.max(1e-9),
-            series: {
-                let mut cells: Vec<[usize; 3]> = study.runs.iter().map(|q| q.cells).collect();
-                cells.dedup();
-                cells.iter().position(|c| *c == r.cells).unwrap_or(0)
-            },
-        })
-        .collect();
-    let front = pareto_front(&points);
-    let mut csv = format!(
-        "# adapter: {adapter}; reference {:?} at {} x bound; reference vs coarser mesh {:.3e}, vs 2x dt {:.3e}\nmesh,tets,safety,dt_s,steps,wall_seconds,error,pareto\n",
-        study.reference.0, study.reference.1, study.reference_mesh_change, study.reference_dt_change
-    );
-    for (i, r) in study.runs.iter().enumerate() {
+    let mut csv = format!("# adapter: {adapter}\n");
+    for st in studies {
         let _ = writeln!(
             csv,
-            "{}x{}x{},{},{},{:e},{},{:.4},{:.4e},{}",
-            r.cells[0],
-            r.cells[1],
-            r.cells[2],
-            r.tets,
-            r.safety,
-            r.dt,
-            r.steps,
-            r.wall_seconds,
-            r.error,
-            front.contains(&i)
+            "# {}: reference {} at {} x bound; reference vs next-coarser mesh {:.3e}, vs 2x dt {:.3e}",
+            st.problem.name(),
+            st.problem.label(st.reference.0),
+            st.reference.1,
+            st.reference_mesh_change,
+            st.reference_dt_change
         );
     }
-    for (c, s) in &study.diverged {
-        let _ = writeln!(csv, "{}x{}x{},,{s},,,,diverged,false", c[0], c[1], c[2]);
+    csv.push_str("problem,mesh,tets,safety,dt_s,steps,wall_seconds,error,pareto\n");
+    let mut fronts = Vec::new();
+    for st in studies {
+        let mut labels: Vec<String> = Vec::new();
+        for r in &st.runs {
+            let l = st.problem.label(r.cells);
+            if !labels.contains(&l) {
+                labels.push(l);
+            }
+        }
+        let points: Vec<PlotPoint> = st
+            .runs
+            .iter()
+            .map(|r| PlotPoint {
+                x: r.wall_seconds.max(1e-6),
+                y: r.error.max(1e-9),
+                series: labels
+                    .iter()
+                    .position(|l| *l == st.problem.label(r.cells))
+                    .unwrap_or(0),
+            })
+            .collect();
+        let front = pareto_front(&points);
+        for (i, r) in st.runs.iter().enumerate() {
+            let _ = writeln!(
+                csv,
+                "{},{},{},{},{:e},{},{:.4},{:.4e},{}",
+                st.problem.name(),
+                st.problem.label(r.cells),
+                r.tets,
+                r.safety,
+                r.dt,
+                r.steps,
+                r.wall_seconds,
+                r.error,
+                front.contains(&i)
+            );
+        }
+        for (c, s) in &st.diverged {
+            let _ = writeln!(
+                csv,
+                "{},{},,{s},,,,diverged,false",
+                st.problem.name(),
+                st.problem.label(*c)
+            );
+        }
+        let y_label = match st.problem {
+            Problem::Beam => "beam tip error (rel, max over t)",
+            Problem::Lv => "lv apex error (rel, max over t)",
+        };
+        let canvas = loglog_plot(&points, &front, "run time [s]", y_label, &labels);
+        let name = match st.problem {
+            Problem::Beam => "accuracy.png".to_string(),
+            p => format!("accuracy_{}.png", p.name()),
+        };
+        crate::output::write_atomic(&dir.join(name), &canvas.png())?;
+        fronts.push(front);
     }
     crate::output::write_atomic(&dir.join("accuracy.csv"), csv.as_bytes())?;
-    let mut legend: Vec<String> = Vec::new();
-    for r in &study.runs {
-        let name = format!("{}x{}x{}", r.cells[0], r.cells[1], r.cells[2]);
-        if !legend.contains(&name) {
-            legend.push(name);
-        }
-    }
-    let canvas = loglog_plot(
-        &points,
-        &front,
-        "run time [s]",
-        "tip error (rel, max over t)",
-        &legend,
-    );
-    crate::output::write_atomic(&dir.join("accuracy.png"), &canvas.png())?;
-    Ok(front)
+    Ok(fronts)
 }

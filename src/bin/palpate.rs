@@ -211,69 +211,88 @@ fn execute(cli: Cli) -> Result<()> {
             }
             Ok(())
         }
-        Command::Bench { study } => {
-            match study {
-                BenchStudy::Stability {
+        Command::Bench { study } => match study {
+            BenchStudy::Stability {
+                backend,
+                quick,
+                ed0_steps,
+                out,
+            } => {
+                use palpate::bench::stability;
+                let opts = stability::StabilityOptions {
                     backend,
                     quick,
                     ed0_steps,
-                    out,
-                } => {
-                    use palpate::bench::stability;
-                    let opts = stability::StabilityOptions {
-                        backend,
-                        quick,
-                        ed0_steps,
-                    };
-                    let rows = stability::study(&opts, &mut |s| eprintln!("bench stability: {s}"))?;
-                    let header = format!(
+                };
+                let rows = stability::study(&opts, &mut |s| eprintln!("bench stability: {s}"))?;
+                let header = format!(
                     "Written by `palpate bench stability --backend {backend:?}{}` on {}. Case letters follow issue 4: (a) critical dt, (b) squash to 10 % and release, (c) random inversion, (d) probe at 10x a {} N device, (e) long ED0 run, (f) Table 1 scenes at the paper's dt.",
                     if quick { " --quick" } else { "" },
                     adapter_name(backend),
                     stability::DEVICE_MAX_FORCE
                 );
-                    stability::write(&out, &rows, &header)?;
-                    for r in &rows {
-                        println!(
-                            "({}) {:<18} {:<18} {:<60} {:>12.4} {}",
-                            r.case,
-                            r.material,
-                            r.mesh,
-                            r.quantity,
-                            r.value,
-                            if r.ok { "ok" } else { "FAILED" }
-                        );
-                    }
-                    println!("wrote {0}/stability.csv, {0}/stability.md", out.display());
-                    Ok(())
-                }
-                BenchStudy::Accuracy {
-                    backend,
-                    quick,
-                    out,
-                } => {
-                    use palpate::bench::accuracy;
-                    let opts = accuracy::AccuracyOptions { backend, quick };
-                    let study = accuracy::study(&opts, &mut |s| eprintln!("bench accuracy: {s}"))?;
-                    let front = accuracy::write(&out, &study, &adapter_name(backend))?;
+                stability::write(&out, &rows, &header)?;
+                for r in &rows {
                     println!(
-                    "reference {:?} at {} x bound: changes {:.2e} against the coarser mesh, {:.2e} against 2x dt",
-                    study.reference.0, study.reference.1, study.reference_mesh_change, study.reference_dt_change
-                );
+                        "({}) {:<18} {:<18} {:<60} {:>12.4} {}",
+                        r.case,
+                        r.material,
+                        r.mesh,
+                        r.quantity,
+                        r.value,
+                        if r.ok { "ok" } else { "FAILED" }
+                    );
+                }
+                println!("wrote {0}/stability.csv, {0}/stability.md", out.display());
+                Ok(())
+            }
+            BenchStudy::Accuracy {
+                backend,
+                quick,
+                out,
+            } => {
+                use palpate::bench::accuracy::{self, Problem};
+                let opts = accuracy::AccuracyOptions { backend, quick };
+                let mut studies = Vec::new();
+                for problem in [Problem::Beam, Problem::Lv] {
+                    studies.push(accuracy::study(problem, &opts, &mut |s| {
+                        eprintln!("bench accuracy: {s}")
+                    })?);
+                }
+                let fronts = accuracy::write(&out, &studies, &adapter_name(backend))?;
+                for (study, front) in studies.iter().zip(&fronts) {
+                    let p = study.problem;
+                    println!(
+                        "{}: reference {} at {} x bound: changes {:.2e} against the next-coarser mesh, {:.2e} against 2x dt",
+                        p.name(),
+                        p.label(study.reference.0),
+                        study.reference.1,
+                        study.reference_mesh_change,
+                        study.reference_dt_change
+                    );
                     for (i, r) in study.runs.iter().enumerate() {
                         println!(
-                        "{:?} {:>6} tets  dt {:.2} x bound  {:>7} steps  {:>8.3} s  error {:.3e}{}",
-                        r.cells, r.tets, r.safety, r.steps, r.wall_seconds, r.error, if front.contains(&i) { "  (Pareto)" } else { "" }
-                    );
+                            "  {:<8} {:>7} tets  dt {:.2} x bound  {:>7} steps  {:>8.3} s  error {:.3e}{}",
+                            p.label(r.cells),
+                            r.tets,
+                            r.safety,
+                            r.steps,
+                            r.wall_seconds,
+                            r.error,
+                            if front.contains(&i) { "  (Pareto)" } else { "" }
+                        );
                     }
                     for (c, s) in &study.diverged {
-                        println!("{c:?} at {s} x bound: diverged");
+                        println!("  {} at {s} x bound: diverged", p.label(*c));
                     }
-                    println!("wrote {0}/accuracy.csv, {0}/accuracy.png", out.display());
-                    Ok(())
                 }
+                println!(
+                    "wrote {0}/accuracy.csv, {0}/accuracy.png, {0}/accuracy_lv.png",
+                    out.display()
+                );
+                Ok(())
             }
-        }
+        },
         Command::Scenes => {
             for (name, desc) in scene::builtin_list() {
                 println!("{name:<10} {desc}");
