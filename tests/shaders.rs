@@ -137,25 +137,27 @@ fn step_params_matches_wgsl_layout() {
 
 #[test]
 fn reflection_sees_bindings_in_shader_order() {
-    let (bindings, wg) =
-        palpate::gpu::kernel::reflect(palpate::gpu::kernel_source("gather").unwrap(), "gather")
-            .unwrap();
+    let source = palpate::gpu::kernel_source("gather").unwrap();
+    let (bindings, wg) = palpate::gpu::kernel::reflect(source, "gather").unwrap();
     let names: Vec<&str> = bindings.iter().map(|b| b.name.as_str()).collect();
-    assert_eq!(
-        names,
-        [
-            "params",
-            "corner_forces",
-            "incidence_offsets",
-            "incidence",
-            "mass",
-            "forces"
-        ]
-    );
+    let expected = [
+        "params",
+        "corner_forces",
+        "incidence_offsets",
+        "incidence",
+        "mass",
+        "external_forces",
+        "forces",
+    ];
+    assert_eq!(names, expected);
     assert_eq!(wg, 64);
+    assert_eq!(bindings[0].ty, wgpu::BufferBindingType::Uniform);
     assert_eq!(
         bindings[5].ty,
+        wgpu::BufferBindingType::Storage { read_only: true }
+    );
+    assert_eq!(
+        bindings[6].ty,
         wgpu::BufferBindingType::Storage { read_only: false }
     );
-    assert_eq!(bindings[0].ty, wgpu::BufferBindingType::Uniform);
 }
