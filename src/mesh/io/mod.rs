@@ -74,10 +74,12 @@ fn extension(path: &Path) -> String {
         .unwrap_or_default()
 }
 
+/// A [`PalpateError::MeshFile`]; line breaks from file content are escaped so the message
+/// stays on one line.
 fn file_err(path: &Path, message: String) -> PalpateError {
     PalpateError::MeshFile {
         path: path.to_path_buf(),
-        message,
+        message: message.replace('\n', "\\n").replace('\r', "\\r"),
     }
 }
 

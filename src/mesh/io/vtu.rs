@@ -6,7 +6,7 @@
 
 use super::cursor::{find, show, uint, Cursor, Num};
 use super::vtk_legacy::{assemble, attributes, wanted, Array, Cells};
-use super::{cap, drop_unused_vertices, file_err, read_bytes};
+use super::{drop_unused_vertices, file_err, read_bytes};
 use crate::error::Result;
 use crate::mesh::TetMesh;
 use crate::output::vtu::base64;
@@ -75,15 +75,8 @@ fn events<'a>(c: &Cursor<'a>, xml: &'a [u8]) -> Result<Vec<Event<'a>>> {
             .position(|b| b.is_ascii_whitespace())
             .unwrap_or(inner.len());
         let name = &inner[..name_end];
-        let attrs = attributes_of(&inner[name_end..]).ok_or_else(|| {
-            c.err(
-                lt,
-                format!(
-                    "malformed attributes in <{}>",
-                    String::from_utf8_lossy(name)
-                ),
-            )
-        })?;
+        let attrs = attributes_of(&inner[name_end..])
+            .ok_or_else(|| c.err(lt, format!("malformed attributes in tag {}", show(name))))?;
         let text_end = if closed {
             i
         } else {
@@ -302,7 +295,7 @@ impl Reader<'_> {
                 let end = tag.text_pos + tag.text.len();
                 let mut c = Cursor::new(self.c.path, &self.c.data[..end]);
                 c.pos = tag.text_pos;
-                let mut v = Vec::with_capacity(cap(u64::MAX, tag.text.len(), 2));
+                let mut v = Vec::new();
                 while let Some((p, t)) = c.token() {
                     let x = std::str::from_utf8(t)
                         .ok()
@@ -441,10 +434,7 @@ pub(super) fn read(path: &Path) -> Result<TetMesh> {
         match e {
             Event::End(name, pos) => {
                 if stack.pop() != Some(*name) {
-                    return Err(r.c.err(
-                        *pos,
-                        format!("mismatched end tag </{}>", String::from_utf8_lossy(name)),
-                    ));
+                    return Err(r.c.err(*pos, format!("mismatched end tag {}", show(name))));
                 }
                 if *name == b"Piece" {
                     if let Some(p) = piece.take() {
