@@ -7,6 +7,8 @@
 //! `$TMPDIR/palpate-fuzz-mesh-readers/findings`; the exit status is 1 when there are any.
 //! Run it under `ulimit -v` to turn an oversized allocation into a finding too.
 
+#[path = "../tests/common/mod.rs"]
+mod common;
 #[path = "../tests/mesh_io/fuzz.rs"]
 mod fuzz;
 

@@ -5,26 +5,28 @@
 //! them (bit flips, byte writes, truncation, deleted or duplicated spans, numbers replaced by
 //! huge, negative or non-finite values, inserted garbage) and reads it with
 //! `palpate::mesh::io::read` inside `catch_unwind`. A panic is a finding: its input is saved.
+//! Randomness comes from the shared test PRNG (`tests/common`), so runs are reproducible.
 #![allow(dead_code)]
 
+use crate::common::Rng;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-/// xorshift64* PRNG.
-pub struct Rng(pub u64);
+/// Integers and bytes from the shared test PRNG.
+trait Draw {
+    /// Uniform in 0..n (n > 0).
+    fn below(&mut self, n: usize) -> usize;
+    /// A uniform byte.
+    fn byte(&mut self) -> u8;
+}
 
-impl Rng {
-    /// Next 64 random bits.
-    pub fn next_u64(&mut self) -> u64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
+impl Draw for Rng {
+    fn below(&mut self, n: usize) -> usize {
+        (self.next() * n.max(1) as f64) as usize
     }
 
-    /// Uniform in 0..n (n > 0).
-    pub fn below(&mut self, n: usize) -> usize {
-        (self.next_u64() % n.max(1) as u64) as usize
+    fn byte(&mut self) -> u8 {
+        (self.next() * 256.0) as u8
     }
 }
 
@@ -60,7 +62,7 @@ pub fn mutate(rng: &mut Rng, data: &[u8]) -> Vec<u8> {
             }
             1 if n > 0 => {
                 let i = rng.below(n);
-                d[i] = rng.next_u64() as u8;
+                d[i] = rng.byte();
             }
             2 => d.truncate(rng.below(n + 1)),
             3 if n > 0 => {
@@ -78,9 +80,7 @@ pub fn mutate(rng: &mut Rng, data: &[u8]) -> Vec<u8> {
             5..=7 => replace_number(rng, &mut d),
             _ => {
                 let at = rng.below(n + 1);
-                let junk: Vec<u8> = (0..1 + rng.below(16))
-                    .map(|_| rng.next_u64() as u8)
-                    .collect();
+                let junk: Vec<u8> = (0..1 + rng.below(16)).map(|_| rng.byte()).collect();
                 d.splice(at..at, junk);
             }
         }

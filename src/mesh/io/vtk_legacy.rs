@@ -57,7 +57,7 @@ pub(super) struct Cells {
 }
 
 /// Tets, regions and fibres from cells; `Err((cell, message))` names the first bad cell.
-pub(super) struct Assembled {
+struct Assembled {
     pub tets: Vec<[u32; 4]>,
     /// Index of each kept tet among all cells.
     pub cell_of_tet: Vec<usize>,
@@ -65,7 +65,7 @@ pub(super) struct Assembled {
 }
 
 /// Keep the tets of `cells` whose point indices are below `n_points`.
-pub(super) fn assemble(cells: &Cells, n_points: usize) -> Result<Assembled, (usize, String)> {
+fn assemble(cells: &Cells, n_points: usize) -> Result<Assembled, (usize, String)> {
     let mut out = Assembled {
         tets: Vec::new(),
         cell_of_tet: Vec::new(),
@@ -127,7 +127,7 @@ pub(super) fn wanted(point_data: bool, name: &str, components: usize) -> bool {
 }
 
 /// Regions, fibres (per tet) and vertex tags from the data arrays; `Err((pos, message))`.
-pub(super) fn attributes(
+fn attributes(
     mesh: &mut TetMesh,
     cell_of_tet: &[usize],
     n_cells: usize,
@@ -532,29 +532,60 @@ pub(super) fn read(path: &Path) -> Result<TetMesh> {
     let (ppos, coords) = points.ok_or_else(|| c.err(c.data.len(), "no POINTS"))?;
     let (cpos, mut cells) = cells.ok_or_else(|| c.err(c.data.len(), "no CELLS"))?;
     let (tpos, types) = types.ok_or_else(|| c.err(c.data.len(), "no CELL_TYPES"))?;
-    if types.len() + 1 != cells.offsets.len() {
-        return Err(c.err(
-            tpos,
-            format!(
-                "{} cell types for {} cells",
-                types.len(),
-                cells.offsets.len() - 1
-            ),
-        ));
-    }
     cells.types = types;
+    let places = Places {
+        points: ppos,
+        cells: cpos,
+        types: tpos,
+    };
+    let mesh = grid_mesh(&coords, &cells, &places, &r.cell_data, &r.point_data)
+        .map_err(|(p, m)| c.err(p, m))?;
+    if mesh.tets.is_empty() {
+        return Err(c.err(tpos, "no cell is a tetrahedron (VTK type 10 or 24)"));
+    }
+    Ok(mesh)
+}
+
+/// Where the arrays of a grid were read, for errors.
+pub(super) struct Places {
+    pub points: usize,
+    pub cells: usize,
+    pub types: usize,
+}
+
+/// The tet mesh of a grid: coordinates (xyz per point), cells, and data arrays. Vertices
+/// used only as mid-edge nodes of quadratic tets are dropped. `Err((position, message))`.
+pub(super) fn grid_mesh(
+    coords: &[f64],
+    cells: &Cells,
+    places: &Places,
+    cell_data: &[Array],
+    point_data: &[Array],
+) -> Result<TetMesh, (usize, String)> {
+    if !coords.len().is_multiple_of(3) {
+        let m = format!("{} point coordinates is not a multiple of 3", coords.len());
+        return Err((places.points, m));
+    }
     let positions: Vec<DVec3> = coords
         .chunks_exact(3)
         .map(|p| DVec3::new(p[0], p[1], p[2]))
         .collect();
     if let Some(i) = positions.iter().position(|p| !p.is_finite()) {
-        return Err(c.err(ppos, format!("point {i} has a non-finite coordinate")));
+        return Err((
+            places.points,
+            format!("point {i} has a non-finite coordinate"),
+        ));
     }
-    let a = assemble(&cells, positions.len())
-        .map_err(|(k, m)| c.err(cpos, format!("cell {k}: {m}")))?;
-    if a.tets.is_empty() {
-        return Err(c.err(tpos, "no cell is a tetrahedron (VTK type 10 or 24)"));
+    if cells.types.len() + 1 != cells.offsets.len() {
+        let m = format!(
+            "{} cell types for {} cells",
+            cells.types.len(),
+            cells.offsets.len().saturating_sub(1)
+        );
+        return Err((places.types, m));
     }
+    let a = assemble(cells, positions.len())
+        .map_err(|(k, m)| (places.cells, format!("cell {k}: {m}")))?;
     let mut mesh = TetMesh {
         positions,
         tets: a.tets,
@@ -564,10 +595,9 @@ pub(super) fn read(path: &Path) -> Result<TetMesh> {
         &mut mesh,
         &a.cell_of_tet,
         cells.types.len(),
-        &r.cell_data,
-        &r.point_data,
-    )
-    .map_err(|(p, m)| c.err(p, m))?;
+        cell_data,
+        point_data,
+    )?;
     if a.quadratic {
         drop_unused_vertices(&mut mesh);
     }
@@ -607,15 +637,15 @@ fn list_cells(n_cells: u64, list: &[f64]) -> Result<Cells, String> {
 }
 
 /// Cells from offsets (starting at 0, one more than the cells) and connectivity.
-fn offsets_cells(offsets: &[f64], connectivity: Vec<f64>) -> Result<Cells, String> {
+pub(super) fn offsets_cells(offsets: &[f64], connectivity: Vec<f64>) -> Result<Cells, String> {
     let mut out = Vec::with_capacity(offsets.len());
-    for (k, &o) in offsets.iter().enumerate() {
+    for &o in offsets {
         let o = to_u32(o)
             .map(|o| o as usize)
             .filter(|&o| o <= connectivity.len() && out.last().is_none_or(|&prev| o >= prev))
             .ok_or_else(|| {
                 format!(
-                    "offset {k} ({o}) is not increasing within 0..={}",
+                    "offset {o} decreases or is not in 0..={} (the connectivity length)",
                     connectivity.len()
                 )
             })?;

@@ -5,12 +5,11 @@
 //! base64 with a UInt64 header.
 
 use super::cursor::{find, show, uint, Cursor, Num};
-use super::vtk_legacy::{assemble, attributes, wanted, Array, Cells};
-use super::{drop_unused_vertices, file_err, read_bytes};
+use super::vtk_legacy::{grid_mesh, offsets_cells, wanted, Array, Places};
+use super::{file_err, read_bytes};
 use crate::error::Result;
 use crate::mesh::TetMesh;
 use crate::output::vtu::base64;
-use glam::DVec3;
 use std::path::Path;
 
 /// An XML start tag: name, attributes, and the text up to the next tag.
@@ -427,7 +426,6 @@ pub(super) fn read(path: &Path) -> Result<TetMesh> {
     let mut mesh = TetMesh::default();
     let mut stack: Vec<&[u8]> = Vec::new();
     let mut piece: Option<Piece> = None;
-    let mut quadratic = false;
     let mut seen_file = false;
     let mut first_piece = None;
     for e in &events {
@@ -438,7 +436,7 @@ pub(super) fn read(path: &Path) -> Result<TetMesh> {
                 }
                 if *name == b"Piece" {
                     if let Some(p) = piece.take() {
-                        quadratic |= p.finish(&r, &mut mesh)?;
+                        p.finish(&r, &mut mesh)?;
                     }
                 }
             }
@@ -500,7 +498,7 @@ pub(super) fn read(path: &Path) -> Result<TetMesh> {
         ));
     }
     if let Some(p) = piece.take() {
-        quadratic |= p.finish(&r, &mut mesh)?;
+        p.finish(&r, &mut mesh)?;
     }
     let Some(first) = first_piece else {
         return Err(file_err(path, "no <Piece> in <UnstructuredGrid>".into()));
@@ -509,9 +507,6 @@ pub(super) fn read(path: &Path) -> Result<TetMesh> {
         return Err(r
             .c
             .err(first, "no cell is a tetrahedron (VTK type 10 or 24)"));
-    }
-    if quadratic {
-        drop_unused_vertices(&mut mesh);
     }
     Ok(mesh)
 }
@@ -588,72 +583,26 @@ impl Piece {
         }
     }
 
-    /// Append this piece to `mesh`; true when it held quadratic tets.
-    fn finish(self, r: &Reader, mesh: &mut TetMesh) -> Result<bool> {
+    /// Append this piece to `mesh`.
+    fn finish(self, r: &Reader, mesh: &mut TetMesh) -> Result<()> {
         let c = &r.c;
         let missing = |what: &str| c.err(self.pos, format!("<Piece> has no {what} array"));
         let (ppos, coords) = self.points.ok_or_else(|| missing("Points"))?;
         let (cpos, connectivity) = self.connectivity.ok_or_else(|| missing("connectivity"))?;
         let (opos, ends) = self.offsets.ok_or_else(|| missing("offsets"))?;
         let (tpos, types) = self.types.ok_or_else(|| missing("types"))?;
-        if coords.len() % 3 != 0 {
-            return Err(c.err(
-                ppos,
-                format!("{} point coordinates is not a multiple of 3", coords.len()),
-            ));
-        }
-        let positions: Vec<DVec3> = coords
-            .chunks_exact(3)
-            .map(|p| DVec3::new(p[0], p[1], p[2]))
-            .collect();
-        if let Some(i) = positions.iter().position(|p| !p.is_finite()) {
-            return Err(c.err(ppos, format!("point {i} has a non-finite coordinate")));
-        }
-        if ends.len() != types.len() {
-            return Err(c.err(
-                tpos,
-                format!("{} cell types for {} offsets", types.len(), ends.len()),
-            ));
-        }
-        let mut offsets = Vec::with_capacity(ends.len() + 1);
-        offsets.push(0);
-        for (k, &e) in ends.iter().enumerate() {
-            let prev = offsets.last().copied().unwrap_or(0);
-            match super::to_u32(e).map(|e| e as usize) {
-                Some(e) if e >= prev && e <= connectivity.len() => offsets.push(e),
-                _ => {
-                    return Err(c.err(
-                        opos,
-                        format!(
-                            "offset {k} ({e}) is not increasing within 0..={}",
-                            connectivity.len()
-                        ),
-                    ))
-                }
-            }
-        }
-        let cells = Cells {
-            connectivity,
-            offsets,
-            types,
+        // VTU offsets are cell ends; the legacy 5.1 form starts with 0.
+        let starts: Vec<f64> = std::iter::once(0.0).chain(ends).collect();
+        let mut cells = offsets_cells(&starts, connectivity).map_err(|m| c.err(opos, m))?;
+        cells.types = types;
+        let places = Places {
+            points: ppos,
+            cells: cpos,
+            types: tpos,
         };
-        let a = assemble(&cells, positions.len())
-            .map_err(|(k, m)| c.err(cpos, format!("cell {k}: {m}")))?;
-        let mut part = TetMesh {
-            positions,
-            tets: a.tets,
-            ..Default::default()
-        };
-        attributes(
-            &mut part,
-            &a.cell_of_tet,
-            cells.types.len(),
-            &self.cell_data,
-            &self.point_data,
-        )
-        .map_err(|(p, m)| c.err(p, m))?;
-        merge(mesh, part).map_err(|m| c.err(self.pos, m))?;
-        Ok(a.quadratic)
+        let part = grid_mesh(&coords, &cells, &places, &self.cell_data, &self.point_data)
+            .map_err(|(p, m)| c.err(p, m))?;
+        merge(mesh, part).map_err(|m| c.err(self.pos, m))
     }
 }
 
