@@ -1,12 +1,12 @@
 //! Mesh files in and out. [`read`] and [`write`] pick the format from the file extension.
 //!
-//! | extension          | read                                              | write         |
-//! |--------------------|---------------------------------------------------|---------------|
-//! | `.msh`             | Gmsh 4.1 ASCII/binary, Gmsh 2.2 ASCII/binary      | Gmsh 4.1 ASCII|
-//! | `.vtk`             | VTK legacy 4.2 and 5.1 style, ASCII and BINARY    |               |
-//! | `.vtu`             | VTK XML: ascii, base64 binary, raw/base64 appended, zlib | binary base64 |
-//! | `.node` / `.ele`   | TetGen, 0- or 1-based                             |               |
-//! | `.pts` / `.elem` / `.lon` | openCARP (coordinates kept as written, usually µm) |      |
+//! | extension               | read                                                  | write           |
+//! |-------------------------|-------------------------------------------------------|-----------------|
+//! | `.msh`                  | Gmsh 4.1 and 2.2, ASCII and binary                    | Gmsh 4.1 ASCII  |
+//! | `.vtk`                  | VTK legacy, 4.2 and 5.1 cell layouts, ASCII and BINARY|                 |
+//! | `.vtu`                  | VTK XML: ascii, base64, raw or base64 appended, zlib  | base64, UInt64  |
+//! | `.node` / `.ele`        | TetGen, 0- or 1-based                                 |                 |
+//! | `.pts` / `.elem` / `.lon` | openCARP, coordinates as written (usually µm)       |                 |
 //!
 //! Every reader refuses malformed input with a one-line [`PalpateError::MeshFile`] naming the
 //! file and the line or byte offset, never panics, and never allocates from a count in a

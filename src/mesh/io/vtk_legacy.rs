@@ -15,7 +15,7 @@ use glam::DVec3;
 use std::path::Path;
 
 /// Cell array names taken as the region id, in order of preference (compared in lower case).
-pub(super) const REGION_NAMES: [&str; 8] = [
+const REGION_NAMES: [&str; 8] = [
     "material",
     "materials",
     "region",
@@ -27,14 +27,14 @@ pub(super) const REGION_NAMES: [&str; 8] = [
 ];
 
 /// Cell array names taken as fibre directions.
-pub(super) const FIBRE_NAMES: [&str; 4] = ["fibres", "fibers", "fibre", "fiber"];
+const FIBRE_NAMES: [&str; 4] = ["fibres", "fibers", "fibre", "fiber"];
 
 /// Point array name taken as vertex tags.
-pub(super) const TAG_NAME: &str = "vertex_tags";
+const TAG_NAME: &str = "vertex_tags";
 
-/// What a VTK cell type is to us: Some(true) a tet (with its corner count first), Some(false)
-/// a volume cell we refuse, None a lower-dimensional cell to skip.
-pub(super) fn cell_kind(ty: i64) -> Option<Result<usize, &'static str>> {
+/// What a VTK cell type is to us: `Some(Ok(n))` a tet of `n` nodes (corners first),
+/// `Some(Err(name))` a volume cell we refuse, `None` a lower-dimensional cell to skip.
+fn cell_kind(ty: i64) -> Option<Result<usize, &'static str>> {
     match ty {
         10 => Some(Ok(4)),
         24 => Some(Ok(10)),
@@ -56,7 +56,7 @@ pub(super) struct Cells {
     pub types: Vec<f64>,
 }
 
-/// Tets, regions and fibres from cells; `Err((cell, message))` names the first bad cell.
+/// The tets found among a grid's cells.
 struct Assembled {
     pub tets: Vec<[u32; 4]>,
     /// Index of each kept tet among all cells.
@@ -64,7 +64,8 @@ struct Assembled {
     pub quadratic: bool,
 }
 
-/// Keep the tets of `cells` whose point indices are below `n_points`.
+/// The tets of `cells`, their point indices checked against `n_points`;
+/// `Err((cell, message))` names the first bad cell.
 fn assemble(cells: &Cells, n_points: usize) -> Result<Assembled, (usize, String)> {
     let mut out = Assembled {
         tets: Vec::new(),
