@@ -1,38 +1,13 @@
-//! Mesh files in and out. `read` picks the reader from the file extension.
-//!
-//! Every reader refuses malformed input with a one-line error naming the file and the line
-//! or item, never panics, and never allocates from an unchecked count in a header.
+//! TetGen `.node` + `.ele` pairs.
 
-use super::TetMesh;
-use crate::error::{PalpateError, Result};
+use super::{file_err, read_bytes, to_u32};
+use crate::error::Result;
+use crate::mesh::TetMesh;
 use glam::DVec3;
 use std::path::Path;
 
-/// Read a tet mesh from a file; the format follows the extension.
-pub fn read(path: &Path) -> Result<TetMesh> {
-    let ext = path
-        .extension()
-        .map(|e| e.to_string_lossy().to_ascii_lowercase())
-        .unwrap_or_default();
-    match ext.as_str() {
-        "node" | "ele" => read_tetgen(path),
-        _ => Err(PalpateError::MeshFile {
-            path: path.to_path_buf(),
-            message: format!("unsupported mesh format '.{ext}' (supported: .node/.ele)"),
-        }),
-    }
-}
-
-fn file_err(path: &Path, message: String) -> PalpateError {
-    PalpateError::MeshFile {
-        path: path.to_path_buf(),
-        message,
-    }
-}
-
 fn read_text(path: &Path) -> Result<String> {
-    let bytes = std::fs::read(path).map_err(|e| file_err(path, format!("cannot read: {e}")))?;
-    String::from_utf8(bytes).map_err(|e| {
+    String::from_utf8(read_bytes(path)?).map_err(|e| {
         file_err(
             path,
             format!(
@@ -68,9 +43,9 @@ fn parse<T: std::str::FromStr>(
 }
 
 /// TetGen `.node` + `.ele` (either path may be given; the other is found beside it).
-/// Indices may start at 0 or 1 (the first node's index decides). An `.ele` attribute column
-/// becomes the region id.
-pub fn read_tetgen(path: &Path) -> Result<TetMesh> {
+/// Indices may start at 0 or 1 (the first node's index decides). The first `.ele` attribute
+/// column, a non-negative integer, becomes the region id; 10-node tets keep their corners.
+pub(super) fn read(path: &Path) -> Result<TetMesh> {
     let node_path = path.with_extension("node");
     let ele_path = path.with_extension("ele");
     let node_text = read_text(&node_path)?;
@@ -91,15 +66,21 @@ pub fn read_tetgen(path: &Path) -> Result<TetMesh> {
     for (ln, toks) in lines.by_ref().take(n) {
         let idx: i64 = parse(&node_path, ln, toks.first(), "node index")?;
         let base = *first_index.get_or_insert(idx);
-        if idx - base != positions.len() as i64 {
+        if idx.checked_sub(base) != Some(positions.len() as i64) {
             return Err(file_err(
                 &node_path,
                 format!("line {ln}: node index {idx} out of sequence"),
             ));
         }
-        let mut p = [0.0; 3];
+        let mut p = [0.0f64; 3];
         for (k, c) in p.iter_mut().enumerate() {
             *c = parse(&node_path, ln, toks.get(1 + k), "coordinate")?;
+            if !c.is_finite() {
+                return Err(file_err(
+                    &node_path,
+                    format!("line {ln}: coordinate {c} is not finite"),
+                ));
+            }
         }
         positions.push(DVec3::from_array(p));
     }
@@ -142,7 +123,7 @@ pub fn read_tetgen(path: &Path) -> Result<TetMesh> {
         let mut t = [0u32; 4];
         for (k, v) in t.iter_mut().enumerate() {
             let i: i64 = parse(&ele_path, ln, toks.get(1 + k), "node index")?;
-            let local = i - base;
+            let local = i.saturating_sub(base);
             if local < 0 || local >= n as i64 {
                 return Err(file_err(
                     &ele_path,
@@ -155,7 +136,13 @@ pub fn read_tetgen(path: &Path) -> Result<TetMesh> {
             *v = local as u32;
         }
         let region = if n_attr > 0 {
-            parse::<f64>(&ele_path, ln, toks.get(1 + npe), "attribute")?.max(0.0) as u32
+            let a: f64 = parse(&ele_path, ln, toks.get(1 + npe), "attribute")?;
+            to_u32(a).ok_or_else(|| {
+                file_err(
+                    &ele_path,
+                    format!("line {ln}: region attribute {a} is not an integer in 0..=4294967295"),
+                )
+            })?
         } else {
             0
         };
@@ -172,50 +159,19 @@ pub fn read_tetgen(path: &Path) -> Result<TetMesh> {
         ));
     }
     if tets.is_empty() {
-        return Err(file_err(&ele_path, "no tetrahedra".into()));
+        return Err(file_err(
+            &ele_path,
+            format!("line {hl}: no tetrahedra (the header declares 0 elements)"),
+        ));
     }
-    Ok(TetMesh {
+    let mut mesh = TetMesh {
         positions,
         tets,
         regions,
         ..Default::default()
-    })
-}
-
-/// Write a mesh; the format follows the extension (`.vtu`).
-pub fn write(path: &Path, mesh: &TetMesh) -> Result<()> {
-    let ext = path
-        .extension()
-        .map(|e| e.to_string_lossy().to_ascii_lowercase())
-        .unwrap_or_default();
-    match ext.as_str() {
-        "vtu" => {
-            use crate::output::vtu::{vtu, DataArray};
-            let points: Vec<f32> = mesh
-                .positions
-                .iter()
-                .flat_map(|p| p.to_array().map(|c| c as f32))
-                .collect();
-            let regions: Vec<i32> = mesh.regions.iter().map(|&r| r as i32).collect();
-            let tags: Vec<i32> = mesh.vertex_tags.iter().map(|&t| t as i32).collect();
-            let fibres: Vec<f32> = mesh
-                .fibres
-                .iter()
-                .flat_map(|f| f.to_array().map(|c| c as f32))
-                .collect();
-            let mut pd = Vec::new();
-            if !tags.is_empty() {
-                pd.push(DataArray::I32("vertex_tags", &tags));
-            }
-            let mut cd = vec![DataArray::I32("material", &regions)];
-            if !fibres.is_empty() {
-                cd.push(DataArray::F32("fibres", 3, &fibres));
-            }
-            crate::output::write_atomic(path, vtu(&points, &mesh.tets, &pd, &cd).as_bytes())
-        }
-        _ => Err(PalpateError::MeshFile {
-            path: path.to_path_buf(),
-            message: format!("cannot write '.{ext}' (supported: .vtu)"),
-        }),
+    };
+    if npe == 10 {
+        super::drop_unused_vertices(&mut mesh);
     }
+    Ok(mesh)
 }
