@@ -188,15 +188,15 @@ impl Progress {
     }
 }
 
+/// Write the next frame (`frame_NNNN.vtu`, N = frames written so far) and list it for the PVD.
 fn write_frame(
     dir: &Path,
-    index: usize,
     model: &Model,
     state: &State,
     time: f64,
     frames: &mut Vec<(f64, String)>,
 ) -> Result<()> {
-    let name = format!("frame_{index:04}.vtu");
+    let name = format!("frame_{:04}.vtu", frames.len());
     output::write_atomic(&dir.join(&name), state_vtu(model, state).as_bytes())?;
     frames.push((time, name));
     Ok(())
@@ -268,7 +268,7 @@ pub fn run(scene: &Scene, opts: &RunOptions) -> Result<RunSummary> {
     let mut frames = Vec::new();
     let mut state = sim.state()?;
     if opts.frames >= 2 {
-        write_frame(&opts.out, 0, &model, &state, 0.0, &mut frames)?;
+        write_frame(&opts.out, &model, &state, 0.0, &mut frames)?;
     }
     let show = opts.progress && std::io::stdout().is_terminal();
     let mut progress = Progress::new(show, (!until_static).then_some(target_steps));
@@ -337,14 +337,7 @@ pub fn run(scene: &Scene, opts: &RunOptions) -> Result<RunSummary> {
         }
         if sim.steps_done >= next_frame && opts.frames >= 2 {
             state = sim.state()?;
-            write_frame(
-                &opts.out,
-                frames.len(),
-                &model,
-                &state,
-                sim.time,
-                &mut frames,
-            )?;
+            write_frame(&opts.out, &model, &state, sim.time, &mut frames)?;
             next_frame += frame_every;
         }
         progress.update(
@@ -364,18 +357,10 @@ pub fn run(scene: &Scene, opts: &RunOptions) -> Result<RunSummary> {
         );
     }
     state = sim.state()?;
-    if frames.last().is_none_or(|(t, _)| *t < sim.time) && opts.frames >= 2 {
-        write_frame(
-            &opts.out,
-            frames.len(),
-            &model,
-            &state,
-            sim.time,
-            &mut frames,
-        )?;
-    }
-    if opts.frames == 1 {
-        write_frame(&opts.out, 0, &model, &state, sim.time, &mut frames)?;
+    // The final state closes the series (with --frames 1 it is the only frame).
+    let final_missing = frames.last().is_none_or(|(t, _)| *t < sim.time);
+    if opts.frames == 1 || (opts.frames >= 2 && final_missing) {
+        write_frame(&opts.out, &model, &state, sim.time, &mut frames)?;
     }
     output::write_atomic(
         &opts.out.join("final.vtu"),

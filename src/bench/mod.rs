@@ -70,3 +70,22 @@ pub fn kinetic(model: &Model, state: &State) -> f64 {
         })
         .sum()
 }
+
+/// Elastic energy of a state, Σ V Ψ over tets (the CPU `fem_forces` twin), J.
+pub fn elastic_energy(model: &Model, state: &State) -> f64 {
+    let p = model.step_params(0.0, 0.0);
+    let mut corner = vec![0.0; 12 * model.n_tets()];
+    let mut energy = vec![0.0; model.n_tets()];
+    crate::cpu::fem_forces(
+        &p,
+        &state.displacements,
+        &state.velocities,
+        &model.tets,
+        &model.dm_inv,
+        &model.rest_volume,
+        &mut corner,
+        &mut energy,
+        model.fem_variant(),
+    );
+    energy.iter().map(|&e| e as f64).sum()
+}

@@ -153,25 +153,9 @@ pub fn critical_ratio(scene: &Scene, backend: Backend, steps: u64, rounds: usize
     Ok(lo)
 }
 
-/// Elastic energy of the simulation's current state (one zero-length reduce via a 1-step
-/// batch would move it; compute it on the CPU instead), J.
+/// Elastic energy of the simulation's current state, J.
 fn squash_energy(model: &Model, s: &mut Simulation) -> Result<f64> {
-    let st = s.state()?;
-    let p = model.step_params(0.0, 0.0);
-    let mut corner = vec![0.0; 12 * model.n_tets()];
-    let mut energy = vec![0.0; model.n_tets()];
-    crate::cpu::fem_forces(
-        &p,
-        &st.displacements,
-        &st.velocities,
-        &model.tets,
-        &model.dm_inv,
-        &model.rest_volume,
-        &mut corner,
-        &mut energy,
-        model.fem_variant(),
-    );
-    Ok(energy.iter().map(|&e| e as f64).sum())
+    Ok(super::elastic_energy(model, &s.state()?))
 }
 
 fn free_beam(cells: [usize; 3], material: MaterialModel) -> Result<Arc<Model>> {
