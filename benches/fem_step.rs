@@ -82,6 +82,7 @@ fn ratio_table() {
     );
     println!("| tets | CPU tet-steps/s | GPU tet-steps/s | GPU/CPU |");
     println!("|---:|---:|---:|---:|");
+    let mut stages: Vec<(usize, Option<palpate::gpu::stepper::StageTimes>)> = Vec::new();
     for (_, cells) in SIZES {
         let m = model(cells);
         let params = m.step_params(0.5 * m.bounds.dt_bound, 0.0);
@@ -99,6 +100,22 @@ fn ratio_table() {
             n / t_gpu,
             t_cpu / t_gpu
         );
+        stages.push((m.n_tets(), gpu.profile_stages(20).expect("profile")));
+    }
+    println!("\nGPU time per stage (timestamp queries, mean of 20 steps, one pass per stage):");
+    println!("| tets | fem_forces µs | gather µs | integrate µs | reduce µs |");
+    println!("|---:|---:|---:|---:|---:|");
+    for (n, t) in stages {
+        match t {
+            Some(t) => println!(
+                "| {n} | {:.1} | {:.1} | {:.1} | {:.1} |",
+                t.fem_forces_ns / 1e3,
+                t.gather_ns / 1e3,
+                t.integrate_ns / 1e3,
+                t.reduce_ns / 1e3
+            ),
+            None => println!("| {n} | no timestamp queries on this adapter | | | |"),
+        }
     }
 }
 

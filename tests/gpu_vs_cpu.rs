@@ -262,3 +262,25 @@ fn beam_trajectory_500_steps_gpu_matches_cpu() {
 fn ed0_trajectory_500_steps_gpu_matches_cpu() {
     compare_trajectories("ed0");
 }
+
+#[test]
+fn stage_timestamps_are_positive_where_supported() {
+    let (_, _, mut g) = setup(false);
+    match g.profile_stages(3).unwrap() {
+        Some(t) => {
+            eprintln!("stage times: {t:?}");
+            assert!(
+                t.fem_forces_ns > 0.0
+                    && t.gather_ns > 0.0
+                    && t.integrate_ns > 0.0
+                    && t.reduce_ns > 0.0,
+                "{t:?}"
+            );
+        }
+        None => assert!(!g
+            .context()
+            .device
+            .features()
+            .contains(wgpu::Features::TIMESTAMP_QUERY)),
+    }
+}

@@ -315,6 +315,18 @@ fn execute(cli: Cli) -> Result<()> {
             let l = &ctx.limits;
             println!("chosen: {}", ctx.describe());
             println!(
+                "timestamp queries: {}",
+                if ctx
+                    .device
+                    .features()
+                    .contains(wgpu::Features::TIMESTAMP_QUERY)
+                {
+                    "yes"
+                } else {
+                    "no"
+                }
+            );
+            println!(
                 "limits: max_buffer_size {} B, max_storage_buffer_binding_size {} B, storage buffers per stage {}, workgroups per dimension {}",
                 l.max_buffer_size, l.max_storage_buffer_binding_size, l.max_storage_buffers_per_shader_stage, l.max_compute_workgroups_per_dimension
             );

@@ -52,6 +52,19 @@ pub enum Stage {
     Reduce,
 }
 
+/// Mean GPU time per stage of one step, from timestamp queries, ns.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct StageTimes {
+    /// fem_forces.
+    pub fem_forces_ns: f64,
+    /// gather.
+    pub gather_ns: f64,
+    /// integrate.
+    pub integrate_ns: f64,
+    /// reduce (both entry points).
+    pub reduce_ns: f64,
+}
+
 struct Bound {
     fem_forces: BoundKernel,
     gather: BoundKernel,
@@ -120,23 +133,103 @@ impl GpuStepper {
 
     /// Run a single stage on the current buffers and wait.
     pub fn run_stage(&self, stage: Stage) -> Result<()> {
-        let p = &self.pipelines;
-        let b = &self.bound;
         let mut enc = self.ctx.device.create_command_encoder(&Default::default());
         {
             let mut pass = enc.begin_compute_pass(&Default::default());
-            match stage {
-                Stage::FemForces => p.fem_forces.fem_forces.record(&mut pass, &b.fem_forces),
-                Stage::Gather => p.gather.gather.record(&mut pass, &b.gather),
-                Stage::Integrate => p.integrate.integrate.record(&mut pass, &b.integrate),
-                Stage::Reduce => {
-                    p.reduce.reduce_partial.record(&mut pass, &b.reduce_partial);
-                    p.reduce.reduce_final.record_one(&mut pass, &b.reduce_final);
-                }
-            }
+            self.record_stage(&mut pass, stage);
         }
         self.ctx.queue.submit([enc.finish()]);
         self.ctx.wait()
+    }
+
+    /// Time each stage with timestamp queries over `reps` steps (one compute pass per stage,
+    /// reduce included every step); None when the device has no timestamp queries.
+    pub fn profile_stages(&mut self, reps: u32) -> Result<Option<StageTimes>> {
+        if !self
+            .ctx
+            .device
+            .features()
+            .contains(wgpu::Features::TIMESTAMP_QUERY)
+        {
+            return Ok(None);
+        }
+        let reps = reps.clamp(1, 100);
+        let count = 8 * reps;
+        let d = &self.ctx.device;
+        let queries = d.create_query_set(&wgpu::QuerySetDescriptor {
+            label: Some("stage timestamps"),
+            ty: wgpu::QueryType::Timestamp,
+            count,
+        });
+        let bytes = 8 * count as u64;
+        let resolve = d.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("timestamps"),
+            size: bytes,
+            usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        });
+        let staging = d.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("timestamps readback"),
+            size: bytes,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut enc = d.create_command_encoder(&Default::default());
+        let stages = [
+            Stage::FemForces,
+            Stage::Gather,
+            Stage::Integrate,
+            Stage::Reduce,
+        ];
+        for r in 0..reps {
+            for (k, stage) in stages.iter().enumerate() {
+                let q = 2 * (4 * r + k as u32);
+                let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                    label: Some("profiled stage"),
+                    timestamp_writes: Some(wgpu::ComputePassTimestampWrites {
+                        query_set: &queries,
+                        beginning_of_pass_write_index: Some(q),
+                        end_of_pass_write_index: Some(q + 1),
+                    }),
+                });
+                self.record_stage(&mut pass, *stage);
+            }
+        }
+        enc.resolve_query_set(&queries, 0..count, &resolve, 0);
+        enc.copy_buffer_to_buffer(&resolve, 0, &staging, 0, bytes);
+        self.ctx.queue.submit([enc.finish()]);
+        let raw = self.ctx.read_mapped(&staging, bytes)?;
+        let ticks: &[u64] = bytemuck::cast_slice(&raw);
+        let period = self.ctx.queue.get_timestamp_period() as f64;
+        let mean = |k: usize| {
+            (0..reps as usize)
+                .map(|r| {
+                    ticks[2 * (4 * r + k) + 1].saturating_sub(ticks[2 * (4 * r + k)]) as f64
+                        * period
+                })
+                .sum::<f64>()
+                / reps as f64
+        };
+        Ok(Some(StageTimes {
+            fem_forces_ns: mean(0),
+            gather_ns: mean(1),
+            integrate_ns: mean(2),
+            reduce_ns: mean(3),
+        }))
+    }
+
+    fn record_stage(&self, pass: &mut wgpu::ComputePass<'_>, stage: Stage) {
+        let p = &self.pipelines;
+        let b = &self.bound;
+        match stage {
+            Stage::FemForces => p.fem_forces.fem_forces.record(pass, &b.fem_forces),
+            Stage::Gather => p.gather.gather.record(pass, &b.gather),
+            Stage::Integrate => p.integrate.integrate.record(pass, &b.integrate),
+            Stage::Reduce => {
+                p.reduce.reduce_partial.record(pass, &b.reduce_partial);
+                p.reduce.reduce_final.record_one(pass, &b.reduce_final);
+            }
+        }
     }
 
     /// Overwrite a storage buffer of f32 (`forces`, `corner_forces`, `tet_energy`,
