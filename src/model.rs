@@ -155,6 +155,61 @@ impl Model {
         )
     }
 
+    /// Refuse a model whose values do not survive the conversion to f32 (a modulus above
+    /// 3e38 Pa, a mesh so small that tet volumes underflow, …): the kernels would produce
+    /// Inf/NaN at the first step and the run would blame the time step.
+    pub fn check_f32(&self) -> crate::error::Result<()> {
+        let bad = |what: String| {
+            crate::error::PalpateError::Usage(format!(
+                "the scene's values do not fit single precision (f32): {what}; rescale the units"
+            ))
+        };
+        let m = &self.material;
+        for (name, v) in [
+            ("lambda", m.lambda),
+            ("mu", m.mu),
+            ("phi", m.phi),
+            ("psi", m.psi),
+        ] {
+            if !(v as f32).is_finite() {
+                return Err(bad(format!("material {name} = {v:e}")));
+            }
+        }
+        if !(m.mu as f32 > 0.0) || !(m.p_wave_speed() as f32).is_finite() {
+            return Err(bad(format!(
+                "shear modulus {:e} Pa, wave speed {:e} m/s",
+                m.mu,
+                m.p_wave_speed()
+            )));
+        }
+        if let Some(e) = self
+            .rest_volume
+            .iter()
+            .position(|v| !(v.is_finite() && *v > 0.0))
+        {
+            return Err(bad(format!(
+                "tet {e} has volume {:e} m³ in f32",
+                self.rest_volume[e]
+            )));
+        }
+        if let Some(k) = self.dm_inv.iter().position(|v| !v.is_finite()) {
+            return Err(bad(format!(
+                "tet {} has a non-finite inverse rest shape",
+                k / 9
+            )));
+        }
+        if let Some(i) = self.inv_mass.iter().position(|v| !v.is_finite()) {
+            return Err(bad(format!(
+                "vertex {i} has mass {:e} kg in f32",
+                self.mass[i]
+            )));
+        }
+        if let Some(k) = self.external_forces.iter().position(|v| !v.is_finite()) {
+            return Err(bad(format!("vertex {} has a non-finite load", k / 3)));
+        }
+        Ok(())
+    }
+
     /// The `fem_forces` kernel variant this model needs (material, viscous or not).
     pub fn fem_variant(&self) -> crate::cpu::fem_forces::FemVariant {
         crate::cpu::fem_forces::FemVariant {

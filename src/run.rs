@@ -202,13 +202,18 @@ fn write_frame(
     Ok(())
 }
 
+/// The most steps one run may take (a guard against a dt that is absurdly small for the
+/// requested duration).
+pub const MAX_RUN_STEPS: u64 = 1 << 40;
+
 /// Damping ratio that `--until-static` gives the highest mesh frequency through added
 /// shear viscosity (see [`relaxation_scene`]).
-pub const RELAXATION_HIGH_MODE_DAMPING: f64 = 0.3;
+pub const RELAXATION_HIGH_MODE_DAMPING: f64 = 0.6;
 
 /// The scene used by `--until-static` (dynamic relaxation): the same scene with shear
-/// viscosity raised to at least ψ_r = 2ζ(λ + 2μ)/ω_max, ω_max = 2c_p/h, so that the highest
-/// mesh modes are damped at ζ = 0.3 and f32 round-off cannot keep them ringing. Viscous
+/// viscosity raised to at least ψ_r = ζ(λ + 2μ)/ω_max, ω_max = 2c_p/h, so that the highest
+/// mesh modes are damped at ζ = 0.6 (ζ = (φ + 2ψ)ω/(2(λ + 2μ)), see [`crate::timestep`]) and
+/// f32 round-off cannot keep them ringing. Viscous
 /// stress vanishes at rest, so the static solution is unchanged; the auto dt accounts for it.
 pub fn relaxation_scene(scene: &Scene) -> Scene {
     let mut s = scene.clone();
@@ -216,7 +221,7 @@ pub fn relaxation_scene(scene: &Scene) -> Scene {
     let bounds =
         crate::timestep::TimeStepBounds::new(m, scene.mesh.min_altitude(), scene.mesh.min_edge());
     let omega_max = 2.0 * bounds.p_wave_speed / bounds.h_altitude;
-    let psi = 2.0 * RELAXATION_HIGH_MODE_DAMPING * (m.lambda + 2.0 * m.mu) / omega_max;
+    let psi = RELAXATION_HIGH_MODE_DAMPING * (m.lambda + 2.0 * m.mu) / omega_max;
     s.material.psi = m.psi.max(psi);
     s
 }
@@ -254,16 +259,29 @@ pub fn run(scene: &Scene, opts: &RunOptions) -> Result<RunSummary> {
                     "--duration must be >= 0 s, got {t}"
                 )));
             }
-            let n = (t / dt0).ceil() as u64;
-            (n, n)
+            // Round up, but not past a whole number that f64 division missed by an ulp.
+            let x = t / dt0;
+            let n = if (x - x.round()).abs() < 1e-9 * x.max(1.0) {
+                x.round()
+            } else {
+                x.ceil()
+            };
+            (n as u64, n as u64)
         }
         RunLength::UntilStatic { max_steps } => (max_steps, max_steps),
     };
+    if target_steps > MAX_RUN_STEPS {
+        return Err(PalpateError::Usage(format!(
+            "the run would take {target_steps} steps of {dt0:.3e} s (more than {MAX_RUN_STEPS}); use a larger --dt or a shorter run"
+        )));
+    }
+    // The run's simulated length; --on-diverge halve-dt keeps it (so --steps N may take more
+    // than N steps after a halving), and frames are spaced evenly over it.
     let mut target_time = target_steps as f64 * dt0;
-    let frame_every = if opts.frames >= 2 {
-        (max_steps / (opts.frames as u64 - 1)).max(1)
+    let frame_dt = if opts.frames >= 2 {
+        max_steps as f64 * dt0 / (opts.frames - 1) as f64
     } else {
-        u64::MAX
+        f64::INFINITY
     };
     let mut frames = Vec::new();
     let mut state = sim.state()?;
@@ -277,7 +295,7 @@ pub fn run(scene: &Scene, opts: &RunOptions) -> Result<RunSummary> {
     let mut halvings = 0u32;
     let mut residual = None;
     let start = Instant::now();
-    let mut next_frame = frame_every;
+    let mut next_frame_time = frame_dt;
     let adaptive = until_static && scene.solver.damping == 0.0;
     let relax = |sim: &mut Simulation, s: &crate::stepper::BatchStats| -> Result<f64> {
         // Adaptive viscous relaxation: critical damping α = 2ω of the current displacement
@@ -289,7 +307,7 @@ pub fn run(scene: &Scene, opts: &RunOptions) -> Result<RunSummary> {
         }
         Ok(s.residual_norm() / s.external_norm().max(f64::MIN_POSITIVE))
     };
-    if until_static {
+    if until_static && target_steps > 0 {
         // Residual of the initial state: a body already in equilibrium stops at once.
         if let Advance::Done(s) = sim.advance(1)? {
             residual = Some(relax(&mut sim, &s)?);
@@ -299,9 +317,12 @@ pub fn run(scene: &Scene, opts: &RunOptions) -> Result<RunSummary> {
         if until_static && residual.is_some_and(|r| r <= tolerance) {
             break;
         }
-        let mut batch = (target_steps - sim.steps_done).min(opts.batch as u64);
-        if next_frame > sim.steps_done {
-            batch = batch.min(next_frame - sim.steps_done);
+        let mut batch = (target_steps - sim.steps_done).min(opts.batch.max(1) as u64);
+        if next_frame_time.is_finite() {
+            let to_frame = ((next_frame_time - sim.time) / sim.dt - 1e-6)
+                .ceil()
+                .max(1.0);
+            batch = batch.min(to_frame as u64);
         }
         match sim.advance(batch as u32)? {
             Advance::Done(s) => {
@@ -335,10 +356,10 @@ pub fn run(scene: &Scene, opts: &RunOptions) -> Result<RunSummary> {
                 break;
             }
         }
-        if sim.steps_done >= next_frame && opts.frames >= 2 {
+        if sim.time >= next_frame_time - 0.5 * sim.dt {
             state = sim.state()?;
             write_frame(&opts.out, &model, &state, sim.time, &mut frames)?;
-            next_frame += frame_every;
+            next_frame_time += frame_dt;
         }
         progress.update(
             sim.steps_done,

@@ -91,6 +91,9 @@ impl Simulation {
     /// Build a simulation of `scene` on `backend`.
     pub fn new(scene: &Scene, backend: Backend, opts: SimOptions) -> Result<Simulation> {
         let model = Arc::new(Model::from_scene(scene));
+        model
+            .check_f32()
+            .map_err(|e| PalpateError::Usage(format!("{}: {e}", scene.origin)))?;
         let dt = choose_dt(scene, &model, opts.dt, opts.allow_unstable)?;
         Simulation::from_model(model, backend, dt, scene.solver.damping, opts)
     }
@@ -103,6 +106,12 @@ impl Simulation {
         damping: f64,
         opts: SimOptions,
     ) -> Result<Simulation> {
+        model.check_f32()?;
+        if !(dt as f32 > 0.0 && (dt as f32).is_finite()) {
+            return Err(PalpateError::Usage(format!(
+                "dt = {dt:e} s is not a positive single-precision number"
+            )));
+        }
         let params = model.step_params(dt, damping);
         let stepper: Box<dyn Stepper> = match backend {
             Backend::Cpu => Box::new(CpuStepper::new(model.clone(), params)),

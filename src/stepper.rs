@@ -14,6 +14,11 @@ pub struct State {
 }
 
 /// What a batch reports: the `reduce` stats after its last step and the divergence flag.
+///
+/// Time levels: kinetic energy, max speed and Σ m|u|² are of the state after the last step;
+/// elastic energy and the residual force were computed by that step's `fem_forces`/`gather`,
+/// i.e. for the state one step earlier. At the step sizes used this is a difference of
+/// O(dt·v); summaries report them as "at the end".
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct BatchStats {
     /// The stats buffer (see [`crate::params::stat`]).
@@ -39,7 +44,7 @@ impl BatchStats {
     pub fn residual_norm(&self) -> f64 {
         (self.stats[stat::RESIDUAL_SQ] as f64).sqrt()
     }
-    /// ‖m g‖₂ over free vertices, N.
+    /// ‖m g + f_ext‖₂ over free vertices (gravity and surface pressures), N.
     pub fn external_norm(&self) -> f64 {
         (self.stats[stat::EXTERNAL_SQ] as f64).sqrt()
     }

@@ -211,6 +211,16 @@ fn bad_scene_values_give_one_line_errors_naming_file_and_key() {
             &["fixed[0]", "selects no vertex"],
         ),
         ("[loads]", "[loadz]", &["loadz"]),
+        (
+            "cells = [20, 4, 4]",
+            "cells = [2097152, 2097152, 4194304]",
+            &["mesh.cells", "limit"],
+        ),
+        (
+            "youngs_modulus = 3.0e5",
+            "youngs_modulus = 1.0e39",
+            &["single precision"],
+        ),
     ];
     for (i, (from, to, want)) in cases.iter().enumerate() {
         assert!(BEAM.contains(from), "fixture: {from}");
@@ -249,6 +259,30 @@ fn missing_files_and_unknown_scenes_are_clear_errors() {
         &["nowhere"],
     );
     assert_one_line_error(&["run", "beam", "--steps", "1", "--dt", "0"], &["--dt"]);
+    assert_one_line_error(
+        &[
+            "run",
+            "beam",
+            "--duration",
+            "1",
+            "--dt",
+            "1e-300",
+            "--allow-unstable",
+        ],
+        &["dt = 1e-300", "single-precision"],
+    );
+    assert_one_line_error(
+        &[
+            "run",
+            "beam",
+            "--duration",
+            "1",
+            "--dt",
+            "1e-30",
+            "--allow-unstable",
+        ],
+        &["steps", "larger --dt"],
+    );
 }
 
 #[test]

@@ -44,7 +44,7 @@ pub struct SimBuffers {
     pub external_forces: wgpu::Buffer,
     /// Per-vertex force, 3 f32.
     pub forces: wgpu::Buffer,
-    /// Reduction partials, 5 f32 per block of 256.
+    /// Reduction partials, 6 f32 per block of 256.
     pub partials: wgpu::Buffer,
     /// The 8-float stats (see [`crate::params::stat`]).
     pub stats: wgpu::Buffer,

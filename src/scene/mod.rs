@@ -472,7 +472,7 @@ fn build_mesh(
                     positive(bad, &format!("mesh.size[{i}]"), *s, "m")?;
                 }
                 let c = cells_n(spec, 3, bad)?;
-                check_count(c[0] * c[1] * c[2] * 6, bad)?;
+                check_count(&[c[0], c[1], c[2], 6], bad)?;
                 generators::beam(size, [c[0], c[1], c[2]])
             }
             "ellipsoid_shell" => {
@@ -494,7 +494,7 @@ fn build_mesh(
                     }
                 }
                 let c = cells_n(spec, 2, bad)?;
-                check_count(36 * c[0] * c[1] * c[1], bad)?;
+                check_count(&[36, c[0], c[1], c[1]], bad)?;
                 generators::ellipsoid_shell(inner, outer, c[0], c[1])
             }
             "lv" => {
@@ -542,19 +542,18 @@ fn build_mesh(
                     ));
                 }
                 let (layers, disk) = match (spec.resolution, &spec.cells) {
-                    (Some(k), None) if k > 0 => (k, 4 * k),
+                    (Some(k), None) if k > 0 && k <= 1 << 20 => (k, 4 * k),
                     (None, Some(_)) => {
                         let c = cells_n(spec, 2, bad)?;
                         (c[0], c[1])
                     }
-                    _ => {
-                        return Err(bad(
-                            "mesh",
-                            "lv takes either resolution = k > 0 or cells = [layers, disk]".into(),
-                        ))
-                    }
+                    _ => return Err(bad(
+                        "mesh",
+                        "lv takes either resolution = k in 1..=1048576 or cells = [layers, disk]"
+                            .into(),
+                    )),
                 };
-                check_count(6 * layers * disk * disk, bad)?;
+                check_count(&[6, layers, disk, disk], bad)?;
                 generators::lv(geo, layers, disk)
             }
             other => {
@@ -575,14 +574,16 @@ fn build_mesh(
     Ok((mesh, report))
 }
 
-fn check_count(tets: usize, bad: &Bad) -> Result<()> {
-    if tets > MAX_GENERATED_TETS {
-        return Err(bad(
+/// Refuse a generator whose tet count (the product of `factors`) exceeds the limit or
+/// overflows.
+fn check_count(factors: &[usize], bad: &Bad) -> Result<()> {
+    match factors.iter().try_fold(1usize, |a, &x| a.checked_mul(x)) {
+        Some(tets) if tets <= MAX_GENERATED_TETS => Ok(()),
+        _ => Err(bad(
             "mesh.cells",
-            format!("would make {tets} tets, more than the limit {MAX_GENERATED_TETS}"),
-        ));
+            format!("would make more than the limit of {MAX_GENERATED_TETS} tets"),
+        )),
     }
-    Ok(())
 }
 
 fn select_fixed(specs: &[FixedSpec], mesh: &TetMesh, bad: &Bad) -> Result<Vec<bool>> {
