@@ -175,7 +175,7 @@ impl Model {
                 return Err(bad(format!("material {name} = {v:e}")));
             }
         }
-        if !(m.mu as f32 > 0.0) || !(m.p_wave_speed() as f32).is_finite() {
+        if (m.mu as f32) <= 0.0 || !(m.p_wave_speed() as f32).is_finite() {
             return Err(bad(format!(
                 "shear modulus {:e} Pa, wave speed {:e} m/s",
                 m.mu,
