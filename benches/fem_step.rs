@@ -24,15 +24,7 @@ const GPU_BATCH: u32 = 20;
 fn model(cells: [usize; 3]) -> Arc<Model> {
     let mesh = generators::beam([0.1, 0.04, 0.04], cells);
     let fixed: Vec<bool> = mesh.positions.iter().map(|p| p.x == 0.0).collect();
-    let (lambda, mu) = MaterialParams::lame_from_young(3.0e5, 0.4);
-    let material = MaterialParams {
-        lambda,
-        mu,
-        phi: 0.0,
-        psi: 0.0,
-        density: 1000.0,
-        model: Default::default(),
-    };
+    let material = MaterialParams::elastic(3.0e5, 0.4, 1000.0);
     Arc::new(Model::new(&mesh, &fixed, material, [0.0, 0.0, -9.81]))
 }
 

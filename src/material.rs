@@ -95,6 +95,20 @@ impl MaterialParams {
         )
     }
 
+    /// An inviscid St. Venant–Kirchhoff material from Young's modulus E (Pa), Poisson ratio ν
+    /// and density ρ (kg/m³).
+    pub fn elastic(youngs_modulus: f64, poisson_ratio: f64, density: f64) -> MaterialParams {
+        let (lambda, mu) = MaterialParams::lame_from_young(youngs_modulus, poisson_ratio);
+        MaterialParams {
+            lambda,
+            mu,
+            phi: 0.0,
+            psi: 0.0,
+            density,
+            model: MaterialModel::Stvk,
+        }
+    }
+
     /// Dilatational (P-) wave speed c_p = sqrt((λ + 2μ)/ρ), m/s.
     pub fn p_wave_speed(&self) -> f64 {
         ((self.lambda + 2.0 * self.mu) / self.density).sqrt()

@@ -28,15 +28,7 @@ impl Rng {
 
 /// A soft-tissue material, SI.
 pub fn tissue() -> MaterialParams {
-    let (lambda, mu) = MaterialParams::lame_from_young(3.0e5, 0.4);
-    MaterialParams {
-        lambda,
-        mu,
-        phi: 0.0,
-        psi: 0.0,
-        density: 1000.0,
-        model: Default::default(),
-    }
+    MaterialParams::elastic(3.0e5, 0.4, 1000.0)
 }
 
 /// A beam mesh with interior vertices jittered by up to 15 % of a cell, so that tets are
