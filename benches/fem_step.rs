@@ -1,11 +1,14 @@
-//! One full FEM step (fem_forces + gather + integrate) at about 10k, 100k and 1M tets, on the
-//! CPU reference path and the GPU path, as tet-steps per second. After the criterion groups,
-//! a table with the GPU/CPU ratio measured in the same run is printed.
+//! One full FEM step (the step plan: fem_forces + gather + integrate) at about 10k, 100k and
+//! 1M tets, as tet-steps per second, on the CPU path with 1 thread, the CPU path with all
+//! threads, and the GPU path. After the criterion groups, a table with the ratios measured
+//! in the same run is printed (the parallel CPU speed-up and GPU/CPU), then per-stage GPU
+//! times from timestamp queries.
 //!
 //! GPU steps are recorded 20 to a command buffer (as the engine runs them) and the time
-//! includes submit and wait; the CPU path is the single-thread reference twin.
+//! includes submit and wait. `PALPATE_BENCH_SIZES=10k,100k` limits the sizes.
 
 use criterion::{criterion_group, BenchmarkId, Criterion, Throughput};
+use palpate::cpu::stepper::available_cores;
 use palpate::cpu::CpuStepper;
 use palpate::gpu::{GpuContext, GpuStepper};
 use palpate::material::MaterialParams;
@@ -21,6 +24,14 @@ const SIZES: [(&str, [usize; 3]); 3] = [
 ];
 const GPU_BATCH: u32 = 20;
 
+fn sizes() -> Vec<(&'static str, [usize; 3])> {
+    let want = std::env::var("PALPATE_BENCH_SIZES").unwrap_or_default();
+    SIZES
+        .into_iter()
+        .filter(|(n, _)| want.is_empty() || want.split(',').any(|w| w == *n))
+        .collect()
+}
+
 fn model(cells: [usize; 3]) -> Arc<Model> {
     let mesh = generators::beam([0.1, 0.04, 0.04], cells);
     let fixed: Vec<bool> = mesh.positions.iter().map(|p| p.x == 0.0).collect();
@@ -28,24 +39,32 @@ fn model(cells: [usize; 3]) -> Arc<Model> {
     Arc::new(Model::new(&mesh, &fixed, material, [0.0, 0.0, -9.81]))
 }
 
+fn cpu(m: &Arc<Model>, threads: usize) -> CpuStepper {
+    let params = m.step_params(0.5 * m.bounds.dt_bound, 0.0);
+    CpuStepper::with_threads(m.clone(), params, threads).expect("CPU threads")
+}
+
 fn fem_step(c: &mut Criterion) {
     let ctx = Arc::new(
         GpuContext::new()
             .expect("a GPU adapter (apt-get install mesa-vulkan-drivers for lavapipe)"),
     );
+    let all = available_cores();
     let mut group = c.benchmark_group("fem_step");
     group
         .sample_size(10)
         .warm_up_time(Duration::from_secs(1))
         .measurement_time(Duration::from_secs(4));
-    for (name, cells) in SIZES {
+    for (name, cells) in sizes() {
         let m = model(cells);
         let params = m.step_params(0.5 * m.bounds.dt_bound, 0.0);
         group.throughput(Throughput::Elements(m.n_tets() as u64));
-        let mut cpu = CpuStepper::new(m.clone(), params);
-        group.bench_function(BenchmarkId::new("cpu", name), |b| {
-            b.iter(|| cpu.step(false))
-        });
+        for threads in [1, all] {
+            let mut s = cpu(&m, threads);
+            group.bench_function(BenchmarkId::new(format!("cpu_{threads}t"), name), |b| {
+                b.iter(|| s.step(false))
+            });
+        }
         let mut gpu = GpuStepper::new(ctx.clone(), &m, params).expect("GPU stepper");
         group.throughput(Throughput::Elements(m.n_tets() as u64 * GPU_BATCH as u64));
         group.bench_function(BenchmarkId::new(format!("gpu_x{GPU_BATCH}"), name), |b| {
@@ -55,58 +74,74 @@ fn fem_step(c: &mut Criterion) {
     group.finish();
 }
 
-/// Best of `reps` timings of `f`, seconds.
-fn best(reps: usize, mut f: impl FnMut()) -> f64 {
-    (0..reps)
+/// Median of `reps` timings of `f`, seconds.
+fn median(reps: usize, mut f: impl FnMut()) -> f64 {
+    let mut t: Vec<f64> = (0..reps)
         .map(|_| {
             let t = Instant::now();
             f();
             t.elapsed().as_secs_f64()
         })
-        .fold(f64::INFINITY, f64::min)
+        .collect();
+    t.sort_by(f64::total_cmp);
+    t[reps / 2]
 }
 
 fn ratio_table() {
     let ctx = Arc::new(GpuContext::new().expect("GPU adapter"));
+    let all = available_cores();
     println!(
-        "\nfem_step on '{}' vs CPU reference (1 thread)",
+        "\nfem_step: CPU 1 thread, CPU {all} threads and GPU '{}' (median of 15, same run)",
         ctx.describe()
     );
-    println!("| tets | CPU tet-steps/s | GPU tet-steps/s | GPU/CPU |");
-    println!("|---:|---:|---:|---:|");
-    let mut stages: Vec<(usize, Option<palpate::gpu::stepper::StageTimes>)> = Vec::new();
-    for (_, cells) in SIZES {
+    println!(
+        "| tets | CPU 1t tet-steps/s | CPU {all}t tet-steps/s | {all}t/1t | GPU tet-steps/s | GPU/CPU 1t | GPU/CPU {all}t |"
+    );
+    println!("|---:|---:|---:|---:|---:|---:|---:|");
+    let mut stages = Vec::new();
+    for (_, cells) in sizes() {
         let m = model(cells);
         let params = m.step_params(0.5 * m.bounds.dt_bound, 0.0);
-        let mut cpu = CpuStepper::new(m.clone(), params);
-        let t_cpu = best(5, || cpu.step(false));
+        // Warm up past the first steps from rest (first-touch page faults), then time each
+        // pool on its own with the other idle.
+        let mut one = cpu(&m, 1);
+        let mut many = cpu(&m, all);
+        for _ in 0..10 {
+            one.step(false);
+            many.step(false);
+        }
+        let t1 = median(15, || one.step(false));
+        std::thread::sleep(Duration::from_millis(200));
+        let tn = median(15, || many.step(false));
         let mut gpu = GpuStepper::new(ctx.clone(), &m, params).expect("GPU stepper");
         gpu.run_no_readback(GPU_BATCH).expect("warm-up");
-        let t_gpu =
-            best(5, || gpu.run_no_readback(GPU_BATCH).expect("GPU batch")) / GPU_BATCH as f64;
+        let tg =
+            median(9, || gpu.run_no_readback(GPU_BATCH).expect("GPU batch")) / GPU_BATCH as f64;
         let n = m.n_tets() as f64;
         println!(
-            "| {} | {:.3e} | {:.3e} | {:.2} |",
+            "| {} | {:.3e} | {:.3e} | {:.2} | {:.3e} | {:.2} | {:.2} |",
             m.n_tets(),
-            n / t_cpu,
-            n / t_gpu,
-            t_cpu / t_gpu
+            n / t1,
+            n / tn,
+            t1 / tn,
+            n / tg,
+            t1 / tg,
+            tn / tg
         );
         stages.push((m.n_tets(), gpu.profile_stages(20).expect("profile")));
     }
-    println!("\nGPU time per stage (timestamp queries, mean of 20 steps, one pass per stage):");
-    println!("| tets | fem_forces µs | gather µs | integrate µs | reduce µs |");
-    println!("|---:|---:|---:|---:|---:|");
+    println!("\nGPU time per stage (timestamp queries, mean of 20 runs, one pass per stage):");
     for (n, t) in stages {
         match t {
-            Some(t) => println!(
-                "| {n} | {:.1} | {:.1} | {:.1} | {:.1} |",
-                t.fem_forces_ns / 1e3,
-                t.gather_ns / 1e3,
-                t.integrate_ns / 1e3,
-                t.reduce_ns / 1e3
-            ),
-            None => println!("| {n} | no timestamp queries on this adapter | | | |"),
+            Some(t) => {
+                let cols: Vec<String> = t
+                    .per_stage
+                    .iter()
+                    .map(|(s, ns)| format!("{} {:.1} µs", s.name(), ns / 1e3))
+                    .collect();
+                println!("| {n} | {} |", cols.join(" | "));
+            }
+            None => println!("| {n} | no timestamp queries on this adapter |"),
         }
     }
 }

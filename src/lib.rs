@@ -14,6 +14,7 @@ pub mod mesh;
 pub mod model;
 pub mod output;
 pub mod params;
+pub mod plan;
 pub mod run;
 pub mod scene;
 pub mod sim;

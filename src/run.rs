@@ -1,15 +1,21 @@
-//! The `palpate run` job: step a scene for a number of steps, a duration, or until static;
-//! handle divergence; write `final.vtu`, `summary.json` and optional `series.pvd` frames.
+//! The `palpate run` job: step a scene for a number of steps, a duration, or until static,
+//! under a divergence policy, and write `final.vtu`, `summary.json` and optional
+//! `series.pvd` frames (the pieces live in [`crate::output`]).
 
 use crate::error::{PalpateError, Result};
-use crate::model::Model;
-use crate::output::{self, vtu};
+use crate::output::series::FrameSeries;
+use crate::output::state::state_vtu;
+pub use crate::output::summary::{RunStatus, RunSummary};
+use crate::output::write_atomic;
 use crate::scene::Scene;
-use crate::sim::{Advance, Backend, SimOptions, Simulation};
-use crate::stepper::State;
+use crate::sim::{Backend, DivergencePolicy, Guarded, SimOptions, Simulation};
+use crate::stepper::BatchStats;
 use std::io::IsTerminal;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Instant;
+
+/// What to do when the state becomes non-finite (`--on-diverge`).
+pub type OnDiverge = DivergencePolicy;
 
 /// How long to run.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -25,20 +31,13 @@ pub enum RunLength {
     },
 }
 
-/// What to do when the state becomes non-finite.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-pub enum OnDiverge {
-    /// Stop, keep and write the last finite state.
-    Stop,
-    /// Roll back and retry the remaining time at half the step (up to 10 times).
-    HalveDt,
-}
-
 /// Options of a run.
 #[derive(Clone)]
 pub struct RunOptions {
-    /// Backend.
+    /// Backend (`auto` picks a hardware GPU, else the CPU).
     pub backend: Backend,
+    /// CPU backend threads (None: all cores).
+    pub threads: Option<usize>,
     /// Length.
     pub length: RunLength,
     /// dt override, s.
@@ -46,76 +45,35 @@ pub struct RunOptions {
     /// Accept dt above the bound.
     pub allow_unstable: bool,
     /// Divergence policy.
-    pub on_diverge: OnDiverge,
+    pub on_diverge: DivergencePolicy,
     /// Number of frames for `series.pvd` (0: none).
     pub frames: u32,
     /// Output directory.
     pub out: PathBuf,
     /// Show a progress bar (when stdout is a terminal and the run takes over a second).
     pub progress: bool,
-    /// Steps per GPU batch (one command buffer, one readback).
+    /// Steps per batch (one command buffer, one readback).
     pub batch: u32,
+    /// Print a first line naming the scene, its size, the backend and why it was picked.
+    pub announce: bool,
 }
 
 impl Default for RunOptions {
     fn default() -> Self {
         RunOptions {
-            backend: Backend::Gpu,
+            backend: Backend::Auto,
+            threads: None,
             length: RunLength::Steps(100),
             dt: None,
             allow_unstable: false,
-            on_diverge: OnDiverge::Stop,
+            on_diverge: DivergencePolicy::Stop,
             frames: 0,
             out: PathBuf::from("out"),
             progress: false,
             batch: 200,
+            announce: false,
         }
     }
-}
-
-/// Contents of `summary.json`.
-#[derive(Clone, Debug, serde::Serialize)]
-pub struct RunSummary {
-    /// Scene name.
-    pub scene: String,
-    /// `gpu` or `cpu`.
-    pub backend: Backend,
-    /// Adapter (GPU) or CPU description.
-    pub adapter: String,
-    /// Number of tets.
-    pub tets: usize,
-    /// Number of vertices.
-    pub vertices: usize,
-    /// Number of particles (0: this scene has none).
-    pub particles: usize,
-    /// Steps taken.
-    pub steps: u64,
-    /// Time step at the end of the run, s.
-    pub dt: f64,
-    /// Our stability bound, s.
-    pub dt_bound: f64,
-    /// The paper's eq. (14) bound, s.
-    pub dt_paper_eq14: f64,
-    /// How many times dt was halved after a divergence.
-    pub dt_halvings: u32,
-    /// Simulated time, s.
-    pub sim_seconds: f64,
-    /// Wall-clock time of the stepping, s.
-    pub wall_seconds: f64,
-    /// Steps per wall-clock second.
-    pub steps_per_second: f64,
-    /// Largest vertex displacement, m.
-    pub max_displacement: f64,
-    /// Kinetic energy at the end, J.
-    pub kinetic_energy: f64,
-    /// Elastic energy at the end, J.
-    pub elastic_energy: f64,
-    /// ‖residual force‖ / ‖external load‖ at the end (with `--until-static`).
-    pub static_residual: Option<f64>,
-    /// The tolerance `static_residual` was held to (with `--until-static`).
-    pub static_tolerance: Option<f64>,
-    /// `ok`, or why the run stopped.
-    pub status: String,
 }
 
 /// Largest |u| over vertices, m.
@@ -126,30 +84,9 @@ pub fn max_displacement(displacements: &[f32]) -> f64 {
         .fold(0.0, f64::max)
 }
 
-/// The `.vtu` text of a state: points at rest, point data displacement and velocity, cell data material.
-pub fn state_vtu(model: &Model, state: &State) -> String {
-    let fixed: Vec<i32> = model.inv_mass.iter().map(|&w| (w == 0.0) as i32).collect();
-    let material: Vec<i32> = model.regions.iter().map(|&r| r as i32).collect();
-    let mut cell_data = vec![vtu::DataArray::I32("material", &material)];
-    if !model.fibres.is_empty() {
-        cell_data.push(vtu::DataArray::F32("fibres", 3, &model.fibres));
-    }
-    vtu::vtu(
-        &model.rest,
-        &model.tets,
-        &[
-            vtu::DataArray::F32("displacement", 3, &state.displacements),
-            vtu::DataArray::F32("velocity", 3, &state.velocities),
-            vtu::DataArray::I32("fixed", &fixed),
-        ],
-        &cell_data,
-    )
-}
-
 struct Progress {
     bar: Option<indicatif::ProgressBar>,
     start: Instant,
-    enabled: bool,
 }
 
 impl Progress {
@@ -169,12 +106,11 @@ impl Progress {
         Progress {
             bar,
             start: Instant::now(),
-            enabled,
         }
     }
     fn update(&mut self, steps: u64, msg: String) {
         if let Some(b) = &self.bar {
-            if self.enabled && b.is_hidden() && self.start.elapsed().as_secs_f64() > 1.0 {
+            if b.is_hidden() && self.start.elapsed().as_secs_f64() > 1.0 {
                 b.set_draw_target(indicatif::ProgressDrawTarget::stderr());
             }
             b.set_position(steps);
@@ -186,20 +122,6 @@ impl Progress {
             b.finish_and_clear();
         }
     }
-}
-
-/// Write the next frame (`frame_NNNN.vtu`, N = frames written so far) and list it for the PVD.
-fn write_frame(
-    dir: &Path,
-    model: &Model,
-    state: &State,
-    time: f64,
-    frames: &mut Vec<(f64, String)>,
-) -> Result<()> {
-    let name = format!("frame_{:04}.vtu", frames.len());
-    output::write_atomic(&dir.join(&name), state_vtu(model, state).as_bytes())?;
-    frames.push((time, name));
-    Ok(())
 }
 
 /// The most steps one run may take (a guard against a dt that is absurdly small for the
@@ -226,6 +148,53 @@ pub fn relaxation_scene(scene: &Scene) -> Scene {
     s
 }
 
+/// Steps a run of `length` takes at time step `dt` (the step cap for `--until-static`).
+fn steps_for(length: RunLength, dt: f64) -> Result<u64> {
+    let n = match length {
+        RunLength::Steps(n) => n,
+        RunLength::Duration(t) => {
+            if !(t.is_finite() && t >= 0.0) {
+                return Err(PalpateError::Usage(format!(
+                    "--duration must be >= 0 s, got {t}"
+                )));
+            }
+            // Round up, but not past a whole number that f64 division missed by an ulp.
+            let x = t / dt;
+            if (x - x.round()).abs() < 1e-9 * x.max(1.0) {
+                x.round() as u64
+            } else {
+                x.ceil() as u64
+            }
+        }
+        RunLength::UntilStatic { max_steps } => max_steps,
+    };
+    if n > MAX_RUN_STEPS {
+        return Err(PalpateError::Usage(format!(
+            "the run would take {n} steps of {dt:.3e} s (more than {MAX_RUN_STEPS}); use a larger --dt or a shorter run"
+        )));
+    }
+    Ok(n)
+}
+
+/// Dynamic relaxation for `--until-static`: after each batch, critical mass damping α = 2ω at
+/// the Rayleigh-quotient frequency of the current displacement shape (unconditionally stable
+/// in the v/(1 + α dt) form, when the scene sets no damping of its own), and the relative
+/// residual ‖f‖/‖load‖.
+struct Relaxation {
+    adaptive: bool,
+}
+
+impl Relaxation {
+    fn after_batch(&self, sim: &mut Simulation, s: &BatchStats) -> Result<f64> {
+        if self.adaptive {
+            if let Some(omega) = s.displacement_frequency() {
+                sim.set_damping(2.0 * omega)?;
+            }
+        }
+        Ok(s.residual_norm() / s.external_norm().max(f64::MIN_POSITIVE))
+    }
+}
+
 /// Run `scene` as `opts` says and write the outputs. Returns the summary (also written).
 pub fn run(scene: &Scene, opts: &RunOptions) -> Result<RunSummary> {
     std::fs::create_dir_all(&opts.out).map_err(|source| PalpateError::OutputIo {
@@ -247,70 +216,54 @@ pub fn run(scene: &Scene, opts: &RunOptions) -> Result<RunSummary> {
             dt: opts.dt,
             allow_unstable: opts.allow_unstable,
             gpu: None,
+            threads: opts.threads,
         },
     )?;
     let model = sim.model.clone();
-    let dt0 = sim.dt;
-    let (mut target_steps, max_steps) = match opts.length {
-        RunLength::Steps(n) => (n, n),
-        RunLength::Duration(t) => {
-            if !(t.is_finite() && t >= 0.0) {
-                return Err(PalpateError::Usage(format!(
-                    "--duration must be >= 0 s, got {t}"
-                )));
-            }
-            // Round up, but not past a whole number that f64 division missed by an ulp.
-            let x = t / dt0;
-            let n = if (x - x.round()).abs() < 1e-9 * x.max(1.0) {
-                x.round()
+    if opts.announce {
+        println!(
+            "{}: {} tets, {} vertices; backend {} on {} ({})",
+            scene.name,
+            model.n_tets(),
+            model.n_vertices(),
+            if sim.backend == Backend::Gpu {
+                "gpu"
             } else {
-                x.ceil()
-            };
-            (n as u64, n as u64)
-        }
-        RunLength::UntilStatic { max_steps } => (max_steps, max_steps),
-    };
-    if target_steps > MAX_RUN_STEPS {
-        return Err(PalpateError::Usage(format!(
-            "the run would take {target_steps} steps of {dt0:.3e} s (more than {MAX_RUN_STEPS}); use a larger --dt or a shorter run"
-        )));
+                "cpu"
+            },
+            sim.backend_name(),
+            sim.backend_reason
+        );
     }
-    // The run's simulated length; --on-diverge halve-dt keeps it (so --steps N may take more
-    // than N steps after a halving), and frames are spaced evenly over it.
+    let dt0 = sim.dt;
+    let max_steps = steps_for(opts.length, dt0)?;
+    let mut target_steps = max_steps;
+    // The run's simulated length; halve-dt keeps it (so --steps N may take more than N steps
+    // after a halving), and frames are spaced evenly over it.
     let mut target_time = target_steps as f64 * dt0;
     let frame_dt = if opts.frames >= 2 {
         max_steps as f64 * dt0 / (opts.frames - 1) as f64
     } else {
         f64::INFINITY
     };
-    let mut frames = Vec::new();
-    let mut state = sim.state()?;
+    let mut frames = FrameSeries::new(&opts.out);
     if opts.frames >= 2 {
-        write_frame(&opts.out, &model, &state, 0.0, &mut frames)?;
+        frames.write(&model, &sim.state()?, 0.0)?;
     }
     let show = opts.progress && std::io::stdout().is_terminal();
     let mut progress = Progress::new(show, (!until_static).then_some(target_steps));
     let tolerance = scene.solver.static_tolerance;
-    let mut status = "ok".to_string();
-    let mut halvings = 0u32;
+    let relaxation = Relaxation {
+        adaptive: until_static && scene.solver.damping == 0.0,
+    };
+    let mut status = RunStatus::Ok;
     let mut residual = None;
     let start = Instant::now();
     let mut next_frame_time = frame_dt;
-    let adaptive = until_static && scene.solver.damping == 0.0;
-    let relax = |sim: &mut Simulation, s: &crate::stepper::BatchStats| -> Result<f64> {
-        // Adaptive viscous relaxation: critical damping α = 2ω of the current displacement
-        // shape (Rayleigh quotient), unconditionally stable in the v/(1 + α dt) form.
-        if adaptive {
-            if let Some(omega) = s.displacement_frequency() {
-                sim.set_damping(2.0 * omega)?;
-            }
-        }
-        Ok(s.residual_norm() / s.external_norm().max(f64::MIN_POSITIVE))
-    };
     if until_static && target_steps > 0 {
         // Residual of the initial state: a body already in equilibrium stops at once.
-        if let Advance::Done(s) = sim.advance(1)? {
-            residual = Some(relax(&mut sim, &s)?);
+        if let Guarded::Done(s) = sim.advance_with(1, DivergencePolicy::Stop)? {
+            residual = Some(relaxation.after_batch(&mut sim, &s)?);
         }
     }
     while sim.steps_done < target_steps {
@@ -324,41 +277,31 @@ pub fn run(scene: &Scene, opts: &RunOptions) -> Result<RunSummary> {
                 .max(1.0);
             batch = batch.min(to_frame as u64);
         }
-        match sim.advance(batch as u32)? {
-            Advance::Done(s) => {
+        match sim.advance_with(batch as u32, opts.on_diverge)? {
+            Guarded::Done(s) => {
                 if until_static {
-                    residual = Some(relax(&mut sim, &s)?);
+                    residual = Some(relaxation.after_batch(&mut sim, &s)?);
                 }
             }
-            Advance::Diverged { step, vertex } => {
-                let what = format!(
-                    "diverged: non-finite or faster than {:.3e} m/s ({} x P-wave speed) at step {step}, vertex {vertex} (dt = {:.3e} s, bound {:.3e} s)",
-                    crate::model::SPEED_LIMIT_WAVE_SPEEDS * model.material.p_wave_speed(),
-                    crate::model::SPEED_LIMIT_WAVE_SPEEDS,
-                    sim.dt,
-                    model.bounds.dt_bound
+            Guarded::Retry { dt, step, vertex } => {
+                let remaining = (target_time - sim.time).max(0.0);
+                target_steps = sim.steps_done + (remaining / dt).ceil() as u64;
+                target_time = sim.time + remaining;
+                let what = diverged_status(&sim, step, vertex, 2.0 * dt);
+                eprintln!(
+                    "warning: {}; retrying from step {} at dt = {dt:.3e} s",
+                    what.divergence().unwrap_or_default(),
+                    sim.steps_done
                 );
-                if opts.on_diverge == OnDiverge::HalveDt && halvings < 10 {
-                    halvings += 1;
-                    sim.rollback_to_checkpoint()?;
-                    let dt = sim.dt / 2.0;
-                    sim.set_dt(dt)?;
-                    let remaining = (target_time - sim.time).max(0.0);
-                    target_steps = sim.steps_done + (remaining / dt).ceil() as u64;
-                    target_time = sim.time + remaining;
-                    eprintln!(
-                        "warning: {what}; retrying from step {} at dt = {dt:.3e} s",
-                        sim.steps_done
-                    );
-                    continue;
-                }
-                status = format!("{what}; last finite state written");
+                continue;
+            }
+            Guarded::Diverged { step, vertex } => {
+                status = diverged_status(&sim, step, vertex, sim.dt);
                 break;
             }
         }
         if sim.time >= next_frame_time - 0.5 * sim.dt {
-            state = sim.state()?;
-            write_frame(&opts.out, &model, &state, sim.time, &mut frames)?;
+            frames.write(&model, &sim.state()?, sim.time)?;
             next_frame_time += frame_dt;
         }
         progress.update(
@@ -370,33 +313,30 @@ pub fn run(scene: &Scene, opts: &RunOptions) -> Result<RunSummary> {
     }
     progress.finish();
     let wall = start.elapsed().as_secs_f64();
-    if until_static && status == "ok" && !residual.is_some_and(|r| r <= tolerance) {
-        status = format!(
-            "not static after {} steps: residual {:.3e} > tolerance {tolerance:.1e}",
-            sim.steps_done,
-            residual.unwrap_or(f64::NAN)
-        );
+    if until_static && status.is_ok() && !residual.is_some_and(|r| r <= tolerance) {
+        status = RunStatus::NotStatic {
+            steps: sim.steps_done,
+            residual: residual.unwrap_or(f64::NAN),
+            tolerance,
+        };
     }
-    state = sim.state()?;
+    let state = sim.state()?;
     // The final state closes the series (with --frames 1 it is the only frame).
-    let final_missing = frames.last().is_none_or(|(t, _)| *t < sim.time);
+    let final_missing = frames.last_time().is_none_or(|t| t < sim.time);
     if opts.frames == 1 || (opts.frames >= 2 && final_missing) {
-        write_frame(&opts.out, &model, &state, sim.time, &mut frames)?;
+        frames.write(&model, &state, sim.time)?;
     }
-    output::write_atomic(
+    write_atomic(
         &opts.out.join("final.vtu"),
         state_vtu(&model, &state).as_bytes(),
     )?;
-    if !frames.is_empty() {
-        output::write_atomic(
-            &opts.out.join("series.pvd"),
-            output::pvd(&frames).as_bytes(),
-        )?;
-    }
+    frames.finish()?;
     let summary = RunSummary {
         scene: scene.name.clone(),
-        backend: opts.backend,
+        backend: sim.backend,
+        backend_reason: sim.backend_reason.clone(),
         adapter: sim.backend_name(),
+        threads: sim.threads,
         tets: model.n_tets(),
         vertices: model.n_vertices(),
         particles: 0,
@@ -404,10 +344,11 @@ pub fn run(scene: &Scene, opts: &RunOptions) -> Result<RunSummary> {
         dt: sim.dt,
         dt_bound: model.bounds.dt_bound,
         dt_paper_eq14: model.bounds.dt_paper_eq14,
-        dt_halvings: halvings,
+        dt_halvings: sim.halvings,
         sim_seconds: sim.time,
         wall_seconds: wall,
         steps_per_second: sim.steps_done as f64 / wall.max(1e-9),
+        realtime_factor: sim.time / wall.max(1e-9),
         max_displacement: max_displacement(&state.displacements),
         kinetic_energy: sim.last.kinetic_energy(),
         elastic_energy: sim.last.elastic_energy(),
@@ -415,8 +356,18 @@ pub fn run(scene: &Scene, opts: &RunOptions) -> Result<RunSummary> {
         static_tolerance: until_static.then_some(tolerance),
         status,
     };
-    let json =
-        serde_json::to_string_pretty(&summary).map_err(|e| PalpateError::Gpu(e.to_string()))?;
-    output::write_atomic(&opts.out.join("summary.json"), json.as_bytes())?;
+    summary.write(&opts.out)?;
     Ok(summary)
+}
+
+fn diverged_status(sim: &Simulation, step: u64, vertex: u32, dt: f64) -> RunStatus {
+    let m = &sim.model;
+    RunStatus::Diverged {
+        step,
+        vertex,
+        speed_limit: crate::model::SPEED_LIMIT_WAVE_SPEEDS * m.material.p_wave_speed(),
+        wave_speeds: crate::model::SPEED_LIMIT_WAVE_SPEEDS,
+        dt,
+        dt_bound: m.bounds.dt_bound,
+    }
 }

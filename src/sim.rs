@@ -1,10 +1,12 @@
 //! The public simulation object: a scene's model on a backend, its time step, and `advance`
-//! with divergence detection (the last finite state is kept and the failing step located).
+//! with divergence detection (the last finite state is kept and the failing step located),
+//! plus the one place where the divergence policy (stop, or halve dt and retry) lives.
 
 use crate::cpu::CpuStepper;
 use crate::error::{PalpateError, Result};
 use crate::gpu::{GpuContext, GpuStepper};
 use crate::model::Model;
+use crate::plan::Stage;
 use crate::scene::Scene;
 use crate::stepper::{BatchStats, State, Stepper};
 use std::sync::Arc;
@@ -13,10 +15,51 @@ use std::sync::Arc;
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Backend {
-    /// WGSL compute kernels through wgpu.
+    /// A hardware GPU when there is one, else the CPU backend (a software adapter is slower
+    /// than the CPU path on the same cores).
+    Auto,
+    /// WGSL compute kernels through wgpu, on any adapter (software ones included).
     Gpu,
-    /// The CPU reference twins.
+    /// The CPU twins of the kernels, on all cores (the reference path).
     Cpu,
+}
+
+/// The backend `auto` picks on this machine, with the reason in words, and the hardware
+/// adapter it found (None: the CPU backend).
+pub fn pick_auto() -> (Backend, String, Option<wgpu::Adapter>) {
+    match crate::gpu::context::list_adapters() {
+        Err(e) => (Backend::Cpu, format!("auto: {e}"), None),
+        Ok(adapters) => {
+            let hardware = adapters
+                .iter()
+                .position(|a| a.get_info().device_type != wgpu::DeviceType::Cpu);
+            match hardware {
+                Some(k) => {
+                    let a = adapters.into_iter().nth(k).expect("index from position");
+                    let i = a.get_info();
+                    (
+                        Backend::Gpu,
+                        format!("auto: hardware GPU '{}' ({:?})", i.name, i.backend),
+                        Some(a),
+                    )
+                }
+                None => match adapters.first() {
+                    Some(a) => {
+                        let i = a.get_info();
+                        (
+                            Backend::Cpu,
+                            format!(
+                                "auto: no hardware GPU; the only adapter, '{}' ({:?}), is a software rasteriser, slower than the CPU path on the same cores",
+                                i.name, i.backend
+                            ),
+                            None,
+                        )
+                    }
+                    None => (Backend::Cpu, "auto: no GPU adapter found".to_string(), None),
+                },
+            }
+        }
+    }
 }
 
 /// Options for [`Simulation::new`].
@@ -28,6 +71,8 @@ pub struct SimOptions {
     pub allow_unstable: bool,
     /// A GPU context to reuse (else one is opened for the GPU backend).
     pub gpu: Option<Arc<GpuContext>>,
+    /// CPU backend threads (None: all cores).
+    pub threads: Option<usize>,
 }
 
 /// Outcome of [`Simulation::advance`].
@@ -45,11 +90,54 @@ pub enum Advance {
     },
 }
 
+/// What to do when a batch diverges.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum DivergencePolicy {
+    /// Stop, keeping the last finite state.
+    Stop,
+    /// Roll back to the start of the batch and retry at half the step, at most
+    /// [`MAX_HALVINGS`] times over a run (`Simulation::max_halvings`).
+    HalveDt,
+}
+
+/// The most times `halve-dt` halves the step over one run.
+pub const MAX_HALVINGS: u32 = 10;
+
+/// Outcome of [`Simulation::advance_with`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Guarded {
+    /// All steps ran.
+    Done(BatchStats),
+    /// The batch diverged; the state is back at the batch start and dt was halved to `dt`:
+    /// advance again (the caller recomputes how many steps its remaining time needs).
+    Retry {
+        /// The new time step, s.
+        dt: f64,
+        /// Where the divergence was found.
+        step: u64,
+        /// The vertex that diverged.
+        vertex: u32,
+    },
+    /// The batch diverged and the policy gives up; the state is the last finite one.
+    Diverged {
+        /// The step that produced the non-finite value.
+        step: u64,
+        /// Lowest vertex index that became non-finite.
+        vertex: u32,
+    },
+}
+
 /// A running simulation.
 pub struct Simulation {
     /// The model being stepped.
     pub model: Arc<Model>,
     stepper: Box<dyn Stepper>,
+    /// The backend that runs (never `Auto`).
+    pub backend: Backend,
+    /// Why this backend was picked.
+    pub backend_reason: String,
+    /// CPU threads (1 for the GPU backend, whose host side is one thread).
+    pub threads: usize,
     /// Time step, s.
     pub dt: f64,
     /// Mass-proportional damping α, 1/s.
@@ -60,6 +148,11 @@ pub struct Simulation {
     pub time: f64,
     /// Stats of the last batch.
     pub last: BatchStats,
+    /// Times dt was halved by [`DivergencePolicy::HalveDt`].
+    pub halvings: u32,
+    /// The most halvings [`DivergencePolicy::HalveDt`] may make over the run (default
+    /// [`MAX_HALVINGS`]).
+    pub max_halvings: u32,
     /// State, step count and time at the start of the batch that last diverged.
     checkpoint: Option<(State, u64, f64)>,
 }
@@ -113,24 +206,48 @@ impl Simulation {
             )));
         }
         let params = model.step_params(dt, damping);
-        let stepper: Box<dyn Stepper> = match backend {
-            Backend::Cpu => Box::new(CpuStepper::new(model.clone(), params)),
+        let (backend, backend_reason, adapter) = match backend {
+            Backend::Auto if opts.gpu.is_some() => (
+                Backend::Gpu,
+                "auto: the GPU context given".to_string(),
+                None,
+            ),
+            Backend::Auto => pick_auto(),
+            Backend::Gpu => (Backend::Gpu, "--backend gpu".to_string(), None),
+            Backend::Cpu => (Backend::Cpu, "--backend cpu".to_string(), None),
+        };
+        let (stepper, threads): (Box<dyn Stepper>, usize) = match backend {
             Backend::Gpu => {
-                let ctx = match opts.gpu {
-                    Some(c) => c,
-                    None => Arc::new(GpuContext::new()?),
+                let ctx = match (opts.gpu, adapter) {
+                    (Some(c), _) => c,
+                    (None, Some(a)) => Arc::new(GpuContext::from_adapter(a)?),
+                    (None, None) => Arc::new(GpuContext::new()?),
                 };
-                Box::new(GpuStepper::new(ctx, &model, params)?)
+                (Box::new(GpuStepper::new(ctx, &model, params)?), 1)
+            }
+            _ => {
+                let threads = opts
+                    .threads
+                    .unwrap_or_else(crate::cpu::stepper::available_cores);
+                (
+                    Box::new(CpuStepper::with_threads(model.clone(), params, threads)?),
+                    threads,
+                )
             }
         };
         Ok(Simulation {
             model,
             stepper,
+            backend,
+            backend_reason,
+            threads,
             dt,
             damping,
             steps_done: 0,
             time: 0.0,
             last: BatchStats::default(),
+            halvings: 0,
+            max_halvings: MAX_HALVINGS,
             checkpoint: None,
         })
     }
@@ -138,6 +255,11 @@ impl Simulation {
     /// Backend / adapter name.
     pub fn backend_name(&self) -> String {
         self.stepper.name()
+    }
+
+    /// Per stage, how many times it ran in the last batch.
+    pub fn stage_counts(&self) -> Vec<(Stage, u32)> {
+        self.stepper.stage_counts()
     }
 
     /// Change the time step (e.g. after a divergence).
@@ -154,14 +276,15 @@ impl Simulation {
             .set_params(&self.model.step_params(self.dt, damping))
     }
 
-    /// Run `steps` steps in one batch. When a vertex becomes non-finite or exceeds the speed
-    /// limit, roll back to the batch start (kept as a checkpoint, see
+    /// Run `steps` steps in one batch. The state at the batch start is checkpointed; when a
+    /// vertex becomes non-finite or exceeds the speed limit, roll back to it (kept for
     /// [`Simulation::rollback_to_checkpoint`]) and replay one step at a time to find the
     /// failing step; the state is left at the last step before it.
     pub fn advance(&mut self, steps: u32) -> Result<Advance> {
         if steps == 0 {
             return Ok(Advance::Done(self.last));
         }
+        self.stepper.checkpoint()?;
         let stats = self.stepper.run(steps)?;
         if stats.non_finite_vertex.is_none() {
             self.steps_done += steps as u64;
@@ -172,6 +295,7 @@ impl Simulation {
         self.stepper.restore()?;
         self.checkpoint = Some((self.stepper.read_state()?, self.steps_done, self.time));
         for _ in 0..steps {
+            self.stepper.checkpoint()?;
             let one = self.stepper.run(1)?;
             if let Some(vertex) = one.non_finite_vertex {
                 self.stepper.restore()?;
@@ -186,6 +310,26 @@ impl Simulation {
         }
         // The replay did not diverge (cannot happen on a deterministic backend).
         Ok(Advance::Done(self.last))
+    }
+
+    /// [`Simulation::advance`] under a divergence policy: with `HalveDt` (and fewer than
+    /// `max_halvings` halvings so far) a divergence rolls back to the batch start and
+    /// halves dt, and the caller advances again.
+    pub fn advance_with(&mut self, steps: u32, policy: DivergencePolicy) -> Result<Guarded> {
+        match self.advance(steps)? {
+            Advance::Done(s) => Ok(Guarded::Done(s)),
+            Advance::Diverged { step, vertex } => {
+                if policy == DivergencePolicy::HalveDt && self.halvings < self.max_halvings {
+                    self.halvings += 1;
+                    self.rollback_to_checkpoint()?;
+                    let dt = self.dt / 2.0;
+                    self.set_dt(dt)?;
+                    Ok(Guarded::Retry { dt, step, vertex })
+                } else {
+                    Ok(Guarded::Diverged { step, vertex })
+                }
+            }
+        }
     }
 
     /// Go back to the start of the batch that last diverged (before the instability grew).

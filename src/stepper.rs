@@ -1,8 +1,16 @@
-//! The interface both backends implement: run a batch of steps, snapshot and restore, read
-//! and write the state.
+//! The interface both backends implement: queue batches of steps and collect their reports
+//! without blocking, checkpoint and restore, read and write the state.
+//!
+//! A backend is `Send`, so a physics thread can own it while a 1 kHz servo thread runs
+//! beside it. `submit` queues a batch; `poll` returns the report of the oldest finished
+//! batch, if any, without waiting; `wait` blocks for it. Up to [`RING`] batches can be in
+//! flight, so the next batch is queued before the last one is read back.
 
 use crate::error::Result;
 use crate::params::{stat, StepParams};
+
+/// Batches that can be in flight at once (readback ring slots).
+pub const RING: usize = 3;
 
 /// Displacements and velocities, packed xyz, f32.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -56,18 +64,48 @@ impl BatchStats {
     }
 }
 
+/// Per-batch input, separate from the per-run parameters ([`StepParams`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct BatchInput {}
+
+/// The report of one finished batch.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct BatchReport {
+    /// Steps the batch ran.
+    pub steps: u32,
+    /// Reduction stats and divergence flag after its last step.
+    pub stats: BatchStats,
+}
+
 /// A backend that advances the model.
-pub trait Stepper {
+pub trait Stepper: Send {
     /// Human-readable backend / adapter name.
     fn name(&self) -> String;
-    /// Set the parameters used by the following batches.
+    /// Set the per-run parameters used by the following batches.
     fn set_params(&mut self, params: &StepParams) -> Result<()>;
-    /// Snapshot the state, run `steps` steps, reduce after the last, and report.
-    fn run(&mut self, steps: u32) -> Result<BatchStats>;
-    /// Restore the state saved at the start of the last `run`.
+    /// Queue a batch of `steps` steps (reduce after the last) with this batch's input.
+    /// At most [`RING`] batches may be in flight; a further submit is an error.
+    fn submit(&mut self, steps: u32, input: &BatchInput) -> Result<()>;
+    /// The report of the oldest finished batch, without waiting; None when none is ready.
+    fn poll(&mut self) -> Result<Option<BatchReport>>;
+    /// Wait for the oldest batch in flight and return its report (an error when none is).
+    fn wait(&mut self) -> Result<BatchReport>;
+    /// Batches submitted and not yet returned by `poll`/`wait`.
+    fn in_flight(&self) -> usize;
+    /// Save the current state (after every batch in flight) as the checkpoint.
+    fn checkpoint(&mut self) -> Result<()>;
+    /// Go back to the last checkpoint (the state at rest when there is none).
     fn restore(&mut self) -> Result<()>;
-    /// Read the current state.
+    /// Read the current state (waits for the batches in flight).
     fn read_state(&mut self) -> Result<State>;
-    /// Overwrite the current state.
+    /// Overwrite the current state (and reset the stats).
     fn write_state(&mut self, state: &State) -> Result<()>;
+    /// Per stage, how many times it ran in the last batch (the executed step plan).
+    fn stage_counts(&self) -> Vec<(crate::plan::Stage, u32)>;
+
+    /// Run `steps` steps with no per-batch input and wait for the stats.
+    fn run(&mut self, steps: u32) -> Result<BatchStats> {
+        self.submit(steps, &BatchInput::default())?;
+        Ok(self.wait()?.stats)
+    }
 }

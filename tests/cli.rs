@@ -117,6 +117,8 @@ fn gpu_run_with_frames_writes_a_series() {
         "60",
         "--frames",
         "3",
+        "--backend",
+        "gpu",
         "--out",
         d.to_str().unwrap(),
     ]);
@@ -420,4 +422,125 @@ fn a_scene_runs_on_a_gmsh_file_with_scale_tags_and_regions() {
     assert!(ok, "{err}");
     let back = palpate::mesh::io::read(&msh).unwrap();
     assert_eq!((back.n_vertices(), back.n_tets()), (78, 200));
+}
+
+#[test]
+fn auto_backend_picks_the_cpu_without_a_hardware_gpu_and_says_why() {
+    let hardware = palpate::gpu::context::list_adapters()
+        .unwrap()
+        .iter()
+        .any(|a| a.get_info().device_type != wgpu::DeviceType::Cpu);
+    let d = tmp("auto");
+    let (ok, out, err) = palpate(&["run", "beam", "--steps", "20", "--out", d.to_str().unwrap()]);
+    assert!(ok, "{out}{err}");
+    let s = summary(&d);
+    let first = out.lines().next().unwrap_or("");
+    if hardware {
+        assert_eq!(s["backend"], "gpu", "{s}");
+        assert!(
+            first.contains("backend gpu") && first.contains("hardware"),
+            "{first}"
+        );
+    } else {
+        assert_eq!(s["backend"], "cpu", "{s}");
+        assert!(
+            first.contains("backend cpu") && first.contains("auto:"),
+            "the first line must say which backend and why: {first}"
+        );
+        assert!(s["backend_reason"].as_str().unwrap().starts_with("auto:"));
+    }
+    let rt = s["realtime_factor"].as_f64().unwrap();
+    let expect = s["sim_seconds"].as_f64().unwrap() / s["wall_seconds"].as_f64().unwrap();
+    assert!((rt - expect).abs() <= 1e-9 * expect.max(1.0), "{s}");
+    assert!(
+        out.lines().last().unwrap_or("").contains("realtime factor"),
+        "{out}"
+    );
+    let (ok, info, err) = palpate(&["info"]);
+    assert!(ok, "{err}");
+    let want = if hardware {
+        "auto picks: gpu"
+    } else {
+        "auto picks: cpu"
+    };
+    assert!(info.contains(want), "{info}");
+    assert!(
+        info.contains("fem_forces") && info.contains("last step of a batch"),
+        "{info}"
+    );
+}
+
+#[test]
+fn threads_are_recorded_and_bad_counts_or_missing_adapters_are_one_line_errors() {
+    let d = tmp("threads");
+    let out = d.to_str().unwrap();
+    let (ok, o, err) = palpate(&[
+        "run",
+        "beam",
+        "--steps",
+        "10",
+        "--backend",
+        "cpu",
+        "--threads",
+        "2",
+        "--out",
+        out,
+    ]);
+    assert!(ok, "{o}{err}");
+    assert_eq!(summary(&d)["threads"], 2);
+    assert_one_line_error(
+        &[
+            "run",
+            "beam",
+            "--steps",
+            "10",
+            "--backend",
+            "cpu",
+            "--threads",
+            "0",
+            "--out",
+            out,
+        ],
+        &["--threads", "at least 1"],
+    );
+    assert_one_line_error(
+        &[
+            "run",
+            "beam",
+            "--steps",
+            "10",
+            "--backend",
+            "cpu",
+            "--threads",
+            "100000",
+            "--out",
+            out,
+        ],
+        &["--threads 100000", "cores"],
+    );
+    // No adapter at all: a backend set that this platform does not have.
+    let o = Command::new(env!("CARGO_BIN_EXE_palpate"))
+        .args([
+            "run",
+            "beam",
+            "--steps",
+            "10",
+            "--backend",
+            "gpu",
+            "--out",
+            out,
+        ])
+        .env("PALPATE_BACKEND", "dx12")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(!err.contains("panicked"), "{err}");
+    let lines = error_lines(&err);
+    assert_eq!(lines.len(), 1, "{err}");
+    assert!(
+        lines[0].contains("no GPU adapter") && lines[0].contains("mesa-vulkan-drivers"),
+        "{}",
+        lines[0]
+    );
 }

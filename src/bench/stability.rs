@@ -9,7 +9,7 @@ use crate::error::{PalpateError, Result};
 use crate::material::MaterialModel;
 use crate::model::Model;
 use crate::scene::Scene;
-use crate::sim::{Advance, Backend, SimOptions, Simulation};
+use crate::sim::{Advance, Backend, DivergencePolicy, Guarded, SimOptions, Simulation};
 use crate::stepper::State;
 use glam::DVec3;
 use std::fmt::Write;
@@ -73,24 +73,23 @@ fn sim(model: &Arc<Model>, backend: Backend, dt: f64, damping: f64) -> Result<Si
     Simulation::from_model(model.clone(), backend, dt, damping, SimOptions::default())
 }
 
-/// Run for `duration` s from the current state, halving dt from the last batch start on a
-/// divergence (at most 6 times, as `--on-diverge halve-dt` does). Returns the halvings, or
-/// None when it still diverged.
+/// Most dt halvings a stress case allows: each halving doubles the remaining steps, and a
+/// case that still diverges at dt/64 is reported as diverged.
+pub const STRESS_MAX_HALVINGS: u32 = 6;
+
+/// Run for `duration` s from the current state under the `halve-dt` divergence policy (at most
+/// [`STRESS_MAX_HALVINGS`] times). Returns the halvings, or None when it still diverged.
 fn run_halving(s: &mut Simulation, duration: f64) -> Result<Option<u32>> {
     let end = s.time + duration;
-    let mut halvings = 0;
+    s.max_halvings = s.halvings + STRESS_MAX_HALVINGS;
+    let start = s.halvings;
     while s.time < end - 0.5 * s.dt {
         let n = (((end - s.time) / s.dt).round() as u64).clamp(1, 500);
-        if let Advance::Diverged { .. } = s.advance(n as u32)? {
-            if halvings == 6 {
-                return Ok(None);
-            }
-            halvings += 1;
-            s.rollback_to_checkpoint()?;
-            s.set_dt(s.dt / 2.0)?;
+        if let Guarded::Diverged { .. } = s.advance_with(n as u32, DivergencePolicy::HalveDt)? {
+            return Ok(None);
         }
     }
-    Ok(Some(halvings))
+    Ok(Some(s.halvings - start))
 }
 
 /// Run `steps` in batches; Err(step) on divergence.

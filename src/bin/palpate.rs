@@ -26,9 +26,12 @@ enum Command {
         /// Built-in scene name or path to a scene TOML file.
         #[arg(default_value = scene::DEFAULT_SCENE)]
         scene: String,
-        /// Backend that steps the model.
-        #[arg(long, value_enum, default_value = "gpu")]
+        /// Backend that steps the model (auto: a hardware GPU, else the CPU).
+        #[arg(long, value_enum, default_value = "auto")]
         backend: Backend,
+        /// CPU backend threads (default: all cores). Results do not depend on it.
+        #[arg(long)]
+        threads: Option<usize>,
         /// Number of steps (0 writes the initial state).
         #[arg(long, conflicts_with_all = ["duration", "until_static"])]
         steps: Option<u64>,
@@ -128,6 +131,7 @@ fn execute(cli: Cli) -> Result<()> {
         Command::Run {
             scene,
             backend,
+            threads,
             steps,
             duration,
             until_static,
@@ -164,6 +168,7 @@ fn execute(cli: Cli) -> Result<()> {
             };
             let opts = RunOptions {
                 backend,
+                threads,
                 length,
                 dt,
                 allow_unstable,
@@ -171,12 +176,13 @@ fn execute(cli: Cli) -> Result<()> {
                 frames,
                 out: out.clone(),
                 progress: true,
+                announce: true,
                 ..Default::default()
             };
             let s = palpate::run::run(&scene, &opts)?;
             println!(
-                "{}: {} tets, {} vertices on {}; {} steps of {:.3e} s ({:.3e} s simulated) in {:.2} s = {:.0} steps/s",
-                s.scene, s.tets, s.vertices, s.adapter, s.steps, s.dt, s.sim_seconds, s.wall_seconds, s.steps_per_second
+                "{} steps of {:.3e} s ({:.3e} s simulated) in {:.2} s = {:.0} steps/s",
+                s.steps, s.dt, s.sim_seconds, s.wall_seconds, s.steps_per_second
             );
             println!(
                 "max displacement {:.4e} m, kinetic {:.3e} J, elastic {:.3e} J{}; status: {}",
@@ -189,11 +195,12 @@ fn execute(cli: Cli) -> Result<()> {
                 s.status
             );
             println!(
-                "wrote {}/final.vtu, {}/summary.json",
+                "wrote {}/final.vtu, {}/summary.json; realtime factor {:.3} (simulated / wall seconds)",
                 out.display(),
-                out.display()
+                out.display(),
+                s.realtime_factor
             );
-            if s.status != "ok" {
+            if !s.status.is_ok() {
                 return Err(PalpateError::Usage(format!(
                     "run did not finish cleanly: {}",
                     s.status
@@ -311,25 +318,42 @@ fn execute(cli: Cli) -> Result<()> {
                     i.name, i.backend, i.device_type, i.driver, i.driver_info
                 );
             }
-            let ctx = palpate::gpu::GpuContext::new()?;
-            let l = &ctx.limits;
-            println!("chosen: {}", ctx.describe());
+            let (auto, reason, _) = palpate::sim::pick_auto();
             println!(
-                "timestamp queries: {}",
-                if ctx
-                    .device
-                    .features()
-                    .contains(wgpu::Features::TIMESTAMP_QUERY)
-                {
-                    "yes"
-                } else {
-                    "no"
-                }
+                "--backend auto picks: {} ({reason})",
+                if auto == Backend::Gpu { "gpu" } else { "cpu" }
             );
             println!(
-                "limits: max_buffer_size {} B, max_storage_buffer_binding_size {} B, storage buffers per stage {}, workgroups per dimension {}",
-                l.max_buffer_size, l.max_storage_buffer_binding_size, l.max_storage_buffers_per_shader_stage, l.max_compute_workgroups_per_dimension
+                "cpu backend: {} cores (--threads defaults to all of them)",
+                palpate::cpu::stepper::available_cores()
             );
+            if !adapters.is_empty() {
+                let ctx = palpate::gpu::GpuContext::new()?;
+                let l = &ctx.limits;
+                println!("chosen: {} (what --backend gpu takes)", ctx.describe());
+                println!(
+                    "timestamp queries: {}",
+                    if ctx
+                        .device
+                        .features()
+                        .contains(wgpu::Features::TIMESTAMP_QUERY)
+                    {
+                        "yes"
+                    } else {
+                        "no"
+                    }
+                );
+                println!(
+                    "limits: max_buffer_size {} B, max_storage_buffer_binding_size {} B, storage buffers per stage {}, workgroups per dimension {}",
+                    l.max_buffer_size, l.max_storage_buffer_binding_size, l.max_storage_buffers_per_shader_stage, l.max_compute_workgroups_per_dimension
+                );
+            }
+            let scene = Scene::load(scene::DEFAULT_SCENE)?;
+            let model = palpate::model::Model::from_scene(&scene);
+            println!("step plan of the default scene '{}':", scene.name);
+            for line in palpate::plan::StepPlan::for_model(&model).describe() {
+                println!("  {line}");
+            }
             Ok(())
         }
     }
@@ -337,7 +361,11 @@ fn execute(cli: Cli) -> Result<()> {
 
 fn adapter_name(backend: Backend) -> String {
     match backend {
-        Backend::Cpu => "cpu (reference, 1 thread)".into(),
+        Backend::Auto => {
+            let (b, reason, _) = palpate::sim::pick_auto();
+            format!("{} ({reason})", adapter_name(b))
+        }
+        Backend::Cpu => format!("cpu ({} threads)", palpate::cpu::stepper::available_cores()),
         Backend::Gpu => palpate::gpu::GpuContext::new()
             .map(|c| c.describe())
             .unwrap_or_else(|e| e.to_string()),

@@ -47,7 +47,8 @@ pub fn tet_forces(
     ([-(f1 + f2 + f3), f1, f2, f3], volume * psi_density)
 }
 
-/// Per tet e: write corner force c to `corner_forces[(4e + c)·3 ..]` and V·Ψ to `tet_energy[e]`.
+/// Per tet e (in parallel, one index per tet as on the GPU): write corner force c to
+/// `corner_forces[(4e + c)·3 ..]` and V·Ψ to `tet_energy[e]`.
 #[allow(clippy::too_many_arguments)]
 pub fn fem_forces(
     params: &StepParams,
@@ -60,21 +61,26 @@ pub fn fem_forces(
     tet_energy: &mut [f32],
     variant: FemVariant,
 ) {
-    for e in 0..params.n_tets as usize {
-        let t = tets[e];
-        let u = t.map(|i| load3(displacements, i as usize));
-        let v = t.map(|i| load3(velocities, i as usize));
-        let (forces, energy) = tet_forces(
-            params,
-            u,
-            v,
-            load_dm_inv(dm_inv, e),
-            rest_volume[e],
-            variant,
-        );
-        for (c, f) in forces.iter().enumerate() {
-            store3(corner_forces, 4 * e + c, *f);
-        }
-        tet_energy[e] = energy;
-    }
+    super::par::for_each_chunk2::<12, 1>(
+        corner_forces,
+        tet_energy,
+        params.n_tets as usize,
+        |e, corner, energy| {
+            let t = tets[e];
+            let u = t.map(|i| load3(displacements, i as usize));
+            let v = t.map(|i| load3(velocities, i as usize));
+            let (forces, psi) = tet_forces(
+                params,
+                u,
+                v,
+                load_dm_inv(dm_inv, e),
+                rest_volume[e],
+                variant,
+            );
+            for (c, f) in forces.iter().enumerate() {
+                store3(corner, c, *f);
+            }
+            energy[0] = psi;
+        },
+    );
 }

@@ -16,11 +16,11 @@ pub fn gather(
     forces: &mut [f32],
 ) {
     let g = Vec3::from_array(params.gravity);
-    for i in 0..params.n_vertices as usize {
+    super::par::for_each_chunk::<3>(forces, params.n_vertices as usize, |i, out| {
         let mut f = g * mass[i] + load3(external_forces, i);
         for k in incidence_offsets[i]..incidence_offsets[i + 1] {
             f += load3(corner_forces, incidence[k as usize] as usize);
         }
-        store3(forces, i, f);
-    }
+        store3(out, 0, f);
+    });
 }

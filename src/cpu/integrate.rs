@@ -26,20 +26,28 @@ pub fn integrate(
     velocities: &mut [f32],
     status: &mut [u32],
 ) {
-    for i in 0..params.n_vertices as usize {
-        let w = inv_mass[i];
-        let mut v = load3(velocities, i);
-        let mut x = load3(displacements, i);
-        if w > 0.0 {
-            v = (v + load3(forces, i) * (params.dt * w)) / (1.0 + params.damping * params.dt);
-            x += v * params.dt;
-        } else {
-            v = Vec3::ZERO;
-        }
-        store3(velocities, i, v);
-        store3(displacements, i, x);
-        if !(is_finite3(x) && is_finite3(v)) || v.dot(v) > params.speed_limit * params.speed_limit {
-            status[0] = status[0].min(i as u32);
-        }
+    let flagged = super::par::for_each_chunk2_min::<3, 3>(
+        displacements,
+        velocities,
+        params.n_vertices as usize,
+        |i, x_out, v_out| {
+            let w = inv_mass[i];
+            let mut v = load3(v_out, 0);
+            let mut x = load3(x_out, 0);
+            if w > 0.0 {
+                v = (v + load3(forces, i) * (params.dt * w)) / (1.0 + params.damping * params.dt);
+                x += v * params.dt;
+            } else {
+                v = Vec3::ZERO;
+            }
+            store3(v_out, 0, v);
+            store3(x_out, 0, x);
+            let bad = !(is_finite3(x) && is_finite3(v))
+                || v.dot(v) > params.speed_limit * params.speed_limit;
+            bad.then_some(i as u32)
+        },
+    );
+    if let Some(i) = flagged {
+        status[0] = status[0].min(i);
     }
 }

@@ -8,6 +8,7 @@
 pub mod fem_forces;
 pub mod gather;
 pub mod integrate;
+pub mod par;
 pub mod reduce;
 pub mod stepper;
 

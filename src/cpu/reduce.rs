@@ -35,7 +35,8 @@ fn tree(lanes: &mut [[f32; PARTIAL_LEN]; REDUCE_WORKGROUP]) -> [f32; PARTIAL_LEN
     lanes[0]
 }
 
-/// Per block of 256 indices i (vertex i and tet i): write 6 partial sums to `partials`.
+/// Per block of 256 indices i (vertex i and tet i; blocks in parallel, each reduced in the
+/// fixed tree order): write 6 partial sums to `partials`.
 #[allow(clippy::too_many_arguments)]
 pub fn reduce_partial(
     params: &StepParams,
@@ -49,7 +50,7 @@ pub fn reduce_partial(
     partials: &mut [f32],
 ) {
     let g = Vec3::from_array(params.gravity);
-    for block in 0..n_partials(params) {
+    super::par::for_each_chunk::<PARTIAL_LEN>(partials, n_partials(params), |block, out| {
         let mut lanes = [[0.0f32; PARTIAL_LEN]; REDUCE_WORKGROUP];
         for (l, lane) in lanes.iter_mut().enumerate() {
             let i = block * REDUCE_WORKGROUP + l;
@@ -70,9 +71,8 @@ pub fn reduce_partial(
                 lane[1] = tet_energy[i];
             }
         }
-        let r = tree(&mut lanes);
-        partials[PARTIAL_LEN * block..PARTIAL_LEN * block + PARTIAL_LEN].copy_from_slice(&r);
-    }
+        out.copy_from_slice(&tree(&mut lanes));
+    });
 }
 
 /// One block: lane l sums partials l, l+256, …; then the tree. Writes `stats`.

@@ -112,6 +112,11 @@ impl GpuContext {
                         .unwrap_or_default()
                 ),
             })?;
+        GpuContext::from_adapter(adapter)
+    }
+
+    /// Open a device with the full limits of `adapter`.
+    pub fn from_adapter(adapter: wgpu::Adapter) -> Result<GpuContext> {
         let info = adapter.get_info();
         let limits = adapter.limits();
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {

@@ -1,8 +1,10 @@
-//! A compute pipeline built from one kernel file and entry point, with its bind-group layout
-//! reflected from the WGSL by naga (so bindings are written once, in the shader), and a
-//! typed bind step that checks every buffer's name and size before anything is recorded.
+//! A compute pipeline built from one kernel file and entry point. Its bind-group layout is
+//! reflected from the WGSL by naga — only the globals that entry point actually uses — so
+//! bindings are written once, in the shader, and buffers are bound by the names of those
+//! globals (see [`crate::gpu::buffers`]).
 
 use crate::error::{PalpateError, Result};
+use crate::gpu::buffers::GpuBuffers;
 use crate::gpu::GpuContext;
 
 /// One binding as the shader declares it.
@@ -10,24 +12,43 @@ use crate::gpu::GpuContext;
 pub struct ReflectedBinding {
     /// `@binding(n)` in group 0.
     pub binding: u32,
-    /// The WGSL variable name.
+    /// The WGSL variable name (= the buffer's name).
     pub name: String,
     /// Uniform, read-only storage or read-write storage.
     pub ty: wgpu::BufferBindingType,
+    /// Smallest size the binding can have, bytes (a uniform struct's size, or one element of
+    /// a runtime-sized array).
+    pub min_bytes: u64,
 }
 
-/// Bindings of group 0 declared in `source`, and the workgroup size of `entry`.
+/// Group-0 bindings that entry point `entry` of `source` uses (reads, writes or queries), in
+/// binding order, and its workgroup size (x).
 pub fn reflect(source: &str, entry: &str) -> Result<(Vec<ReflectedBinding>, u32)> {
     let module = naga::front::wgsl::parse_str(source)
         .map_err(|e| PalpateError::Gpu(format!("kernel parse: {}", e.message())))?;
-    let ep = module
+    let info = naga::valid::Validator::new(
+        naga::valid::ValidationFlags::all(),
+        naga::valid::Capabilities::all(),
+    )
+    .validate(&module)
+    .map_err(|e| PalpateError::Gpu(format!("kernel validation: {e}")))?;
+    let index = module
         .entry_points
         .iter()
-        .find(|e| e.name == entry)
+        .position(|e| e.name == entry)
         .ok_or_else(|| PalpateError::Gpu(format!("no entry point '{entry}'")))?;
+    let ep = &module.entry_points[index];
+    let uses = info.get_entry_point(index);
+    let mut layouter = naga::proc::Layouter::default();
+    layouter
+        .update(module.to_ctx())
+        .map_err(|e| PalpateError::Gpu(format!("kernel layout: {e}")))?;
     let mut out = Vec::new();
-    for (_, var) in module.global_variables.iter() {
+    for (handle, var) in module.global_variables.iter() {
         let Some(rb) = &var.binding else { continue };
+        if uses[handle].is_empty() {
+            continue;
+        }
         if rb.group != 0 {
             return Err(PalpateError::Gpu(format!(
                 "binding group {} unsupported",
@@ -45,10 +66,19 @@ pub fn reflect(source: &str, entry: &str) -> Result<(Vec<ReflectedBinding>, u32)
                 )))
             }
         };
+        let min_bytes = match &module.types[var.ty].inner {
+            naga::TypeInner::Array {
+                base,
+                size: naga::ArraySize::Dynamic,
+                ..
+            } => layouter[*base].size as u64,
+            _ => layouter[var.ty].size as u64,
+        };
         out.push(ReflectedBinding {
             binding: rb.binding,
             name: var.name.clone().unwrap_or_default(),
             ty,
+            min_bytes,
         });
     }
     out.sort_by_key(|b| b.binding);
@@ -61,7 +91,7 @@ pub struct ComputeKernel {
     pub label: String,
     /// The pipeline.
     pub pipeline: wgpu::ComputePipeline,
-    /// Group-0 layout.
+    /// Group-0 layout (only the globals this entry point uses).
     pub layout: wgpu::BindGroupLayout,
     /// Reflected bindings, by binding number.
     pub bindings: Vec<ReflectedBinding>,
@@ -69,18 +99,22 @@ pub struct ComputeKernel {
     pub workgroup_size: u32,
 }
 
-/// A bind group made for a kernel, and the number of items (threads) it covers.
-pub struct BoundKernel {
-    /// The bind group (built once).
-    pub bind_group: wgpu::BindGroup,
-    /// Items to cover (one thread each).
-    pub items: u32,
-    /// Workgroup grid (x, y) covering `items`.
-    pub grid: (u32, u32),
+/// How many workgroups one dispatch runs.
+#[derive(Clone, Copy, Debug)]
+pub enum Dispatch<'a> {
+    /// Enough workgroups to give each of `items` a thread (a 2-D grid past the per-dimension
+    /// limit; kernels linearise it with `linear_index`).
+    Items(u32),
+    /// Exactly one workgroup.
+    One,
+    /// Workgroup counts read at execution time from `DispatchIndirectArgs` at this byte
+    /// offset of this buffer (written by an earlier kernel).
+    Indirect(&'a wgpu::Buffer, u64),
 }
 
 impl ComputeKernel {
-    /// Build the pipeline for `entry` in kernel file `file`, with pipeline-overridable constants.
+    /// Build the pipeline for `entry` in kernel file `file`, with pipeline-overridable
+    /// constants.
     pub fn new(
         ctx: &GpuContext,
         file: &str,
@@ -91,6 +125,17 @@ impl ComputeKernel {
         let source = crate::gpu::kernel_source(file)
             .ok_or_else(|| PalpateError::Gpu(format!("no kernel file '{file}'")))?;
         let (bindings, workgroup_size) = reflect(source, entry)?;
+        let max = ctx.limits.max_storage_buffers_per_shader_stage as usize;
+        let storage = bindings
+            .iter()
+            .filter(|b| matches!(b.ty, wgpu::BufferBindingType::Storage { .. }))
+            .count();
+        if storage > max {
+            return Err(PalpateError::Gpu(format!(
+                "{label} binds {storage} storage buffers but the adapter '{}' allows {max} per shader stage",
+                ctx.info.name
+            )));
+        }
         let entries: Vec<wgpu::BindGroupLayoutEntry> = bindings
             .iter()
             .map(|b| wgpu::BindGroupLayoutEntry {
@@ -139,74 +184,59 @@ impl ComputeKernel {
         })
     }
 
-    /// Make the bind group from `(name, buffer, minimum bytes)` in binding order. Each name
-    /// must match the shader's variable and each buffer must hold at least its minimum.
-    pub fn bind(
-        &self,
-        ctx: &GpuContext,
-        buffers: &[(&str, &wgpu::Buffer, u64)],
-        items: u32,
-    ) -> Result<BoundKernel> {
-        if buffers.len() != self.bindings.len() {
-            return Err(PalpateError::Gpu(format!(
-                "{}: {} buffers given for {} bindings",
-                self.label,
-                buffers.len(),
-                self.bindings.len()
-            )));
-        }
-        for ((name, buf, min), b) in buffers.iter().zip(&self.bindings) {
-            if *name != b.name {
-                return Err(PalpateError::Gpu(format!(
-                    "{}: binding {} is '{}' in the shader but '{name}' was given",
+    /// Make the bind group: each binding gets the buffer with the global's name. A missing
+    /// buffer, or one smaller than the binding's minimum, is an error naming both.
+    pub fn bind(&self, ctx: &GpuContext, buffers: &GpuBuffers) -> Result<wgpu::BindGroup> {
+        let mut entries = Vec::with_capacity(self.bindings.len());
+        for b in &self.bindings {
+            let buf = buffers.get(&b.name).ok_or_else(|| {
+                PalpateError::Gpu(format!(
+                    "{}: binding {} '{}' has no buffer of that name",
                     self.label, b.binding, b.name
-                )));
-            }
-            if buf.size() < *min {
+                ))
+            })?;
+            if buf.size() < b.min_bytes {
                 return Err(PalpateError::Gpu(format!(
-                    "{}: buffer '{name}' has {} bytes, needs {min}",
+                    "{}: buffer '{}' has {} bytes, the shader needs at least {}",
                     self.label,
-                    buf.size()
+                    b.name,
+                    buf.size(),
+                    b.min_bytes
                 )));
             }
-        }
-        let entries: Vec<wgpu::BindGroupEntry> = buffers
-            .iter()
-            .zip(&self.bindings)
-            .map(|((_, buf, _), b)| wgpu::BindGroupEntry {
+            entries.push(wgpu::BindGroupEntry {
                 binding: b.binding,
                 resource: buf.as_entire_binding(),
-            })
-            .collect();
+            });
+        }
         let bind_group = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some(&self.label),
             layout: &self.layout,
             entries: &entries,
         });
         ctx.check_errors()?;
-        Ok(BoundKernel {
-            bind_group,
-            items,
-            grid: grid_for(
-                items,
-                self.workgroup_size,
-                ctx.limits.max_compute_workgroups_per_dimension,
-            ),
-        })
+        Ok(bind_group)
     }
 
-    /// Record one dispatch covering the bound items.
-    pub fn record(&self, pass: &mut wgpu::ComputePass<'_>, bound: &BoundKernel) {
+    /// Record one dispatch with `bind_group`. `max_dim` is the adapter's
+    /// `max_compute_workgroups_per_dimension`.
+    pub fn record(
+        &self,
+        pass: &mut wgpu::ComputePass<'_>,
+        bind_group: &wgpu::BindGroup,
+        dispatch: Dispatch<'_>,
+        max_dim: u32,
+    ) {
         pass.set_pipeline(&self.pipeline);
-        pass.set_bind_group(0, &bound.bind_group, &[]);
-        pass.dispatch_workgroups(bound.grid.0, bound.grid.1, 1);
-    }
-
-    /// Record a single workgroup (for `reduce_final`).
-    pub fn record_one(&self, pass: &mut wgpu::ComputePass<'_>, bound: &BoundKernel) {
-        pass.set_pipeline(&self.pipeline);
-        pass.set_bind_group(0, &bound.bind_group, &[]);
-        pass.dispatch_workgroups(1, 1, 1);
+        pass.set_bind_group(0, bind_group, &[]);
+        match dispatch {
+            Dispatch::Items(items) => {
+                let (x, y) = grid_for(items, self.workgroup_size, max_dim);
+                pass.dispatch_workgroups(x, y, 1);
+            }
+            Dispatch::One => pass.dispatch_workgroups(1, 1, 1),
+            Dispatch::Indirect(buffer, offset) => pass.dispatch_workgroups_indirect(buffer, offset),
+        }
     }
 }
 

@@ -3,8 +3,8 @@
 
 pub mod buffers;
 pub mod context;
+pub mod groups;
 pub mod kernel;
-pub mod kernels;
 pub mod preprocess;
 pub mod stepper;
 

@@ -1,109 +1,176 @@
-//! The GPU backend: records many steps into one command buffer (fem_forces → gather →
-//! integrate, and reduce where needed), with bind groups built once, and reads back only the
-//! 48-byte stats/status block at the end of a batch.
+//! The GPU backend: records the step plan, many steps per command buffer, each stage a
+//! labelled debug group; bind groups are built once, dispatch sizes are chosen when a batch
+//! is recorded (or read by the GPU from an indirect-argument buffer), and each batch copies
+//! its small report into the next slot of a readback ring, mapped without blocking.
 
 use crate::error::{PalpateError, Result};
-use crate::gpu::buffers::{SimBuffers, STATS_BYTES, STATUS_BYTES};
-use crate::gpu::kernel::BoundKernel;
-use crate::gpu::kernels::{FemForces, Gather, Integrate, Reduce};
+use crate::gpu::buffers::{GpuBuffers, Usage};
+use crate::gpu::groups::{STATS_BYTES, STATUS_BYTES};
+use crate::gpu::kernel::{ComputeKernel, Dispatch};
 use crate::gpu::GpuContext;
 use crate::model::Model;
 use crate::params::{stat, StepParams};
-use crate::stepper::{BatchStats, State, Stepper};
+use crate::plan::{Domain, Entry, StepPlan};
+use crate::stepper::{BatchInput, BatchReport, State, Stepper, RING};
+use std::collections::VecDeque;
+use std::sync::atomic::{AtomicU8, Ordering};
 use std::sync::Arc;
 
-/// Pipelines of one step (stateless; shared by any number of simulations on a device).
-pub struct StepPipelines {
-    /// fem_forces.wgsl.
-    pub fem_forces: FemForces,
-    /// gather.wgsl.
-    pub gather: Gather,
-    /// integrate.wgsl.
-    pub integrate: Integrate,
-    /// reduce.wgsl.
-    pub reduce: Reduce,
-}
+pub use crate::plan::Stage;
 
-impl StepPipelines {
-    /// Build the pipelines; `variant` picks the fem_forces specialisation.
-    pub fn new(
-        ctx: &GpuContext,
-        variant: crate::cpu::fem_forces::FemVariant,
-    ) -> Result<StepPipelines> {
-        Ok(StepPipelines {
-            fem_forces: FemForces::new(ctx, variant)?,
-            gather: Gather::new(ctx)?,
-            integrate: Integrate::new(ctx)?,
-            reduce: Reduce::new(ctx)?,
-        })
+/// The pipeline-overridable constants a stage's kernels are built with for `model`.
+pub fn stage_constants(stage: Stage, model: &Model) -> Vec<(&'static str, f64)> {
+    match stage {
+        Stage::FemForces => {
+            let v = model.fem_variant();
+            vec![
+                ("MATERIAL", v.model as u32 as f64),
+                ("VISCOUS", if v.viscous { 1.0 } else { 0.0 }),
+            ]
+        }
+        _ => Vec::new(),
     }
 }
 
-/// One stage of a step, for running kernels one at a time (tests, bisecting a mismatch).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Stage {
-    /// fem_forces.wgsl.
-    FemForces,
-    /// gather.wgsl.
-    Gather,
-    /// integrate.wgsl.
-    Integrate,
-    /// reduce.wgsl (both entry points).
-    Reduce,
+/// The pipelines of one stage (stateless; shared by any simulation of the same variant).
+pub struct StagePipelines {
+    /// The stage.
+    pub stage: Stage,
+    /// One pipeline per entry point, in dispatch order.
+    pub kernels: Vec<(Entry, ComputeKernel)>,
 }
 
-/// Mean GPU time per stage of one step, from timestamp queries, ns.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+impl StagePipelines {
+    /// Build the stage's pipelines for `model`.
+    pub fn new(ctx: &GpuContext, stage: Stage, model: &Model) -> Result<Self> {
+        let constants = stage_constants(stage, model);
+        let kernels = stage
+            .entries()
+            .iter()
+            .map(|e| Ok((*e, ComputeKernel::new(ctx, e.file, e.entry, &constants)?)))
+            .collect::<Result<Vec<_>>>()?;
+        Ok(StagePipelines { stage, kernels })
+    }
+}
+
+/// A stage's pipelines with their bind groups on one simulation's buffers.
+struct BoundStage {
+    pipelines: StagePipelines,
+    bind_groups: Vec<wgpu::BindGroup>,
+}
+
+/// Mean GPU time per stage of one step, from timestamp queries.
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct StageTimes {
-    /// fem_forces.
-    pub fem_forces_ns: f64,
-    /// gather.
-    pub gather_ns: f64,
-    /// integrate.
-    pub integrate_ns: f64,
-    /// reduce (both entry points).
-    pub reduce_ns: f64,
+    /// (stage, mean ns per run), in plan order.
+    pub per_stage: Vec<(Stage, f64)>,
 }
 
-struct Bound {
-    fem_forces: BoundKernel,
-    gather: BoundKernel,
-    integrate: BoundKernel,
-    reduce_partial: BoundKernel,
-    reduce_final: BoundKernel,
+impl StageTimes {
+    /// Mean ns of `stage` (0 when it is not in the plan).
+    pub fn ns(&self, stage: Stage) -> f64 {
+        self.per_stage
+            .iter()
+            .find(|(s, _)| *s == stage)
+            .map_or(0.0, |(_, t)| *t)
+    }
+}
+
+/// State of one readback slot's mapping.
+const SLOT_PENDING: u8 = 0;
+const SLOT_MAPPED: u8 = 1;
+const SLOT_FAILED: u8 = 2;
+
+struct RingSlot {
+    buffer: wgpu::Buffer,
+    mapped: Arc<AtomicU8>,
+}
+
+struct InFlight {
+    slot: usize,
+    steps: u32,
 }
 
 /// GPU stepper for one model.
 pub struct GpuStepper {
     ctx: Arc<GpuContext>,
-    pipelines: StepPipelines,
-    buffers: SimBuffers,
-    bound: Bound,
+    plan: StepPlan,
+    stages: Vec<BoundStage>,
+    buffers: GpuBuffers,
     params: StepParams,
-    n: u64,
+    n_vertices: u32,
+    n_tets: u32,
+    ring: Vec<RingSlot>,
+    report_layout: Vec<(&'static str, u64, u64)>,
+    in_flight: VecDeque<InFlight>,
+    next_slot: usize,
+    steps_done: u64,
+    counts: Vec<(Stage, u32)>,
+    checkpoint: Vec<(&'static str, wgpu::Buffer)>,
+    readback_state: Option<wgpu::Buffer>,
 }
 
 impl GpuStepper {
-    /// Upload `model` and build pipelines and bind groups.
+    /// Upload `model`, build its plan's pipelines and bind groups and the readback ring.
     pub fn new(ctx: Arc<GpuContext>, model: &Model, params: StepParams) -> Result<GpuStepper> {
-        let buffers = SimBuffers::new(&ctx, model, &params)?;
-        let pipelines = StepPipelines::new(&ctx, model.fem_variant())?;
-        let (n, m) = (model.n_vertices() as u64, model.n_tets() as u64);
-        let (reduce_partial, reduce_final) = pipelines.reduce.bind(&ctx, &buffers, n, m)?;
-        let bound = Bound {
-            fem_forces: pipelines.fem_forces.bind(&ctx, &buffers, n, m)?,
-            gather: pipelines.gather.bind(&ctx, &buffers, n, m)?,
-            integrate: pipelines.integrate.bind(&ctx, &buffers, n)?,
-            reduce_partial,
-            reduce_final,
-        };
+        let n = model.n_vertices() as u64;
+        let m = model.n_tets() as u64;
+        if n > u32::MAX as u64 / 4 || m > u32::MAX as u64 / 4 {
+            return Err(PalpateError::Gpu(format!(
+                "{n} vertices / {m} tets exceed the 32-bit indices of the kernels"
+            )));
+        }
+        let max_dim = ctx.limits.max_compute_workgroups_per_dimension;
+        let groups = crate::gpu::groups::for_model(model, &params, max_dim);
+        let buffers = GpuBuffers::new(&ctx, &groups)?;
+        let plan = StepPlan::for_model(model);
+        let mut stages = Vec::new();
+        for p in &plan.stages {
+            let pipelines = StagePipelines::new(&ctx, p.stage, model)?;
+            let bind_groups = pipelines
+                .kernels
+                .iter()
+                .map(|(_, k)| k.bind(&ctx, &buffers))
+                .collect::<Result<Vec<_>>>()?;
+            stages.push(BoundStage {
+                pipelines,
+                bind_groups,
+            });
+        }
+        let mut report_layout = Vec::new();
+        let mut offset = 0;
+        for (name, buf) in buffers.with_usage(Usage::Report) {
+            report_layout.push((name, offset, buf.size()));
+            offset += buf.size();
+        }
+        let ring = (0..RING)
+            .map(|k| RingSlot {
+                buffer: ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some(&format!("readback ring {k}")),
+                    size: offset.max(4),
+                    usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                    mapped_at_creation: false,
+                }),
+                mapped: Arc::new(AtomicU8::new(SLOT_PENDING)),
+            })
+            .collect();
+        ctx.check_errors()?;
         Ok(GpuStepper {
-            ctx,
-            pipelines,
+            counts: plan.stages.iter().map(|p| (p.stage, 0)).collect(),
+            plan,
+            stages,
             buffers,
-            bound,
             params,
-            n,
+            n_vertices: n as u32,
+            n_tets: m as u32,
+            ring,
+            report_layout,
+            in_flight: VecDeque::new(),
+            next_slot: 0,
+            steps_done: 0,
+            checkpoint: Vec::new(),
+            readback_state: None,
+            ctx,
         })
     }
 
@@ -112,38 +179,83 @@ impl GpuStepper {
         &self.ctx
     }
 
-    /// Record `steps` steps into `encoder` (one compute pass).
-    pub fn record_steps(&self, encoder: &mut wgpu::CommandEncoder, steps: u32) {
-        let p = &self.pipelines;
-        let b = &self.bound;
-        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-            label: Some("steps"),
-            timestamp_writes: None,
-        });
-        for s in 0..steps {
-            p.fem_forces.fem_forces.record(&mut pass, &b.fem_forces);
-            p.gather.gather.record(&mut pass, &b.gather);
-            p.integrate.integrate.record(&mut pass, &b.integrate);
-            if s + 1 == steps {
-                p.reduce.reduce_partial.record(&mut pass, &b.reduce_partial);
-                p.reduce.reduce_final.record_one(&mut pass, &b.reduce_final);
-            }
-        }
+    /// The step plan this stepper records.
+    pub fn plan(&self) -> &StepPlan {
+        &self.plan
     }
 
-    /// Run a single stage on the current buffers and wait.
+    fn dispatch_for(&self, domain: Domain) -> Result<Dispatch<'_>> {
+        Ok(match domain {
+            Domain::Tets => Dispatch::Items(self.n_tets),
+            Domain::Vertices => Dispatch::Items(self.n_vertices),
+            Domain::VerticesAndTets => Dispatch::Items(self.n_vertices.max(self.n_tets)),
+            Domain::OneWorkgroup => Dispatch::One,
+            Domain::Indirect(name, offset) => {
+                Dispatch::Indirect(self.buffers.require(name)?, offset)
+            }
+        })
+    }
+
+    fn record_stage_at(&self, pass: &mut wgpu::ComputePass<'_>, k: usize) -> Result<()> {
+        let bound = &self.stages[k];
+        let max_dim = self.ctx.limits.max_compute_workgroups_per_dimension;
+        pass.push_debug_group(bound.pipelines.stage.name());
+        for ((entry, kernel), bind_group) in bound.pipelines.kernels.iter().zip(&bound.bind_groups)
+        {
+            kernel.record(pass, bind_group, self.dispatch_for(entry.domain)?, max_dim);
+        }
+        pass.pop_debug_group();
+        Ok(())
+    }
+
+    fn stage_index(&self, stage: Stage) -> Result<usize> {
+        self.stages
+            .iter()
+            .position(|s| s.pipelines.stage == stage)
+            .ok_or_else(|| {
+                PalpateError::Gpu(format!("stage '{}' is not in this step plan", stage.name()))
+            })
+    }
+
+    /// Record `steps` steps of the plan into `encoder` (one compute pass), counting stage runs.
+    fn record_batch(&mut self, encoder: &mut wgpu::CommandEncoder, steps: u32) -> Result<()> {
+        self.counts.iter_mut().for_each(|(_, c)| *c = 0);
+        let mut runs = vec![0u32; self.stages.len()];
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("steps"),
+                timestamp_writes: None,
+            });
+            for s in 0..steps {
+                for k in 0..self.plan.stages.len() {
+                    if self.plan.stages[k].runs_at(self.steps_done + s as u64, s, steps) {
+                        self.record_stage_at(&mut pass, k)?;
+                        runs[k] += 1;
+                    }
+                }
+            }
+        }
+        for (c, r) in self.counts.iter_mut().zip(runs) {
+            c.1 = r;
+        }
+        self.steps_done += steps as u64;
+        Ok(())
+    }
+
+    /// Run a single stage on the current buffers and wait (tests, bisecting a mismatch).
     pub fn run_stage(&self, stage: Stage) -> Result<()> {
+        let k = self.stage_index(stage)?;
         let mut enc = self.ctx.device.create_command_encoder(&Default::default());
         {
             let mut pass = enc.begin_compute_pass(&Default::default());
-            self.record_stage(&mut pass, stage);
+            self.record_stage_at(&mut pass, k)?;
         }
         self.ctx.queue.submit([enc.finish()]);
         self.ctx.wait()
     }
 
-    /// Time each stage with timestamp queries over `reps` steps (one compute pass per stage,
-    /// reduce included every step); None when the device has no timestamp queries.
+    /// Time each stage of the plan with timestamp queries over `reps` runs (one compute pass
+    /// per stage); None when the device has no timestamp queries.
     pub fn profile_stages(&mut self, reps: u32) -> Result<Option<StageTimes>> {
         if !self
             .ctx
@@ -154,7 +266,8 @@ impl GpuStepper {
             return Ok(None);
         }
         let reps = reps.clamp(1, 100);
-        let count = 8 * reps;
+        let n_stages = self.stages.len() as u32;
+        let count = 2 * n_stages * reps;
         let d = &self.ctx.device;
         let queries = d.create_query_set(&wgpu::QuerySetDescriptor {
             label: Some("stage timestamps"),
@@ -175,24 +288,18 @@ impl GpuStepper {
             mapped_at_creation: false,
         });
         let mut enc = d.create_command_encoder(&Default::default());
-        let stages = [
-            Stage::FemForces,
-            Stage::Gather,
-            Stage::Integrate,
-            Stage::Reduce,
-        ];
         for r in 0..reps {
-            for (k, stage) in stages.iter().enumerate() {
-                let q = 2 * (4 * r + k as u32);
+            for k in 0..n_stages {
+                let q = 2 * (n_stages * r + k);
                 let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                    label: Some("profiled stage"),
+                    label: Some(self.stages[k as usize].pipelines.stage.name()),
                     timestamp_writes: Some(wgpu::ComputePassTimestampWrites {
                         query_set: &queries,
                         beginning_of_pass_write_index: Some(q),
                         end_of_pass_write_index: Some(q + 1),
                     }),
                 });
-                self.record_stage(&mut pass, *stage);
+                self.record_stage_at(&mut pass, k as usize)?;
             }
         }
         enc.resolve_query_set(&queries, 0..count, &resolve, 0);
@@ -201,41 +308,23 @@ impl GpuStepper {
         let raw = self.ctx.read_mapped(&staging, bytes)?;
         let ticks: &[u64] = bytemuck::cast_slice(&raw);
         let period = self.ctx.queue.get_timestamp_period() as f64;
-        let mean = |k: usize| {
-            (0..reps as usize)
-                .map(|r| {
-                    ticks[2 * (4 * r + k) + 1].saturating_sub(ticks[2 * (4 * r + k)]) as f64
-                        * period
-                })
-                .sum::<f64>()
-                / reps as f64
-        };
-        Ok(Some(StageTimes {
-            fem_forces_ns: mean(0),
-            gather_ns: mean(1),
-            integrate_ns: mean(2),
-            reduce_ns: mean(3),
-        }))
+        let per_stage = (0..n_stages as usize)
+            .map(|k| {
+                let total: f64 = (0..reps as usize)
+                    .map(|r| {
+                        let q = 2 * (n_stages as usize * r + k);
+                        ticks[q + 1].saturating_sub(ticks[q]) as f64 * period
+                    })
+                    .sum();
+                (self.stages[k].pipelines.stage, total / reps as f64)
+            })
+            .collect();
+        Ok(Some(StageTimes { per_stage }))
     }
 
-    fn record_stage(&self, pass: &mut wgpu::ComputePass<'_>, stage: Stage) {
-        let p = &self.pipelines;
-        let b = &self.bound;
-        match stage {
-            Stage::FemForces => p.fem_forces.fem_forces.record(pass, &b.fem_forces),
-            Stage::Gather => p.gather.gather.record(pass, &b.gather),
-            Stage::Integrate => p.integrate.integrate.record(pass, &b.integrate),
-            Stage::Reduce => {
-                p.reduce.reduce_partial.record(pass, &b.reduce_partial);
-                p.reduce.reduce_final.record_one(pass, &b.reduce_final);
-            }
-        }
-    }
-
-    /// Overwrite a storage buffer of f32 (`forces`, `corner_forces`, `tet_energy`,
-    /// `displacements`, `velocities`, `stats`) from the start (tests and debugging).
+    /// Overwrite any buffer from its start with f32 (or raw u32 bits) data (tests, debugging).
     pub fn write_f32(&self, which: &str, data: &[f32]) -> Result<()> {
-        let buf = self.buffer(which)?;
+        let buf = self.buffers.require(which)?;
         if (data.len() * 4) as u64 > buf.size() {
             return Err(PalpateError::Gpu(format!(
                 "{} floats do not fit buffer '{which}'",
@@ -248,31 +337,9 @@ impl GpuStepper {
         self.ctx.wait()
     }
 
-    fn buffer(&self, which: &str) -> Result<&wgpu::Buffer> {
-        let b = &self.buffers;
-        Ok(match which {
-            "forces" => &b.forces,
-            "corner_forces" => &b.corner_forces,
-            "tet_energy" => &b.tet_energy,
-            "displacements" => &b.displacements,
-            "velocities" => &b.velocities,
-            "stats" => &b.stats,
-            "status" => &b.status,
-            other => return Err(PalpateError::Gpu(format!("no buffer '{other}'"))),
-        })
-    }
-
-    /// Run `steps` steps without any readback (for benchmarks); waits for completion.
-    pub fn run_no_readback(&mut self, steps: u32) -> Result<()> {
-        let mut enc = self.ctx.device.create_command_encoder(&Default::default());
-        self.record_steps(&mut enc, steps);
-        self.ctx.queue.submit([enc.finish()]);
-        self.ctx.wait()
-    }
-
-    /// Read a storage buffer of f32 (see [`GpuStepper::write_f32`]; `status` reads as bits).
+    /// Read any buffer as f32 (u32 buffers such as `status` read as bits).
     pub fn read_f32(&self, which: &str) -> Result<Vec<f32>> {
-        let buf = self.buffer(which)?;
+        let buf = self.buffers.require(which)?;
         let size = buf.size();
         let staging = self.ctx.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("read_f32"),
@@ -286,6 +353,79 @@ impl GpuStepper {
         let bytes = self.ctx.read_mapped(&staging, size)?;
         Ok(bytemuck::cast_slice(&bytes).to_vec())
     }
+
+    /// Run `steps` steps without any readback (benchmarks); waits for completion.
+    pub fn run_no_readback(&mut self, steps: u32) -> Result<()> {
+        let mut enc = self.ctx.device.create_command_encoder(&Default::default());
+        self.record_batch(&mut enc, steps)?;
+        self.ctx.queue.submit([enc.finish()]);
+        self.ctx.wait()
+    }
+
+    /// Parse a mapped ring slot into a report.
+    fn parse_report(&self, bytes: &[u8], steps: u32) -> BatchReport {
+        let mut report = BatchReport {
+            steps,
+            ..Default::default()
+        };
+        for &(name, offset, size) in &self.report_layout {
+            let data = &bytes[offset as usize..(offset + size) as usize];
+            match name {
+                "stats" => {
+                    let floats: &[f32] = bytemuck::cast_slice(&data[..STATS_BYTES as usize]);
+                    report.stats.stats.copy_from_slice(&floats[..stat::LEN]);
+                }
+                "status" => {
+                    let words: &[u32] = bytemuck::cast_slice(&data[..STATUS_BYTES as usize]);
+                    report.stats.non_finite_vertex = (words[0] != u32::MAX).then_some(words[0]);
+                }
+                _ => {}
+            }
+        }
+        report
+    }
+
+    /// Take the front batch's report if its slot is mapped.
+    fn take_front(&mut self) -> Result<Option<BatchReport>> {
+        let Some(front) = self.in_flight.front() else {
+            return Ok(None);
+        };
+        let slot = &self.ring[front.slot];
+        match slot.mapped.load(Ordering::Acquire) {
+            SLOT_PENDING => Ok(None),
+            SLOT_FAILED => {
+                self.in_flight.pop_front();
+                Err(PalpateError::Gpu("mapping a readback slot failed".into()))
+            }
+            _ => {
+                let steps = front.steps;
+                let data = {
+                    let view = slot
+                        .buffer
+                        .slice(..)
+                        .get_mapped_range()
+                        .map_err(|e| PalpateError::Gpu(format!("mapped range: {e}")))?;
+                    view.to_vec()
+                };
+                slot.buffer.unmap();
+                slot.mapped.store(SLOT_PENDING, Ordering::Release);
+                self.in_flight.pop_front();
+                Ok(Some(self.parse_report(&data, steps)))
+            }
+        }
+    }
+
+    /// Wait for all work, dropping the reports of batches in flight.
+    fn drain(&mut self) -> Result<()> {
+        while !self.in_flight.is_empty() {
+            self.wait()?;
+        }
+        self.ctx.wait()
+    }
+
+    fn state_buffers(&self) -> Vec<(&'static str, &wgpu::Buffer)> {
+        self.buffers.with_usage(Usage::State).collect()
+    }
 }
 
 impl Stepper for GpuStepper {
@@ -295,74 +435,159 @@ impl Stepper for GpuStepper {
 
     fn set_params(&mut self, params: &StepParams) -> Result<()> {
         self.params = *params;
-        self.ctx
-            .queue
-            .write_buffer(&self.buffers.params, 0, bytemuck::bytes_of(params));
+        self.ctx.queue.write_buffer(
+            self.buffers.require("params")?,
+            0,
+            bytemuck::bytes_of(params),
+        );
         Ok(())
     }
 
-    fn run(&mut self, steps: u32) -> Result<BatchStats> {
-        let b = &self.buffers;
+    fn submit(&mut self, steps: u32, _input: &BatchInput) -> Result<()> {
+        if self.in_flight.len() >= RING {
+            return Err(PalpateError::Gpu(format!(
+                "{RING} batches are already in flight; poll or wait first"
+            )));
+        }
         let q = &self.ctx.queue;
-        q.write_buffer(&b.status, 0, bytemuck::cast_slice(&[u32::MAX; 4]));
+        q.write_buffer(
+            self.buffers.require("status")?,
+            0,
+            bytemuck::cast_slice(&[u32::MAX; 4]),
+        );
         let mut enc = self
             .ctx
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
                 label: Some("batch"),
             });
-        let state_bytes = 12 * self.n;
-        enc.copy_buffer_to_buffer(
-            &b.displacements,
-            0,
-            &b.snapshot_displacements,
-            0,
-            state_bytes,
-        );
-        enc.copy_buffer_to_buffer(&b.velocities, 0, &b.snapshot_velocities, 0, state_bytes);
-        enc.copy_buffer_to_buffer(&b.stats, 0, &b.snapshot_stats, 0, STATS_BYTES);
-        self.record_steps(&mut enc, steps);
-        enc.copy_buffer_to_buffer(&b.stats, 0, &b.readback_small, 0, STATS_BYTES);
-        enc.copy_buffer_to_buffer(&b.status, 0, &b.readback_small, STATS_BYTES, STATUS_BYTES);
-        q.submit([enc.finish()]);
-        let bytes = self
-            .ctx
-            .read_mapped(&b.readback_small, STATS_BYTES + STATUS_BYTES)?;
-        let floats: &[f32] = bytemuck::cast_slice(&bytes[..STATS_BYTES as usize]);
-        let status: &[u32] = bytemuck::cast_slice(&bytes[STATS_BYTES as usize..]);
-        let mut out = BatchStats::default();
-        out.stats.copy_from_slice(&floats[..stat::LEN]);
-        out.non_finite_vertex = (status[0] != u32::MAX).then_some(status[0]);
-        Ok(out)
+        self.record_batch(&mut enc, steps)?;
+        let slot = self.next_slot;
+        self.next_slot = (self.next_slot + 1) % RING;
+        for &(name, offset, size) in &self.report_layout {
+            enc.copy_buffer_to_buffer(
+                self.buffers.require(name)?,
+                0,
+                &self.ring[slot].buffer,
+                offset,
+                size,
+            );
+        }
+        self.ctx.queue.submit([enc.finish()]);
+        let flag = self.ring[slot].mapped.clone();
+        self.ring[slot]
+            .buffer
+            .slice(..)
+            .map_async(wgpu::MapMode::Read, move |r| {
+                flag.store(
+                    if r.is_ok() { SLOT_MAPPED } else { SLOT_FAILED },
+                    Ordering::Release,
+                );
+            });
+        self.in_flight.push_back(InFlight { slot, steps });
+        self.ctx.check_errors()
+    }
+
+    fn poll(&mut self) -> Result<Option<BatchReport>> {
+        if self.in_flight.is_empty() {
+            return Ok(None);
+        }
+        self.ctx
+            .device
+            .poll(wgpu::PollType::Poll)
+            .map_err(|e| PalpateError::Gpu(format!("poll: {e}")))?;
+        self.ctx.check_errors()?;
+        self.take_front()
+    }
+
+    fn wait(&mut self) -> Result<BatchReport> {
+        if self.in_flight.is_empty() {
+            return Err(PalpateError::Gpu("wait: no batch in flight".into()));
+        }
+        loop {
+            self.ctx.wait()?;
+            if let Some(r) = self.take_front()? {
+                return Ok(r);
+            }
+        }
+    }
+
+    fn in_flight(&self) -> usize {
+        self.in_flight.len()
+    }
+
+    fn checkpoint(&mut self) -> Result<()> {
+        if self.checkpoint.is_empty() {
+            let d = &self.ctx.device;
+            self.checkpoint = self
+                .state_buffers()
+                .into_iter()
+                .map(|(name, b)| {
+                    (
+                        name,
+                        d.create_buffer(&wgpu::BufferDescriptor {
+                            label: Some(&format!("checkpoint {name}")),
+                            size: b.size(),
+                            usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC,
+                            mapped_at_creation: false,
+                        }),
+                    )
+                })
+                .collect();
+            self.ctx.check_errors()?;
+        }
+        let mut enc = self.ctx.device.create_command_encoder(&Default::default());
+        for (name, saved) in &self.checkpoint {
+            let b = self.buffers.require(name)?;
+            enc.copy_buffer_to_buffer(b, 0, saved, 0, b.size());
+        }
+        self.ctx.queue.submit([enc.finish()]);
+        self.ctx.check_errors()
     }
 
     fn restore(&mut self) -> Result<()> {
-        let b = &self.buffers;
+        self.drain()?;
         let mut enc = self.ctx.device.create_command_encoder(&Default::default());
-        let state_bytes = 12 * self.n;
-        enc.copy_buffer_to_buffer(
-            &b.snapshot_displacements,
-            0,
-            &b.displacements,
-            0,
-            state_bytes,
-        );
-        enc.copy_buffer_to_buffer(&b.snapshot_velocities, 0, &b.velocities, 0, state_bytes);
-        enc.copy_buffer_to_buffer(&b.snapshot_stats, 0, &b.stats, 0, STATS_BYTES);
+        if self.checkpoint.is_empty() {
+            for (_, b) in self.state_buffers() {
+                enc.clear_buffer(b, 0, None);
+            }
+        } else {
+            for (name, saved) in &self.checkpoint {
+                let b = self.buffers.require(name)?;
+                enc.copy_buffer_to_buffer(saved, 0, b, 0, b.size());
+            }
+        }
+        enc.clear_buffer(self.buffers.require("stats")?, 0, None);
         self.ctx.queue.submit([enc.finish()]);
         self.ctx.wait()
     }
 
     fn read_state(&mut self) -> Result<State> {
-        let b = &self.buffers;
-        let bytes = 12 * self.n;
+        self.drain()?;
+        let bytes = 12 * self.n_vertices as u64;
+        if self.readback_state.is_none() {
+            self.readback_state = Some(self.ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("readback state"),
+                size: (2 * bytes).max(4),
+                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            }));
+        }
+        let staging = self.readback_state.as_ref().expect("created above");
         let mut enc = self.ctx.device.create_command_encoder(&Default::default());
-        enc.copy_buffer_to_buffer(&b.displacements, 0, &b.readback_state, 0, bytes);
-        enc.copy_buffer_to_buffer(&b.velocities, 0, &b.readback_state, bytes, bytes);
+        enc.copy_buffer_to_buffer(self.buffers.require("displacements")?, 0, staging, 0, bytes);
+        enc.copy_buffer_to_buffer(
+            self.buffers.require("velocities")?,
+            0,
+            staging,
+            bytes,
+            bytes,
+        );
         self.ctx.queue.submit([enc.finish()]);
-        let data = self.ctx.read_mapped(&b.readback_state, 2 * bytes)?;
+        let data = self.ctx.read_mapped(staging, 2 * bytes)?;
         let all: &[f32] = bytemuck::cast_slice(&data);
-        let k = 3 * self.n as usize;
+        let k = 3 * self.n_vertices as usize;
         Ok(State {
             displacements: all[..k].to_vec(),
             velocities: all[k..].to_vec(),
@@ -370,15 +595,27 @@ impl Stepper for GpuStepper {
     }
 
     fn write_state(&mut self, state: &State) -> Result<()> {
-        let b = &self.buffers;
+        self.drain()?;
         let q = &self.ctx.queue;
         q.write_buffer(
-            &b.displacements,
+            self.buffers.require("displacements")?,
             0,
             bytemuck::cast_slice(&state.displacements),
         );
-        q.write_buffer(&b.velocities, 0, bytemuck::cast_slice(&state.velocities));
-        q.write_buffer(&b.stats, 0, bytemuck::cast_slice(&[0f32; stat::LEN]));
+        q.write_buffer(
+            self.buffers.require("velocities")?,
+            0,
+            bytemuck::cast_slice(&state.velocities),
+        );
+        q.write_buffer(
+            self.buffers.require("stats")?,
+            0,
+            bytemuck::cast_slice(&[0f32; stat::LEN]),
+        );
         self.ctx.wait()
+    }
+
+    fn stage_counts(&self) -> Vec<(Stage, u32)> {
+        self.counts.clone()
     }
 }

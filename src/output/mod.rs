@@ -1,8 +1,12 @@
-//! Output files: VTU meshes with point and cell data, PVD series, and the summary JSON.
+//! Output files: VTU meshes with point and cell data (`state`), PVD series (`series`), and
+//! the summary JSON (`summary`).
 //! Every file is written to a temporary name and renamed into place, so a failed run never
 //! leaves a half-written file under the final name.
 
 pub mod png;
+pub mod series;
+pub mod state;
+pub mod summary;
 pub mod vtu;
 
 use crate::error::{PalpateError, Result};

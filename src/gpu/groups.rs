@@ -1,0 +1,69 @@
+//! The buffer tables of each subsystem (see [`crate::gpu::buffers`]): one function per
+//! group, each listing (name, size, usage, contents). The names are the WGSL globals.
+
+use crate::cpu::reduce::PARTIAL_LEN;
+use crate::gpu::buffers::{BufferGroup, BufferSpec, Init, Usage};
+use crate::gpu::kernel::grid_for;
+use crate::model::Model;
+use crate::params::{stat, StepParams};
+
+/// Bytes of the stats buffer.
+pub const STATS_BYTES: u64 = (stat::LEN * 4) as u64;
+/// Bytes of the status buffer (status[0]: lowest non-finite vertex, or u32::MAX).
+pub const STATUS_BYTES: u64 = 16;
+
+/// The FEM core: state, rest shape, CSR incidence, forces, reduction and status.
+/// `max_dim` is the adapter's workgroups-per-dimension limit (it sets the number of
+/// reduction blocks).
+pub fn fem<'a>(model: &'a Model, params: &'a StepParams, max_dim: u32) -> BufferGroup<'a> {
+    let n = model.n_vertices() as u64;
+    let m = model.n_tets() as u64;
+    let blocks = {
+        let (x, y) = grid_for(
+            model.n_vertices().max(model.n_tets()) as u32,
+            crate::cpu::REDUCE_WORKGROUP as u32,
+            max_dim,
+        );
+        x as u64 * y as u64
+    };
+    BufferGroup {
+        name: "fem",
+        specs: vec![
+            BufferSpec::data("params", Usage::Uniform, std::slice::from_ref(params)),
+            BufferSpec::zeroed("displacements", Usage::State, 12 * n),
+            BufferSpec::zeroed("velocities", Usage::State, 12 * n),
+            BufferSpec::data("tets", Usage::Storage, &model.tets),
+            BufferSpec::data("dm_inv", Usage::Storage, &model.dm_inv),
+            BufferSpec::data("rest_volume", Usage::Storage, &model.rest_volume),
+            BufferSpec::zeroed("corner_forces", Usage::Storage, 48 * m),
+            BufferSpec::zeroed("tet_energy", Usage::Storage, 4 * m),
+            BufferSpec::data(
+                "incidence_offsets",
+                Usage::Storage,
+                &model.incidence_offsets,
+            ),
+            BufferSpec::data("incidence", Usage::Storage, &model.incidence),
+            BufferSpec::data("mass", Usage::Storage, &model.mass),
+            BufferSpec::data("inv_mass", Usage::Storage, &model.inv_mass),
+            BufferSpec::data("external_forces", Usage::Storage, &model.external_forces),
+            BufferSpec::zeroed("forces", Usage::Storage, 12 * n),
+            BufferSpec::zeroed("partials", Usage::Storage, 4 * PARTIAL_LEN as u64 * blocks),
+            BufferSpec::zeroed("stats", Usage::Report, STATS_BYTES),
+            BufferSpec {
+                name: "status",
+                bytes: STATUS_BYTES,
+                usage: Usage::Report,
+                init: Init::FillU32(u32::MAX),
+            },
+        ],
+    }
+}
+
+/// Every group a model needs, in order.
+pub fn for_model<'a>(
+    model: &'a Model,
+    params: &'a StepParams,
+    max_dim: u32,
+) -> Vec<BufferGroup<'a>> {
+    vec![fem(model, params, max_dim)]
+}

@@ -1,0 +1,156 @@
+//! `summary.json`: what a run did and how it ended (DESIGN.md §4), and the run's status.
+
+use super::write_atomic;
+use crate::error::{PalpateError, Result};
+use crate::sim::Backend;
+use std::fmt;
+use std::path::Path;
+
+/// How a run ended. Serialised in `summary.json` as its one-line text (`ok`, or why not).
+#[derive(Clone, Debug, PartialEq)]
+pub enum RunStatus {
+    /// Completed as asked.
+    Ok,
+    /// A vertex became non-finite or too fast; the last finite state was written.
+    Diverged {
+        /// Step that diverged (1-based over the run).
+        step: u64,
+        /// Lowest vertex that diverged.
+        vertex: u32,
+        /// Speed limit, m/s.
+        speed_limit: f64,
+        /// Speed limit in P-wave speeds.
+        wave_speeds: f64,
+        /// Time step, s.
+        dt: f64,
+        /// The stability bound, s.
+        dt_bound: f64,
+    },
+    /// `--until-static` reached its step cap above the tolerance.
+    NotStatic {
+        /// Steps taken.
+        steps: u64,
+        /// Residual reached (relative).
+        residual: f64,
+        /// Tolerance asked for.
+        tolerance: f64,
+    },
+}
+
+impl RunStatus {
+    /// True for [`RunStatus::Ok`].
+    pub fn is_ok(&self) -> bool {
+        *self == RunStatus::Ok
+    }
+
+    /// The divergence as a warning (without the "last finite state" tail).
+    pub fn divergence(&self) -> Option<String> {
+        match self {
+            RunStatus::Diverged {
+                step,
+                vertex,
+                speed_limit,
+                wave_speeds,
+                dt,
+                dt_bound,
+            } => Some(format!(
+                "diverged: non-finite or faster than {speed_limit:.3e} m/s ({wave_speeds} x P-wave speed) at step {step}, vertex {vertex} (dt = {dt:.3e} s, bound {dt_bound:.3e} s)"
+            )),
+            _ => None,
+        }
+    }
+}
+
+impl fmt::Display for RunStatus {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            RunStatus::Ok => write!(f, "ok"),
+            RunStatus::Diverged { .. } => write!(
+                f,
+                "{}; last finite state written",
+                self.divergence().unwrap_or_default()
+            ),
+            RunStatus::NotStatic {
+                steps,
+                residual,
+                tolerance,
+            } => write!(
+                f,
+                "not static after {steps} steps: residual {residual:.3e} > tolerance {tolerance:.1e}"
+            ),
+        }
+    }
+}
+
+/// A status equals the text it is written as (`status == "ok"`).
+impl PartialEq<&str> for RunStatus {
+    fn eq(&self, other: &&str) -> bool {
+        self.to_string() == *other
+    }
+}
+
+impl serde::Serialize for RunStatus {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> std::result::Result<S::Ok, S::Error> {
+        s.serialize_str(&self.to_string())
+    }
+}
+
+/// Contents of `summary.json`.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct RunSummary {
+    /// Scene name.
+    pub scene: String,
+    /// `gpu` or `cpu` (the backend that ran; `auto` is resolved).
+    pub backend: Backend,
+    /// Why that backend (`--backend auto` says which adapter it found).
+    pub backend_reason: String,
+    /// Adapter (GPU) or CPU description.
+    pub adapter: String,
+    /// CPU threads of the CPU backend (1 for the GPU backend's host thread).
+    pub threads: usize,
+    /// Number of tets.
+    pub tets: usize,
+    /// Number of vertices.
+    pub vertices: usize,
+    /// Number of particles (0: this scene has none).
+    pub particles: usize,
+    /// Steps taken.
+    pub steps: u64,
+    /// Time step at the end of the run, s.
+    pub dt: f64,
+    /// Our stability bound, s.
+    pub dt_bound: f64,
+    /// The paper's eq. (14) bound, s.
+    pub dt_paper_eq14: f64,
+    /// How many times dt was halved after a divergence.
+    pub dt_halvings: u32,
+    /// Simulated time, s.
+    pub sim_seconds: f64,
+    /// Wall-clock time of the stepping, s.
+    pub wall_seconds: f64,
+    /// Steps per wall-clock second.
+    pub steps_per_second: f64,
+    /// Simulated seconds per wall-clock second (≥ 1: faster than real time).
+    pub realtime_factor: f64,
+    /// Largest vertex displacement, m.
+    pub max_displacement: f64,
+    /// Kinetic energy at the end, J.
+    pub kinetic_energy: f64,
+    /// Elastic energy at the end, J.
+    pub elastic_energy: f64,
+    /// ‖residual force‖ / ‖external load‖ at the end (with `--until-static`).
+    pub static_residual: Option<f64>,
+    /// The tolerance `static_residual` was held to (with `--until-static`).
+    pub static_tolerance: Option<f64>,
+    /// `ok`, or why the run stopped.
+    pub status: RunStatus,
+}
+
+impl RunSummary {
+    /// Write as pretty JSON to `dir/summary.json` (atomically).
+    pub fn write(&self, dir: &Path) -> Result<()> {
+        let json = serde_json::to_string_pretty(self)
+            .map_err(|e| PalpateError::Usage(format!("summary.json: {e}")))?;
+        write_atomic(&dir.join("summary.json"), json.as_bytes())
+    }
+}

@@ -1,0 +1,206 @@
+//! The step plan: which stages one step runs, in which order and how often, built from the
+//! model. The GPU stepper records this list and the CPU stepper executes the same list, so
+//! the two backends cannot drift apart; profiling, `palpate info` and `ARCHITECTURE.md` name
+//! stages from it.
+//!
+//! Adding a stage means: a [`Stage`] variant with its row in [`Stage::entries`], a line in
+//! [`StepPlan::for_model`] that says when it runs, its kernel in `kernels/`, its CPU twin in
+//! `src/cpu/` (called from the CPU stepper's `run_stage`), and its test.
+
+use crate::model::Model;
+
+/// One stage of a step: a kernel file in `kernels/` and its CPU twin in `src/cpu/`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Stage {
+    /// Per tet: deformation gradient, material stress, four corner forces, energy.
+    FemForces,
+    /// Per vertex: Σ incident corner forces + m·g + f_ext (CSR, fixed order).
+    Gather,
+    /// Per vertex: symplectic Euler, constraints, divergence flag.
+    Integrate,
+    /// Energies, max speed, residual (two-level tree reduction).
+    Reduce,
+}
+
+/// The threads a kernel entry point is dispatched over.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Domain {
+    /// One thread per tet.
+    Tets,
+    /// One thread per vertex.
+    Vertices,
+    /// One thread per index below max(vertices, tets) (reduction blocks).
+    VerticesAndTets,
+    /// A single workgroup.
+    OneWorkgroup,
+    /// Workgroup counts read from an indirect-argument buffer written by an earlier kernel:
+    /// (buffer name, byte offset of the `DispatchIndirectArgs`).
+    Indirect(&'static str, u64),
+}
+
+/// One kernel entry point of a stage.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Entry {
+    /// Kernel file in `kernels/` (without `.wgsl`).
+    pub file: &'static str,
+    /// Entry point name.
+    pub entry: &'static str,
+    /// What it is dispatched over.
+    pub domain: Domain,
+}
+
+impl Stage {
+    /// Every stage, in step order.
+    pub const ALL: [Stage; 4] = [
+        Stage::FemForces,
+        Stage::Gather,
+        Stage::Integrate,
+        Stage::Reduce,
+    ];
+
+    /// The stage's name: its kernel file and the label of its GPU debug group.
+    pub fn name(self) -> &'static str {
+        match self {
+            Stage::FemForces => "fem_forces",
+            Stage::Gather => "gather",
+            Stage::Integrate => "integrate",
+            Stage::Reduce => "reduce",
+        }
+    }
+
+    /// The kernel entry points the stage dispatches, in order.
+    pub fn entries(self) -> &'static [Entry] {
+        match self {
+            Stage::FemForces => &[Entry {
+                file: "fem_forces",
+                entry: "fem_forces",
+                domain: Domain::Tets,
+            }],
+            Stage::Gather => &[Entry {
+                file: "gather",
+                entry: "gather",
+                domain: Domain::Vertices,
+            }],
+            Stage::Integrate => &[Entry {
+                file: "integrate",
+                entry: "integrate",
+                domain: Domain::Vertices,
+            }],
+            Stage::Reduce => &[
+                Entry {
+                    file: "reduce",
+                    entry: "reduce_partial",
+                    domain: Domain::VerticesAndTets,
+                },
+                Entry {
+                    file: "reduce",
+                    entry: "reduce_final",
+                    domain: Domain::OneWorkgroup,
+                },
+            ],
+        }
+    }
+}
+
+/// When a planned stage runs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum When {
+    /// Every step.
+    EveryStep,
+    /// Every `k`-th step of the run (global step index divisible by k).
+    EveryKSteps(u32),
+    /// Only on the last step of a batch (diagnostics read back once per batch).
+    LastStepOfBatch,
+}
+
+/// A stage and when it runs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct PlannedStage {
+    /// The stage.
+    pub stage: Stage,
+    /// Its schedule.
+    pub when: When,
+}
+
+impl PlannedStage {
+    /// True when it runs at step `global_step` (0-based over the run), which is step
+    /// `step_in_batch` of a batch of `batch_len` steps.
+    pub fn runs_at(&self, global_step: u64, step_in_batch: u32, batch_len: u32) -> bool {
+        match self.when {
+            When::EveryStep => true,
+            When::EveryKSteps(k) => global_step % k.max(1) as u64 == 0,
+            When::LastStepOfBatch => step_in_batch + 1 == batch_len,
+        }
+    }
+}
+
+/// The ordered list of stages of one step.
+#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct StepPlan {
+    /// Stages in execution order.
+    pub stages: Vec<PlannedStage>,
+}
+
+impl StepPlan {
+    /// The plan a model needs: only the stages its scene uses.
+    pub fn for_model(_model: &Model) -> StepPlan {
+        let every = |stage| PlannedStage {
+            stage,
+            when: When::EveryStep,
+        };
+        StepPlan {
+            stages: vec![
+                every(Stage::FemForces),
+                every(Stage::Gather),
+                every(Stage::Integrate),
+                PlannedStage {
+                    stage: Stage::Reduce,
+                    when: When::LastStepOfBatch,
+                },
+            ],
+        }
+    }
+
+    /// The stages step `global_step` (0-based, counted over the run) runs when it is step
+    /// `step_in_batch` of a batch of `batch_len` steps, in order.
+    pub fn stages_at(
+        &self,
+        global_step: u64,
+        step_in_batch: u32,
+        batch_len: u32,
+    ) -> impl Iterator<Item = Stage> + '_ {
+        self.stages
+            .iter()
+            .filter(move |p| p.runs_at(global_step, step_in_batch, batch_len))
+            .map(|p| p.stage)
+    }
+
+    /// True when the plan contains `stage`.
+    pub fn contains(&self, stage: Stage) -> bool {
+        self.stages.iter().any(|p| p.stage == stage)
+    }
+
+    /// One line per stage: name, schedule and kernel entry points (for `palpate info` and
+    /// the docs).
+    pub fn describe(&self) -> Vec<String> {
+        self.stages
+            .iter()
+            .map(|p| {
+                let when = match p.when {
+                    When::EveryStep => "every step".to_string(),
+                    When::EveryKSteps(k) => format!("every {k} steps"),
+                    When::LastStepOfBatch => "last step of a batch".to_string(),
+                };
+                let entries: Vec<String> = p
+                    .stage
+                    .entries()
+                    .iter()
+                    .map(|e| format!("{}::{}", e.file, e.entry))
+                    .collect();
+                format!("{:<12} {:<22} {}", p.stage.name(), when, entries.join(", "))
+            })
+            .collect()
+    }
+}

@@ -1,0 +1,114 @@
+//! `[[fixed]]`: vertices held at rest, selected by plane, box or surface tag.
+
+use super::Bad;
+use crate::error::Result;
+use crate::mesh::{tags, TetMesh};
+use glam::DVec3;
+use serde::Deserialize;
+
+/// A plane n·x = offset.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlaneSpec {
+    /// Plane normal (need not be unit).
+    pub normal: [f64; 3],
+    /// Offset along the unit normal, m.
+    pub offset: f64,
+}
+
+/// An axis-aligned box.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BoxSpec {
+    /// Lower corner, m.
+    pub min: [f64; 3],
+    /// Upper corner, m.
+    pub max: [f64; 3],
+}
+
+/// `[[fixed]]`: vertices held at rest, chosen by plane, box or tag.
+#[derive(Clone, Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FixedSpec {
+    /// Vertices within `tolerance` of this plane.
+    pub plane: Option<PlaneSpec>,
+    /// Distance tolerance for `plane`, m (default 1e-6 × the mesh's bounding-box diagonal).
+    pub tolerance: Option<f64>,
+    /// Vertices inside this box.
+    #[serde(rename = "box")]
+    pub bbox: Option<BoxSpec>,
+    /// Vertices with this surface tag (`endocardium`, `epicardium`, `base`).
+    pub tag: Option<String>,
+}
+
+pub(super) fn select_fixed(specs: &[FixedSpec], mesh: &TetMesh, bad: &Bad) -> Result<Vec<bool>> {
+    let mut fixed = vec![false; mesh.n_vertices()];
+    let (lo, hi) = mesh.positions.iter().fold(
+        (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+        |(lo, hi), p| (lo.min(*p), hi.max(*p)),
+    );
+    let diag = (hi - lo).length();
+    for (k, spec) in specs.iter().enumerate() {
+        let item = format!("fixed[{k}]");
+        let chosen = [
+            spec.plane.is_some(),
+            spec.bbox.is_some(),
+            spec.tag.is_some(),
+        ]
+        .iter()
+        .filter(|b| **b)
+        .count();
+        if chosen != 1 {
+            return Err(bad(&item, "give exactly one of plane, box or tag".into()));
+        }
+        if spec.tolerance.is_some() && spec.plane.is_none() {
+            return Err(bad(
+                &format!("{item}.tolerance"),
+                "applies to a plane only".into(),
+            ));
+        }
+        let select: Box<dyn Fn(usize, DVec3) -> bool> = if let Some(plane) = &spec.plane {
+            let n = DVec3::from_array(plane.normal);
+            if n.length() <= 0.0 || !n.is_finite() {
+                return Err(bad(
+                    &format!("{item}.plane.normal"),
+                    "must be a non-zero vector".into(),
+                ));
+            }
+            let n = n.normalize();
+            let tol = spec.tolerance.unwrap_or(1e-6 * diag);
+            let offset = plane.offset;
+            Box::new(move |_, p| (n.dot(p) - offset).abs() <= tol)
+        } else if let Some(b) = &spec.bbox {
+            let (bmin, bmax) = (DVec3::from_array(b.min), DVec3::from_array(b.max));
+            Box::new(move |_, p| p.cmpge(bmin).all() && p.cmple(bmax).all())
+        } else {
+            let name = spec.tag.as_deref().unwrap_or_default();
+            let bit = tags::by_name(name).ok_or_else(|| {
+                bad(
+                    &format!("{item}.tag"),
+                    format!("unknown tag '{name}' (known: endocardium, epicardium, base)"),
+                )
+            })?;
+            if mesh.vertex_tags.is_empty() {
+                return Err(bad(
+                    &format!("{item}.tag"),
+                    "this mesh carries no vertex tags".into(),
+                ));
+            }
+            let tags_of = mesh.vertex_tags.clone();
+            Box::new(move |i, _| tags_of[i] & bit != 0)
+        };
+        let mut count = 0;
+        for (i, p) in mesh.positions.iter().enumerate() {
+            if select(i, *p) {
+                fixed[i] = true;
+                count += 1;
+            }
+        }
+        if count == 0 {
+            return Err(bad(&item, "selects no vertex".into()));
+        }
+    }
+    Ok(fixed)
+}

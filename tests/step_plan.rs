@@ -1,0 +1,218 @@
+//! The step plan and the steppers built on it: the CPU path is bit-identical for any thread
+//! count, each backend runs exactly the stages the plan lists, batches can be queued before
+//! the last one is read back, checkpoints restore exactly, and the steppers can move to
+//! another thread.
+
+mod common;
+
+use common::gpu;
+use palpate::cpu::CpuStepper;
+use palpate::gpu::GpuStepper;
+use palpate::model::Model;
+use palpate::plan::{Stage, StepPlan, When};
+use palpate::sim::{Backend, SimOptions, Simulation};
+use palpate::stepper::{BatchInput, State, Stepper, RING};
+use std::sync::Arc;
+
+fn scene_model(name: &str) -> Arc<Model> {
+    let scene = palpate::Scene::load(name).unwrap();
+    Arc::new(Model::from_scene(&scene))
+}
+
+fn run_cpu(name: &str, threads: usize, steps: u32) -> (State, [f32; 8]) {
+    let scene = palpate::Scene::load(name).unwrap();
+    let mut sim = Simulation::new(
+        &scene,
+        Backend::Cpu,
+        SimOptions {
+            threads: Some(threads),
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    assert_eq!(sim.threads, threads);
+    let mut stats = [0.0; 8];
+    for _ in 0..steps / 100 {
+        match sim.advance(100).unwrap() {
+            palpate::sim::Advance::Done(s) => stats = s.stats,
+            other => panic!("{name}: {other:?}"),
+        }
+    }
+    (sim.state().unwrap(), stats)
+}
+
+fn bits(v: &[f32]) -> Vec<u32> {
+    v.iter().map(|x| x.to_bits()).collect()
+}
+
+#[test]
+fn cpu_results_are_bit_identical_for_any_thread_count() {
+    for name in ["beam", "lv"] {
+        let (one, s1) = run_cpu(name, 1, 500);
+        let umax = one.displacements.iter().fold(0.0f32, |a, x| a.max(x.abs()));
+        assert!(umax > 0.0, "{name}: nothing moved");
+        for threads in [2, 3] {
+            let (many, sn) = run_cpu(name, threads, 500);
+            assert_eq!(
+                bits(&one.displacements),
+                bits(&many.displacements),
+                "{name}: displacements differ between 1 and {threads} threads"
+            );
+            assert_eq!(
+                bits(&one.velocities),
+                bits(&many.velocities),
+                "{name}: velocities differ between 1 and {threads} threads"
+            );
+            assert_eq!(bits(&s1), bits(&sn), "{name}: stats differ");
+        }
+        eprintln!("{name}: 500 steps, max |u| {umax:.3e} m, identical on 1, 2 and 3 threads");
+    }
+}
+
+#[test]
+fn a_plain_scene_runs_exactly_the_stages_it_needs() {
+    // beam: no viscosity, no tool, no particles.
+    let m = scene_model("beam");
+    assert!(!m.fem_variant().viscous, "beam has no viscosity");
+    let plan = StepPlan::for_model(&m);
+    let stages: Vec<(Stage, When)> = plan.stages.iter().map(|p| (p.stage, p.when)).collect();
+    assert_eq!(
+        stages,
+        vec![
+            (Stage::FemForces, When::EveryStep),
+            (Stage::Gather, When::EveryStep),
+            (Stage::Integrate, When::EveryStep),
+            (Stage::Reduce, When::LastStepOfBatch),
+        ]
+    );
+    let expected = vec![
+        (Stage::FemForces, 10),
+        (Stage::Gather, 10),
+        (Stage::Integrate, 10),
+        (Stage::Reduce, 1),
+    ];
+    let p = m.step_params(0.5 * m.bounds.dt_bound, 0.0);
+    let mut c = CpuStepper::new(m.clone(), p);
+    c.run(10).unwrap();
+    assert_eq!(c.stage_counts(), expected, "CPU");
+    let mut g = GpuStepper::new(gpu(), &m, p).unwrap();
+    g.run(10).unwrap();
+    assert_eq!(g.stage_counts(), expected, "GPU");
+    // ed0 is viscous: the same stages, the viscous fem_forces variant.
+    let ed0 = scene_model("ed0");
+    assert!(ed0.fem_variant().viscous);
+    assert_eq!(StepPlan::for_model(&ed0), plan);
+}
+
+fn queue_three_batches(stepper: &mut dyn Stepper) -> Vec<u32> {
+    for _ in 0..RING {
+        stepper.submit(40, &BatchInput::default()).unwrap();
+    }
+    assert_eq!(stepper.in_flight(), RING);
+    assert!(
+        stepper.submit(40, &BatchInput::default()).is_err(),
+        "a fourth batch must not fit the ring"
+    );
+    let mut steps = Vec::new();
+    let mut polls = 0;
+    while steps.len() < RING {
+        match stepper.poll().unwrap() {
+            Some(r) => {
+                assert!(r.stats.non_finite_vertex.is_none());
+                assert!(r.stats.kinetic_energy() > 0.0);
+                steps.push(r.steps);
+            }
+            None => {
+                polls += 1;
+                assert!(polls < 10_000_000, "batches never came back");
+                std::thread::yield_now();
+            }
+        }
+    }
+    assert_eq!(stepper.in_flight(), 0);
+    assert!(stepper.poll().unwrap().is_none());
+    steps
+}
+
+#[test]
+fn batches_queue_in_a_ring_and_match_one_long_batch() {
+    let m = scene_model("beam");
+    let p = m.step_params(0.5 * m.bounds.dt_bound, 0.0);
+    let ctx = gpu();
+    let mut backends: Vec<(Box<dyn Stepper>, Box<dyn Stepper>)> = vec![
+        (
+            Box::new(CpuStepper::new(m.clone(), p)),
+            Box::new(CpuStepper::new(m.clone(), p)),
+        ),
+        (
+            Box::new(GpuStepper::new(ctx.clone(), &m, p).unwrap()),
+            Box::new(GpuStepper::new(ctx, &m, p).unwrap()),
+        ),
+    ];
+    for (queued, single) in backends.iter_mut() {
+        assert_eq!(queue_three_batches(queued.as_mut()), vec![40; RING]);
+        single.run(40 * RING as u32).unwrap();
+        let (a, b) = (queued.read_state().unwrap(), single.read_state().unwrap());
+        assert_eq!(
+            bits(&a.displacements),
+            bits(&b.displacements),
+            "{}: three queued batches differ from one batch of the same steps",
+            queued.name()
+        );
+    }
+}
+
+#[test]
+fn restore_returns_exactly_to_the_checkpoint() {
+    let m = scene_model("beam");
+    let p = m.step_params(0.5 * m.bounds.dt_bound, 0.0);
+    let steppers: Vec<Box<dyn Stepper>> = vec![
+        Box::new(CpuStepper::new(m.clone(), p)),
+        Box::new(GpuStepper::new(gpu(), &m, p).unwrap()),
+    ];
+    for mut s in steppers {
+        s.run(50).unwrap();
+        s.checkpoint().unwrap();
+        s.run(50).unwrap();
+        let first = s.read_state().unwrap();
+        s.restore().unwrap();
+        s.run(50).unwrap();
+        let again = s.read_state().unwrap();
+        assert_eq!(bits(&first.displacements), bits(&again.displacements));
+        assert_eq!(bits(&first.velocities), bits(&again.velocities));
+    }
+}
+
+#[test]
+fn steppers_and_simulations_can_move_to_another_thread() {
+    fn is_send<T: Send>() {}
+    is_send::<CpuStepper>();
+    is_send::<GpuStepper>();
+    is_send::<Box<dyn Stepper>>();
+    is_send::<Simulation>();
+    // And really do: step on a worker thread, read back on this one.
+    let scene = palpate::Scene::load("beam").unwrap();
+    let mut sim = Simulation::new(&scene, Backend::Cpu, SimOptions::default()).unwrap();
+    let mut sim = std::thread::spawn(move || {
+        sim.advance(20).unwrap();
+        sim
+    })
+    .join()
+    .unwrap();
+    assert_eq!(sim.steps_done, 20);
+    assert!(sim.state().unwrap().displacements.iter().any(|u| *u != 0.0));
+}
+
+#[test]
+fn thread_counts_out_of_range_are_refused() {
+    let m = scene_model("beam");
+    let p = m.step_params(1e-5, 0.0);
+    let zero = CpuStepper::with_threads(m.clone(), p, 0).err().unwrap();
+    assert!(zero.to_string().contains("at least 1"), "{zero}");
+    let cores = palpate::cpu::stepper::available_cores();
+    let huge = CpuStepper::with_threads(m, p, 1000 * cores).err().unwrap();
+    assert!(
+        huge.to_string().contains("cores"),
+        "{huge}: should name the machine's cores"
+    );
+}
