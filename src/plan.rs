@@ -130,7 +130,7 @@ impl PlannedStage {
     pub fn runs_at(&self, global_step: u64, step_in_batch: u32, batch_len: u32) -> bool {
         match self.when {
             When::EveryStep => true,
-            When::EveryKSteps(k) => global_step % k.max(1) as u64 == 0,
+            When::EveryKSteps(k) => global_step.is_multiple_of(k.max(1) as u64),
             When::LastStepOfBatch => step_in_batch + 1 == batch_len,
         }
     }

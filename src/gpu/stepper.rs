@@ -227,10 +227,10 @@ impl GpuStepper {
                 timestamp_writes: None,
             });
             for s in 0..steps {
-                for k in 0..self.plan.stages.len() {
+                for (k, run) in runs.iter_mut().enumerate() {
                     if self.plan.stages[k].runs_at(self.steps_done + s as u64, s, steps) {
                         self.record_stage_at(&mut pass, k)?;
-                        runs[k] += 1;
+                        *run += 1;
                     }
                 }
             }

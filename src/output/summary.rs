@@ -85,7 +85,11 @@ impl fmt::Display for RunStatus {
 /// A status equals the text it is written as (`status == "ok"`).
 impl PartialEq<&str> for RunStatus {
     fn eq(&self, other: &&str) -> bool {
-        self.to_string() == *other
+        let text: &str = other;
+        match self {
+            RunStatus::Ok => text == "ok",
+            _ => self.to_string().as_str() == text,
+        }
     }
 }
 
