@@ -1,9 +1,11 @@
-// Stage 7: two-level tree reduction of kinetic energy, elastic energy, max speed, residual
-// force, external load and mass-weighted squared displacement. `reduce_partial`: one
+// Stage: two-level tree reduction of kinetic energy, elastic energy, max speed, residual
+// force, external load (gravity, pressures and, with CONTACT, the tool's contact forces) and
+// mass-weighted squared displacement. `reduce_partial`: one
 // workgroup per 256 indices (vertex i and tet i) writes 6 partials; `reduce_final`: one
 // workgroup reduces the partials into `stats`. CPU twin: src/cpu/reduce.rs.
 #import params
 #import index
+#import tool
 
 @group(0) @binding(0) var<uniform> params: StepParams;
 @group(0) @binding(1) var<storage, read> displacements: array<f32>;
@@ -15,6 +17,11 @@
 @group(0) @binding(7) var<storage, read> tet_energy: array<f32>;
 @group(0) @binding(8) var<storage, read_write> partials: array<f32>;
 @group(0) @binding(9) var<storage, read_write> stats: array<f32>;
+@group(0) @binding(10) var<storage, read> surface_index: array<u32>;
+@group(0) @binding(11) var<storage, read> contact_forces: array<f32>;
+
+// Pipeline constant: the scene has a tool (the contact force counts as external load).
+override CONTACT: bool = false;
 
 const WORKGROUP: u32 = 256u;
 const PARTIAL_LEN: u32 = 6u;
@@ -56,8 +63,14 @@ fn reduce_partial(
         if inv_mass[i] > 0.0 {
             let f = vec3<f32>(forces[3u * i], forces[3u * i + 1u], forces[3u * i + 2u]);
             lane[3] = dot(f, f);
-            let w = params.gravity * mass[i]
+            var w = params.gravity * mass[i]
                 + vec3<f32>(external_forces[3u * i], external_forces[3u * i + 1u], external_forces[3u * i + 2u]);
+            if CONTACT {
+                let s = surface_index[i];
+                if s != NOT_ON_SURFACE {
+                    w += vec3<f32>(contact_forces[3u * s], contact_forces[3u * s + 1u], contact_forces[3u * s + 2u]);
+                }
+            }
             lane[4] = dot(w, w);
         }
         let u = vec3<f32>(displacements[3u * i], displacements[3u * i + 1u], displacements[3u * i + 2u]);

@@ -6,6 +6,7 @@
 //! [`cpu`]; see `ARCHITECTURE.md`.
 
 pub mod bench;
+pub mod contact;
 pub mod cpu;
 pub mod error;
 pub mod gpu;

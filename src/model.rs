@@ -43,8 +43,10 @@ pub struct Model {
     pub external_forces: Vec<f32>,
     /// Fibre direction per tet, packed xyz (empty when the mesh has none).
     pub fibres: Vec<f32>,
-    /// Stability bounds of this mesh and material.
+    /// Stability bounds of this mesh and material (and the tool's contact, if any).
     pub bounds: TimeStepBounds,
+    /// The tool and the surface it touches (None: no contact stages).
+    pub tool: Option<crate::contact::ToolModel>,
 }
 
 impl Model {
@@ -141,18 +143,34 @@ impl Model {
                 .flat_map(|f| f.to_array().map(|c| c as f32))
                 .collect(),
             bounds,
+            tool: None,
         }
     }
 
     /// Build from a validated scene.
     pub fn from_scene(scene: &Scene) -> Model {
-        Model::with_loads(
+        let model = Model::with_loads(
             &scene.mesh,
             &scene.fixed,
             scene.material,
             scene.gravity,
             &scene.external_forces,
-        )
+        );
+        match &scene.tool {
+            Some(tool) => model.with_tool(&scene.mesh, tool.clone()),
+            None => model,
+        }
+    }
+
+    /// Add a tool: its surface data, and its contact springs in the stable step
+    /// (see [`TimeStepBounds::with_contact`]).
+    pub fn with_tool(mut self, mesh: &TetMesh, tool: crate::scene::Tool) -> Model {
+        let t = crate::contact::ToolModel::new(mesh, tool);
+        self.bounds = self
+            .bounds
+            .with_contact(t.contact_dt_bound(&self.mass, &self.inv_mass));
+        self.tool = Some(t);
+        self
     }
 
     /// Refuse a model whose values do not survive the conversion to f32 (a modulus above

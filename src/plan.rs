@@ -13,12 +13,18 @@ use crate::model::Model;
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Stage {
+    /// One thread: the tool's centre for this step of the batch.
+    ToolMotion,
     /// Per tet: deformation gradient, material stress, four corner forces, energy.
     FemForces,
+    /// Per surface vertex: the tool's penalty contact force.
+    Contact,
     /// Per vertex: Σ incident corner forces + m·g + f_ext (CSR, fixed order).
     Gather,
     /// Per vertex: symplectic Euler, constraints, divergence flag.
     Integrate,
+    /// Force on the tool and its frozen-tissue stiffness (two-level tree reduction).
+    ToolForce,
     /// Energies, max speed, residual (two-level tree reduction).
     Reduce,
 }
@@ -32,6 +38,8 @@ pub enum Domain {
     Vertices,
     /// One thread per index below max(vertices, tets) (reduction blocks).
     VerticesAndTets,
+    /// One thread per boundary-surface vertex.
+    SurfaceVertices,
     /// A single workgroup.
     OneWorkgroup,
     /// Workgroup counts read from an indirect-argument buffer written by an earlier kernel:
@@ -62,6 +70,9 @@ impl Stage {
     /// The stage's name: its kernel file and the label of its GPU debug group.
     pub fn name(self) -> &'static str {
         match self {
+            Stage::ToolMotion => "tool_motion",
+            Stage::Contact => "contact",
+            Stage::ToolForce => "tool_force",
             Stage::FemForces => "fem_forces",
             Stage::Gather => "gather",
             Stage::Integrate => "integrate",
@@ -72,6 +83,28 @@ impl Stage {
     /// The kernel entry points the stage dispatches, in order.
     pub fn entries(self) -> &'static [Entry] {
         match self {
+            Stage::ToolMotion => &[Entry {
+                file: "tool_motion",
+                entry: "tool_motion",
+                domain: Domain::OneWorkgroup,
+            }],
+            Stage::Contact => &[Entry {
+                file: "contact",
+                entry: "contact",
+                domain: Domain::SurfaceVertices,
+            }],
+            Stage::ToolForce => &[
+                Entry {
+                    file: "tool_force",
+                    entry: "tool_force_partial",
+                    domain: Domain::SurfaceVertices,
+                },
+                Entry {
+                    file: "tool_force",
+                    entry: "tool_force_final",
+                    domain: Domain::OneWorkgroup,
+                },
+            ],
             Stage::FemForces => &[Entry {
                 file: "fem_forces",
                 entry: "fem_forces",
@@ -145,22 +178,31 @@ pub struct StepPlan {
 
 impl StepPlan {
     /// The plan a model needs: only the stages its scene uses.
-    pub fn for_model(_model: &Model) -> StepPlan {
+    pub fn for_model(model: &Model) -> StepPlan {
         let every = |stage| PlannedStage {
             stage,
             when: When::EveryStep,
         };
-        StepPlan {
-            stages: vec![
-                every(Stage::FemForces),
-                every(Stage::Gather),
-                every(Stage::Integrate),
-                PlannedStage {
-                    stage: Stage::Reduce,
-                    when: When::LastStepOfBatch,
-                },
-            ],
+        let last = |stage| PlannedStage {
+            stage,
+            when: When::LastStepOfBatch,
+        };
+        let tool = model.tool.is_some();
+        let mut stages = Vec::new();
+        if tool {
+            stages.push(every(Stage::ToolMotion));
         }
+        stages.push(every(Stage::FemForces));
+        if tool {
+            stages.push(every(Stage::Contact));
+        }
+        stages.push(every(Stage::Gather));
+        stages.push(every(Stage::Integrate));
+        if tool {
+            stages.push(last(Stage::ToolForce));
+        }
+        stages.push(last(Stage::Reduce));
+        StepPlan { stages }
     }
 
     /// The stages step `global_step` (0-based, counted over the run) runs when it is step

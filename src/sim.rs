@@ -8,7 +8,8 @@ use crate::gpu::{GpuContext, GpuStepper};
 use crate::model::Model;
 use crate::plan::Stage;
 use crate::scene::Scene;
-use crate::stepper::{BatchStats, State, Stepper};
+use crate::stepper::{BatchInput, BatchStats, State, Stepper, ToolReport};
+use glam::DVec3;
 use std::sync::Arc;
 
 /// Which backend steps the model.
@@ -153,8 +154,15 @@ pub struct Simulation {
     /// The most halvings [`DivergencePolicy::HalveDt`] may make over the run (default
     /// [`MAX_HALVINGS`]).
     pub max_halvings: u32,
-    /// State, step count and time at the start of the batch that last diverged.
-    checkpoint: Option<(State, u64, f64)>,
+    /// The tool's centre now (after the last batch), m.
+    pub tool_position: DVec3,
+    /// Where the next batches move the tool (None: along the scene's path).
+    pub tool_target: Option<DVec3>,
+    /// The tool report of the last batch (scenes with a tool).
+    pub last_tool: Option<ToolReport>,
+    /// State, step count, time and tool position at the start of the batch that last
+    /// diverged.
+    checkpoint: Option<(State, u64, f64, DVec3)>,
 }
 
 /// The time step a scene runs at: `override_dt`, else the scene's dt, else safety × bound.
@@ -236,7 +244,7 @@ impl Simulation {
             }
         };
         Ok(Simulation {
-            model,
+            model: model.clone(),
             stepper,
             backend,
             backend_reason,
@@ -248,6 +256,12 @@ impl Simulation {
             last: BatchStats::default(),
             halvings: 0,
             max_halvings: MAX_HALVINGS,
+            tool_position: model
+                .tool
+                .as_ref()
+                .map_or(DVec3::ZERO, |t| t.tool.position_at(0.0)),
+            tool_target: None,
+            last_tool: None,
             checkpoint: None,
         })
     }
@@ -276,6 +290,38 @@ impl Simulation {
             .set_params(&self.model.step_params(self.dt, damping))
     }
 
+    /// The input of a batch of `steps` steps from now: the tool moves from where it is to
+    /// the target, or along the scene's path.
+    fn batch_input(&self, steps: u32) -> BatchInput {
+        match &self.model.tool {
+            None => BatchInput::default(),
+            Some(t) => {
+                let to = self.tool_target.unwrap_or_else(|| {
+                    t.tool.position_at(self.time + steps as f64 * self.dt)
+                });
+                BatchInput {
+                    tool: Some((self.tool_position, to)),
+                }
+            }
+        }
+    }
+
+    /// Run one batch and wait for its report.
+    fn run_batch(&mut self, steps: u32) -> Result<crate::stepper::BatchReport> {
+        let input = self.batch_input(steps);
+        self.stepper.submit(steps, &input)?;
+        let report = self.stepper.wait()?;
+        if report.stats.non_finite_vertex.is_none() {
+            if let Some((_, to)) = input.tool {
+                self.tool_position = to;
+            }
+            if report.tool.is_some() {
+                self.last_tool = report.tool;
+            }
+        }
+        Ok(report)
+    }
+
     /// Run `steps` steps in one batch. The state at the batch start is checkpointed; when a
     /// vertex becomes non-finite or exceeds the speed limit, roll back to it (kept for
     /// [`Simulation::rollback_to_checkpoint`]) and replay one step at a time to find the
@@ -285,7 +331,8 @@ impl Simulation {
             return Ok(Advance::Done(self.last));
         }
         self.stepper.checkpoint()?;
-        let stats = self.stepper.run(steps)?;
+        let start_tool = self.tool_position;
+        let stats = self.run_batch(steps)?.stats;
         if stats.non_finite_vertex.is_none() {
             self.steps_done += steps as u64;
             self.time += steps as f64 * self.dt;
@@ -293,10 +340,15 @@ impl Simulation {
             return Ok(Advance::Done(stats));
         }
         self.stepper.restore()?;
-        self.checkpoint = Some((self.stepper.read_state()?, self.steps_done, self.time));
+        self.checkpoint = Some((
+            self.stepper.read_state()?,
+            self.steps_done,
+            self.time,
+            start_tool,
+        ));
         for _ in 0..steps {
             self.stepper.checkpoint()?;
-            let one = self.stepper.run(1)?;
+            let one = self.run_batch(1)?.stats;
             if let Some(vertex) = one.non_finite_vertex {
                 self.stepper.restore()?;
                 return Ok(Advance::Diverged {
@@ -336,10 +388,11 @@ impl Simulation {
     /// Returns false when there is no checkpoint.
     pub fn rollback_to_checkpoint(&mut self) -> Result<bool> {
         match self.checkpoint.take() {
-            Some((state, steps, time)) => {
+            Some((state, steps, time, tool)) => {
                 self.stepper.write_state(&state)?;
                 self.steps_done = steps;
                 self.time = time;
+                self.tool_position = tool;
                 Ok(true)
             }
             None => Ok(false),

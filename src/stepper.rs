@@ -66,7 +66,48 @@ impl BatchStats {
 
 /// Per-batch input, separate from the per-run parameters ([`StepParams`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct BatchInput {}
+pub struct BatchInput {
+    /// The tool's centre at the batch start and at its end, m (it moves linearly in
+    /// between). None: it stays where the last batch left it.
+    pub tool: Option<(glam::DVec3, glam::DVec3)>,
+}
+
+/// What the `tool_force` stage reports at the end of a batch.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ToolReport {
+    /// The tool's centre at the batch end, m.
+    pub position: glam::DVec3,
+    /// Force the tissue exerts on the tool, N.
+    pub force: glam::DVec3,
+    /// Frozen-tissue stiffness ∂F/∂(tool position), N/m (see [`crate::contact`]).
+    pub stiffness: glam::DMat3,
+    /// Largest penetration of a surface vertex into the sphere, m.
+    pub max_penetration: f64,
+    /// Surface vertices in contact.
+    pub contacts: u32,
+    /// Their rest surface area, m².
+    pub contact_area: f64,
+}
+
+impl ToolReport {
+    /// Parse the `tool_report` floats (see [`crate::contact::report`]).
+    pub fn from_floats(position: glam::DVec3, r: &[f32]) -> ToolReport {
+        use crate::contact::report::*;
+        let v = |k: usize| glam::DVec3::new(r[k] as f64, r[k + 1] as f64, r[k + 2] as f64);
+        ToolReport {
+            position,
+            force: v(FORCE),
+            stiffness: glam::DMat3::from_cols(
+                v(STIFFNESS),
+                v(STIFFNESS + 3),
+                v(STIFFNESS + 6),
+            ),
+            max_penetration: r[MAX_PENETRATION] as f64,
+            contacts: r[CONTACTS] as u32,
+            contact_area: r[AREA] as f64,
+        }
+    }
+}
 
 /// The report of one finished batch.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -75,6 +116,8 @@ pub struct BatchReport {
     pub steps: u32,
     /// Reduction stats and divergence flag after its last step.
     pub stats: BatchStats,
+    /// The tool's force and stiffness (scenes with a tool).
+    pub tool: Option<ToolReport>,
 }
 
 /// A backend that advances the model.

@@ -32,6 +32,10 @@ pub struct TimeStepBounds {
     pub dt_bound: f64,
     /// The paper's eq. (14) bound h_edge·sqrt(ρ/(2λ+μ)), s.
     pub dt_paper_eq14: f64,
+    /// The bound of the tissue alone (before the tool's contact springs), s.
+    pub dt_elastic: f64,
+    /// The bound of the tool's contact springs alone (∞ without a tool), s.
+    pub dt_contact: f64,
 }
 
 impl TimeStepBounds {
@@ -50,13 +54,33 @@ impl TimeStepBounds {
             paper_wave_speed: paper_c,
             dt_bound,
             dt_paper_eq14: h_edge / paper_c,
+            dt_elastic: dt_bound,
+            dt_contact: f64::INFINITY,
         }
+    }
+
+    /// Combine with the contact springs' own bound: the highest frequencies add in
+    /// quadrature, ω² = ω_e² + ω_c², so dt = 1 / sqrt(1/dt_e² + 1/dt_c²) (dt = 2/ω).
+    pub fn with_contact(mut self, dt_contact: f64) -> Self {
+        self.dt_contact = dt_contact;
+        self.dt_bound = 1.0 / (1.0 / (self.dt_elastic * self.dt_elastic)
+            + 1.0 / (dt_contact * dt_contact))
+            .sqrt();
+        self
     }
 
     /// One line describing how the bound was obtained, for error messages.
     pub fn describe(&self) -> String {
+        let contact = if self.dt_contact.is_finite() {
+            format!(
+                ", tool contact springs alone {:.3e} s (tissue alone {:.3e} s)",
+                self.dt_contact, self.dt_elastic
+            )
+        } else {
+            String::new()
+        };
         format!(
-            "h = {:.3e} m smallest tet altitude, c_p = {:.3e} m/s; paper eq. 14 gives {:.3e} s",
+            "h = {:.3e} m smallest tet altitude, c_p = {:.3e} m/s; paper eq. 14 gives {:.3e} s{contact}",
             self.h_altitude, self.p_wave_speed, self.dt_paper_eq14
         )
     }

@@ -5,18 +5,24 @@
 //! read like the shaders.
 #![allow(clippy::needless_range_loop)]
 
+pub mod contact;
 pub mod fem_forces;
 pub mod gather;
 pub mod integrate;
 pub mod par;
 pub mod reduce;
 pub mod stepper;
+pub mod tool_force;
+pub mod tool_motion;
 
 pub use fem_forces::fem_forces;
 pub use gather::gather;
 pub use integrate::integrate;
 pub use reduce::{reduce_final, reduce_partial, REDUCE_WORKGROUP};
+pub use contact::contact;
 pub use stepper::CpuStepper;
+pub use tool_force::{tool_force_final, tool_force_partial};
+pub use tool_motion::tool_motion;
 
 use glam::Vec3;
 

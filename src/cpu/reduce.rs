@@ -36,7 +36,8 @@ fn tree(lanes: &mut [[f32; PARTIAL_LEN]; REDUCE_WORKGROUP]) -> [f32; PARTIAL_LEN
 }
 
 /// Per block of 256 indices i (vertex i and tet i; blocks in parallel, each reduced in the
-/// fixed tree order): write 6 partial sums to `partials`.
+/// fixed tree order): write 6 partial sums to `partials`. With `contact`, the external load
+/// includes the contact force of surface vertices.
 #[allow(clippy::too_many_arguments)]
 pub fn reduce_partial(
     params: &StepParams,
@@ -48,6 +49,9 @@ pub fn reduce_partial(
     external_forces: &[f32],
     tet_energy: &[f32],
     partials: &mut [f32],
+    surface_index: &[u32],
+    contact_forces: &[f32],
+    contact: bool,
 ) {
     let g = Vec3::from_array(params.gravity);
     super::par::for_each_chunk::<PARTIAL_LEN>(partials, n_partials(params), |block, out| {
@@ -61,7 +65,13 @@ pub fn reduce_partial(
                 if inv_mass[i] > 0.0 {
                     let f = load3(forces, i);
                     lane[3] = f.dot(f);
-                    let w = g * mass[i] + load3(external_forces, i);
+                    let mut w = g * mass[i] + load3(external_forces, i);
+                    if contact {
+                        let s = surface_index[i];
+                        if s != crate::contact::NOT_ON_SURFACE {
+                            w += load3(contact_forces, s as usize);
+                        }
+                    }
                     lane[4] = w.dot(w);
                 }
                 let u = load3(displacements, i);

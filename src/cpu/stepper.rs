@@ -2,7 +2,11 @@
 //! worker threads. Every twin writes only per-index outputs, so the result is bit-identical
 //! for any thread count; the reduction sums in the GPU's fixed tree order.
 
-use super::{fem_forces, gather, integrate, reduce_final, reduce_partial};
+use super::{
+    contact, fem_forces, gather, integrate, reduce_final, reduce_partial, tool_force_final,
+    tool_force_partial, tool_motion,
+};
+use crate::contact::{ToolInput, ToolParams, ToolState, REPORT_LEN};
 use crate::cpu::fem_forces::FemVariant;
 use crate::cpu::integrate::ALL_FINITE;
 use crate::cpu::reduce::{n_partials, PARTIAL_LEN};
@@ -10,7 +14,7 @@ use crate::error::{PalpateError, Result};
 use crate::model::Model;
 use crate::params::{stat, StepParams};
 use crate::plan::{Stage, StepPlan};
-use crate::stepper::{BatchInput, BatchReport, BatchStats, State, Stepper, RING};
+use crate::stepper::{BatchInput, BatchReport, BatchStats, State, Stepper, ToolReport, RING};
 use std::collections::VecDeque;
 use std::sync::Arc;
 
@@ -45,6 +49,17 @@ pub fn thread_pool(threads: usize) -> Result<Arc<rayon::ThreadPool>> {
         .map_err(|e| PalpateError::Usage(format!("cannot start {threads} threads: {e}")))
 }
 
+/// The tool's arrays (empty without a tool).
+struct ToolArrays {
+    params: ToolParams,
+    input: ToolInput,
+    state: ToolState,
+    at: glam::DVec3,
+    contact_forces: Vec<f32>,
+    partials: Vec<f32>,
+    report: Vec<f32>,
+}
+
 /// CPU stepper: the reference path, parallel over tets and vertices.
 pub struct CpuStepper {
     model: Arc<Model>,
@@ -61,6 +76,7 @@ pub struct CpuStepper {
     partials: Vec<f32>,
     stats: Vec<f32>,
     status: Vec<u32>,
+    tool: ToolArrays,
     steps_done: u64,
     reports: VecDeque<BatchReport>,
     counts: Vec<(Stage, u32)>,
@@ -97,7 +113,28 @@ impl CpuStepper {
             velocities: vec![0.0; model.rest.len()],
         };
         let plan = StepPlan::for_model(&model);
+        let tool_params = model
+            .tool
+            .as_ref()
+            .map(|t| t.params())
+            .unwrap_or_default();
+        let tool = ToolArrays {
+            params: tool_params,
+            input: ToolInput::default(),
+            state: ToolState::default(),
+            at: model
+                .tool
+                .as_ref()
+                .map_or(glam::DVec3::ZERO, |t| t.tool.position_at(0.0)),
+            contact_forces: vec![0.0; 3 * tool_params.n_surface as usize],
+            partials: vec![
+                0.0;
+                crate::cpu::tool_force::LANE * crate::cpu::tool_force::n_partials(&tool_params)
+            ],
+            report: vec![0.0; REPORT_LEN],
+        };
         CpuStepper {
+            tool,
             counts: plan.stages.iter().map(|p| (p.stage, 0)).collect(),
             plan,
             variant: model.fem_variant(),
@@ -132,7 +169,42 @@ impl CpuStepper {
     pub fn run_stage(&mut self, stage: Stage) {
         let m = &*self.model;
         let p = &self.params;
+        let t = &mut self.tool;
+        let surface = m.tool.as_ref();
+        let (surface_vertices, surface_area, surface_index): (&[u32], &[f32], &[u32]) =
+            match surface {
+                Some(s) => (&s.surface_vertices, &s.surface_area, &s.surface_index),
+                None => (&[], &[], &[]),
+            };
+        let has_tool = surface.is_some();
         match stage {
+            Stage::ToolMotion => tool_motion(&t.input, &mut t.state),
+            Stage::Contact => contact(
+                p,
+                &t.params,
+                &t.input,
+                &t.state,
+                surface_vertices,
+                surface_area,
+                &m.rest,
+                &self.state.displacements,
+                &self.state.velocities,
+                &mut t.contact_forces,
+            ),
+            Stage::ToolForce => {
+                tool_force_partial(
+                    p,
+                    &t.params,
+                    &t.input,
+                    surface_vertices,
+                    surface_area,
+                    &m.rest,
+                    &self.state.displacements,
+                    &self.state.velocities,
+                    &mut t.partials,
+                );
+                tool_force_final(&t.params, &t.partials, &mut t.report);
+            }
             Stage::FemForces => fem_forces(
                 p,
                 &self.state.displacements,
@@ -152,6 +224,9 @@ impl CpuStepper {
                 &m.mass,
                 &m.external_forces,
                 &mut self.forces,
+                surface_index,
+                &t.contact_forces,
+                has_tool,
             ),
             Stage::Integrate => integrate(
                 p,
@@ -172,6 +247,9 @@ impl CpuStepper {
                     &m.external_forces,
                     &self.tet_energy,
                     &mut self.partials,
+                    surface_index,
+                    &t.contact_forces,
+                    has_tool,
                 );
                 reduce_final(p, &self.partials, &mut self.stats);
             }
@@ -221,12 +299,19 @@ impl Stepper for CpuStepper {
         Ok(())
     }
 
-    fn submit(&mut self, steps: u32, _input: &BatchInput) -> Result<()> {
+    fn submit(&mut self, steps: u32, input: &BatchInput) -> Result<()> {
         if self.reports.len() >= RING {
             return Err(PalpateError::Gpu(format!(
                 "{RING} batches are already in flight; poll or wait first"
             )));
         }
+        let (from, to) = input.tool.unwrap_or((self.tool.at, self.tool.at));
+        self.tool.input = crate::contact::batch_input(from, to, steps);
+        self.tool.state = ToolState {
+            position: self.tool.input.start,
+            step: 0,
+        };
+        self.tool.at = to;
         self.status[0] = ALL_FINITE;
         self.counts.iter_mut().for_each(|(_, c)| *c = 0);
         let pool = self.pool.clone();
@@ -238,7 +323,12 @@ impl Stepper for CpuStepper {
         let mut stats = BatchStats::default();
         stats.stats.copy_from_slice(&self.stats);
         stats.non_finite_vertex = (self.status[0] != ALL_FINITE).then_some(self.status[0]);
-        self.reports.push_back(BatchReport { steps, stats });
+        let tool = self
+            .model
+            .tool
+            .is_some()
+            .then(|| ToolReport::from_floats(to, &self.tool.report));
+        self.reports.push_back(BatchReport { steps, stats, tool });
         Ok(())
     }
 

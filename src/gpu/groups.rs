@@ -1,6 +1,7 @@
 //! The buffer tables of each subsystem (see [`crate::gpu::buffers`]): one function per
 //! group, each listing (name, size, usage, contents). The names are the WGSL globals.
 
+use crate::contact::{ToolInput, ToolParams, ToolState, REPORT_LEN};
 use crate::cpu::reduce::PARTIAL_LEN;
 use crate::gpu::buffers::{BufferGroup, BufferSpec, Init, Usage};
 use crate::gpu::kernel::grid_for;
@@ -59,11 +60,57 @@ pub fn fem<'a>(model: &'a Model, params: &'a StepParams, max_dim: u32) -> Buffer
     }
 }
 
+/// The tool: its uniforms, the surface it touches, contact forces, the reduction and the
+/// per-batch report. Without a tool only `surface_index` and `contact_forces` exist, as
+/// empty stand-ins for the bindings of `gather` and `reduce` (their `CONTACT` constant is
+/// false, so they are never read).
+pub fn tool<'a>(model: &'a Model, tool_params: &'a ToolParams) -> BufferGroup<'a> {
+    let Some(t) = &model.tool else {
+        return BufferGroup {
+            name: "tool",
+            specs: vec![
+                BufferSpec::zeroed("surface_index", Usage::Storage, 4),
+                BufferSpec::zeroed("contact_forces", Usage::Storage, 4),
+            ],
+        };
+    };
+    let n_surface = t.surface_vertices.len() as u64;
+    let blocks = n_surface.div_ceil(crate::cpu::tool_force::TOOL_WORKGROUP as u64);
+    BufferGroup {
+        name: "tool",
+        specs: vec![
+            BufferSpec::data("tool_params", Usage::Uniform, std::slice::from_ref(tool_params)),
+            BufferSpec::zeroed(
+                "tool_input",
+                Usage::Uniform,
+                std::mem::size_of::<ToolInput>() as u64,
+            ),
+            BufferSpec::zeroed(
+                "tool_state",
+                Usage::Storage,
+                std::mem::size_of::<ToolState>() as u64,
+            ),
+            BufferSpec::data("surface_vertices", Usage::Storage, &t.surface_vertices),
+            BufferSpec::data("surface_area", Usage::Storage, &t.surface_area),
+            BufferSpec::data("surface_index", Usage::Storage, &t.surface_index),
+            BufferSpec::data("rest_positions", Usage::Storage, &model.rest),
+            BufferSpec::zeroed("contact_forces", Usage::Storage, 12 * n_surface),
+            BufferSpec::zeroed(
+                "tool_partials",
+                Usage::Storage,
+                4 * crate::cpu::tool_force::LANE as u64 * blocks,
+            ),
+            BufferSpec::zeroed("tool_report", Usage::Report, 4 * REPORT_LEN as u64),
+        ],
+    }
+}
+
 /// Every group a model needs, in order.
 pub fn for_model<'a>(
     model: &'a Model,
     params: &'a StepParams,
+    tool_params: &'a ToolParams,
     max_dim: u32,
 ) -> Vec<BufferGroup<'a>> {
-    vec![fem(model, params, max_dim)]
+    vec![fem(model, params, max_dim), tool(model, tool_params)]
 }

@@ -28,6 +28,9 @@ pub fn stage_constants(stage: Stage, model: &Model) -> Vec<(&'static str, f64)> 
                 ("VISCOUS", if v.viscous { 1.0 } else { 0.0 }),
             ]
         }
+        Stage::Gather | Stage::Reduce => {
+            vec![("CONTACT", if model.tool.is_some() { 1.0 } else { 0.0 })]
+        }
         _ => Vec::new(),
     }
 }
@@ -89,6 +92,7 @@ struct RingSlot {
 struct InFlight {
     slot: usize,
     steps: u32,
+    tool_to: glam::DVec3,
 }
 
 /// GPU stepper for one model.
@@ -100,6 +104,9 @@ pub struct GpuStepper {
     params: StepParams,
     n_vertices: u32,
     n_tets: u32,
+    n_surface: u32,
+    has_tool: bool,
+    tool_at: glam::DVec3,
     ring: Vec<RingSlot>,
     report_layout: Vec<(&'static str, u64, u64)>,
     in_flight: VecDeque<InFlight>,
@@ -121,7 +128,12 @@ impl GpuStepper {
             )));
         }
         let max_dim = ctx.limits.max_compute_workgroups_per_dimension;
-        let groups = crate::gpu::groups::for_model(model, &params, max_dim);
+        let tool_params = model
+            .tool
+            .as_ref()
+            .map(|t| t.params())
+            .unwrap_or_default();
+        let groups = crate::gpu::groups::for_model(model, &params, &tool_params, max_dim);
         let buffers = GpuBuffers::new(&ctx, &groups)?;
         let plan = StepPlan::for_model(model);
         let mut stages = Vec::new();
@@ -163,6 +175,9 @@ impl GpuStepper {
             params,
             n_vertices: n as u32,
             n_tets: m as u32,
+            n_surface: tool_params.n_surface,
+            has_tool: model.tool.is_some(),
+            tool_at: model.tool.as_ref().map_or(glam::DVec3::ZERO, |t| t.tool.position_at(0.0)),
             ring,
             report_layout,
             in_flight: VecDeque::new(),
@@ -189,6 +204,7 @@ impl GpuStepper {
             Domain::Tets => Dispatch::Items(self.n_tets),
             Domain::Vertices => Dispatch::Items(self.n_vertices),
             Domain::VerticesAndTets => Dispatch::Items(self.n_vertices.max(self.n_tets)),
+            Domain::SurfaceVertices => Dispatch::Items(self.n_surface),
             Domain::OneWorkgroup => Dispatch::One,
             Domain::Indirect(name, offset) => {
                 Dispatch::Indirect(self.buffers.require(name)?, offset)
@@ -363,7 +379,7 @@ impl GpuStepper {
     }
 
     /// Parse a mapped ring slot into a report.
-    fn parse_report(&self, bytes: &[u8], steps: u32) -> BatchReport {
+    fn parse_report(&self, bytes: &[u8], steps: u32, tool_to: glam::DVec3) -> BatchReport {
         let mut report = BatchReport {
             steps,
             ..Default::default()
@@ -378,6 +394,10 @@ impl GpuStepper {
                 "status" => {
                     let words: &[u32] = bytemuck::cast_slice(&data[..STATUS_BYTES as usize]);
                     report.stats.non_finite_vertex = (words[0] != u32::MAX).then_some(words[0]);
+                }
+                "tool_report" => {
+                    let floats: &[f32] = bytemuck::cast_slice(data);
+                    report.tool = Some(crate::stepper::ToolReport::from_floats(tool_to, floats));
                 }
                 _ => {}
             }
@@ -398,7 +418,7 @@ impl GpuStepper {
                 Err(PalpateError::Gpu("mapping a readback slot failed".into()))
             }
             _ => {
-                let steps = front.steps;
+                let (steps, tool_to) = (front.steps, front.tool_to);
                 let data = {
                     let view = slot
                         .buffer
@@ -410,7 +430,7 @@ impl GpuStepper {
                 slot.buffer.unmap();
                 slot.mapped.store(SLOT_PENDING, Ordering::Release);
                 self.in_flight.pop_front();
-                Ok(Some(self.parse_report(&data, steps)))
+                Ok(Some(self.parse_report(&data, steps, tool_to)))
             }
         }
     }
@@ -443,7 +463,7 @@ impl Stepper for GpuStepper {
         Ok(())
     }
 
-    fn submit(&mut self, steps: u32, _input: &BatchInput) -> Result<()> {
+    fn submit(&mut self, steps: u32, input: &BatchInput) -> Result<()> {
         if self.in_flight.len() >= RING {
             return Err(PalpateError::Gpu(format!(
                 "{RING} batches are already in flight; poll or wait first"
@@ -455,6 +475,25 @@ impl Stepper for GpuStepper {
             0,
             bytemuck::cast_slice(&[u32::MAX; 4]),
         );
+        let (from, to) = input.tool.unwrap_or((self.tool_at, self.tool_at));
+        if self.has_tool {
+            let tool_input = crate::contact::batch_input(from, to, steps);
+            let state = crate::contact::ToolState {
+                position: tool_input.start,
+                step: 0,
+            };
+            q.write_buffer(
+                self.buffers.require("tool_input")?,
+                0,
+                bytemuck::bytes_of(&tool_input),
+            );
+            q.write_buffer(
+                self.buffers.require("tool_state")?,
+                0,
+                bytemuck::bytes_of(&state),
+            );
+        }
+        self.tool_at = to;
         let mut enc = self
             .ctx
             .device
@@ -484,7 +523,11 @@ impl Stepper for GpuStepper {
                     Ordering::Release,
                 );
             });
-        self.in_flight.push_back(InFlight { slot, steps });
+        self.in_flight.push_back(InFlight {
+            slot,
+            steps,
+            tool_to: to,
+        });
         self.ctx.check_errors()
     }
 

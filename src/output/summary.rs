@@ -146,6 +146,12 @@ pub struct RunSummary {
     pub static_residual: Option<f64>,
     /// The tolerance `static_residual` was held to (with `--until-static`).
     pub static_tolerance: Option<f64>,
+    /// The tool's centre at the end, m (scenes with a tool).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub tool_position: Option<[f64; 3]>,
+    /// The force the tissue exerts on the tool at the end, N (scenes with a tool).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub tool_force: Option<[f64; 3]>,
     /// `ok`, or why the run stopped.
     pub status: RunStatus,
 }

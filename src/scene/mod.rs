@@ -9,12 +9,14 @@ mod loads;
 mod material;
 mod mesh;
 mod solver;
+mod tool;
 
 pub use fixed::{BoxSpec, FixedSpec, PlaneSpec};
 pub use loads::{LoadsSpec, PressureSpec};
 pub use material::MaterialSpec;
 pub use mesh::MeshSpec;
 pub use solver::{DtSpec, SolverSettings, SolverSpec};
+pub use tool::{Tool, ToolSpec};
 
 use crate::error::{PalpateError, Result};
 use crate::material::MaterialParams;
@@ -56,6 +58,8 @@ pub struct SceneFile {
     /// `[solver]`.
     #[serde(default)]
     pub solver: SolverSpec,
+    /// `[tool]` (none: no contact stage).
+    pub tool: Option<ToolSpec>,
 }
 
 /// A validated scene, ready to build a simulation from.
@@ -81,6 +85,8 @@ pub struct Scene {
     pub external_forces: Vec<DVec3>,
     /// Solver settings.
     pub solver: SolverSettings,
+    /// The tool, if the scene has one.
+    pub tool: Option<Tool>,
 }
 
 /// One line per built-in scene: its name and description.
@@ -177,6 +183,10 @@ impl Scene {
         }
         let solver = solver::resolve_solver(&file.solver, &bad)?;
         let external_forces = loads::pressure_forces(&file.loads.pressure, &mesh, &bad)?;
+        let tool = match &file.tool {
+            Some(spec) => Some(tool::resolve_tool(spec, &bad)?),
+            None => None,
+        };
         Ok(Scene {
             name: file.name.unwrap_or_else(|| default_name.to_string()),
             origin: origin.to_string(),
@@ -188,6 +198,7 @@ impl Scene {
             gravity,
             external_forces,
             solver,
+            tool,
         })
     }
 }

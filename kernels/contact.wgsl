@@ -1,0 +1,46 @@
+// Stage: per boundary-surface vertex, the penalty contact force of the tool (a sphere):
+// f = A (k d - b min(0, (v - v_tool).n)) n for penetration d = R - |x - c| > 0, with
+// x = X + u the vertex position, A its share of the rest surface area, n = (x - c)/|x - c|
+// (src/contact.rs). The tool moves at v_tool = (end - start)/(steps dt) during the batch.
+// Writes contact_forces[s]; gather adds it to the vertex. CPU twin: src/cpu/contact.rs.
+#import params
+#import tool
+#import index
+
+@group(0) @binding(0) var<uniform> params: StepParams;
+@group(0) @binding(1) var<uniform> tool_params: ToolParams;
+@group(0) @binding(2) var<uniform> tool_input: ToolInput;
+@group(0) @binding(3) var<storage, read> tool_state: ToolState;
+@group(0) @binding(4) var<storage, read> surface_vertices: array<u32>;
+@group(0) @binding(5) var<storage, read> surface_area: array<f32>;
+@group(0) @binding(6) var<storage, read> rest_positions: array<f32>;
+@group(0) @binding(7) var<storage, read> displacements: array<f32>;
+@group(0) @binding(8) var<storage, read> velocities: array<f32>;
+@group(0) @binding(9) var<storage, read_write> contact_forces: array<f32>;
+
+const WORKGROUP: u32 = 64u;
+
+fn position(i: u32) -> vec3<f32> {
+    return vec3<f32>(rest_positions[3u * i], rest_positions[3u * i + 1u], rest_positions[3u * i + 2u])
+        + vec3<f32>(displacements[3u * i], displacements[3u * i + 1u], displacements[3u * i + 2u]);
+}
+
+fn velocity(i: u32) -> vec3<f32> {
+    return vec3<f32>(velocities[3u * i], velocities[3u * i + 1u], velocities[3u * i + 2u]);
+}
+
+@compute @workgroup_size(64)
+fn contact(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let s = linear_index(gid, nwg, WORKGROUP);
+    if s >= tool_params.n_surface {
+        return;
+    }
+    let i = surface_vertices[s];
+    let x = position(i);
+    let v = velocity(i);
+    let vc = (tool_input.end - tool_input.start) / (f32(max(tool_input.steps, 1u)) * params.dt);
+    let c = contact_force(tool_params, x, v, tool_state.position, vc, surface_area[s]);
+    contact_forces[3u * s] = c.force.x;
+    contact_forces[3u * s + 1u] = c.force.y;
+    contact_forces[3u * s + 2u] = c.force.z;
+}

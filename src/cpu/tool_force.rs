@@ -1,0 +1,122 @@
+//! CPU twin of `kernels/tool_force.wgsl`: the force on the tool and its frozen-tissue
+//! stiffness, reduced over surface vertices in the GPU's fixed tree order (blocks of 128,
+//! then one block over the partials).
+
+use super::contact::{contact_force, tool_velocity};
+use super::load3;
+use crate::contact::{ToolInput, ToolParams, REPORT_LEN};
+use crate::params::StepParams;
+use glam::Vec3;
+
+/// Threads per tool_force workgroup.
+pub const TOOL_WORKGROUP: usize = 128;
+/// Floats per lane: force (3), stiffness (9), max penetration, contacts, area.
+pub const LANE: usize = 15;
+const MAX_SLOT: usize = 12;
+
+/// Number of partials `tool_force_partial` writes.
+pub fn n_partials(tool_params: &ToolParams) -> usize {
+    (tool_params.n_surface as usize).div_ceil(TOOL_WORKGROUP)
+}
+
+fn combine(a: &mut [f32; LANE], o: &[f32; LANE]) {
+    for k in 0..LANE {
+        if k == MAX_SLOT {
+            a[k] = a[k].max(o[k]);
+        } else {
+            a[k] += o[k];
+        }
+    }
+}
+
+fn tree(lanes: &mut [[f32; LANE]; TOOL_WORKGROUP]) -> [f32; LANE] {
+    let mut s = TOOL_WORKGROUP / 2;
+    while s > 0 {
+        for l in 0..s {
+            let o = lanes[l + s];
+            combine(&mut lanes[l], &o);
+        }
+        s /= 2;
+    }
+    lanes[0]
+}
+
+/// One surface vertex's lane: −f (force on the tool), k A [(R/r)(I − n nᵀ) − I], d, 1, A.
+fn lane(p: &ToolParams, x: Vec3, v: Vec3, c: Vec3, vc: Vec3, area: f32) -> [f32; LANE] {
+    let mut lane = [0.0f32; LANE];
+    let ct = contact_force(p, x, v, c, vc, area);
+    if ct.penetration > 0.0 {
+        let n = ct.normal.to_array();
+        let a = p.radius / ct.distance;
+        let ka = p.stiffness * area;
+        lane[0] = -ct.force.x;
+        lane[1] = -ct.force.y;
+        lane[2] = -ct.force.z;
+        for col in 0..3 {
+            for row in 0..3 {
+                let delta = if row == col { 1.0 } else { 0.0 };
+                lane[3 + 3 * col + row] = ka * (a * (delta - n[row] * n[col]) - delta);
+            }
+        }
+        lane[12] = ct.penetration;
+        lane[13] = 1.0;
+        lane[14] = area;
+    }
+    lane
+}
+
+/// Per block of 128 surface vertices: the block's partial lane (tool at `tool_input.end`).
+#[allow(clippy::too_many_arguments)]
+pub fn tool_force_partial(
+    params: &StepParams,
+    tool_params: &ToolParams,
+    tool_input: &ToolInput,
+    surface_vertices: &[u32],
+    surface_area: &[f32],
+    rest_positions: &[f32],
+    displacements: &[f32],
+    velocities: &[f32],
+    tool_partials: &mut [f32],
+) {
+    let vc = tool_velocity(params, tool_input);
+    let c = Vec3::from_array(tool_input.end);
+    let n = tool_params.n_surface as usize;
+    super::par::for_each_chunk::<LANE>(tool_partials, n_partials(tool_params), |block, out| {
+        let mut lanes = [[0.0f32; LANE]; TOOL_WORKGROUP];
+        for (l, slot) in lanes.iter_mut().enumerate() {
+            let s = block * TOOL_WORKGROUP + l;
+            if s < n {
+                let i = surface_vertices[s] as usize;
+                let x = load3(rest_positions, i) + load3(displacements, i);
+                *slot = lane(
+                    tool_params,
+                    x,
+                    load3(velocities, i),
+                    c,
+                    vc,
+                    surface_area[s],
+                );
+            }
+        }
+        out.copy_from_slice(&tree(&mut lanes));
+    });
+}
+
+/// One block: lane l combines partials l, l+128, …; then the tree. Writes `tool_report`.
+pub fn tool_force_final(tool_params: &ToolParams, tool_partials: &[f32], tool_report: &mut [f32]) {
+    let n = n_partials(tool_params);
+    let mut lanes = [[0.0f32; LANE]; TOOL_WORKGROUP];
+    for (l, lane) in lanes.iter_mut().enumerate() {
+        let mut b = l;
+        while b < n {
+            let p: [f32; LANE] = tool_partials[LANE * b..LANE * b + LANE]
+                .try_into()
+                .expect("LANE floats");
+            combine(lane, &p);
+            b += TOOL_WORKGROUP;
+        }
+    }
+    let r = tree(&mut lanes);
+    tool_report[..LANE].copy_from_slice(&r);
+    tool_report[REPORT_LEN - 1] = 0.0;
+}

@@ -1,0 +1,17 @@
+//! CPU twin of `kernels/tool_motion.wgsl`: the tool's centre for step k of a batch,
+//! start + (end − start)·k/steps.
+
+use crate::contact::{ToolInput, ToolState};
+use glam::Vec3;
+
+/// One thread: place the tool for the next step of the batch and count the step.
+pub fn tool_motion(tool_input: &ToolInput, tool_state: &mut ToolState) {
+    let k = tool_state.step;
+    let s = k as f32 / tool_input.steps.max(1) as f32;
+    let (from, to) = (
+        Vec3::from_array(tool_input.start),
+        Vec3::from_array(tool_input.end),
+    );
+    tool_state.position = (from + (to - from) * s).to_array();
+    tool_state.step = k + 1;
+}

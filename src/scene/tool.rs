@@ -1,0 +1,128 @@
+//! `[tool]`: a rigid sphere the user holds. Contact is a penalty per unit area of the tissue
+//! surface (so the force does not depend on the mesh), optionally damped; `palpate run`
+//! moves the tool along a keyframed `path`, `palpate haptic` moves it with the device
+//! (device positions are offsets from `home`).
+
+use super::{positive, Bad};
+use crate::error::Result;
+use glam::DVec3;
+use serde::Deserialize;
+
+/// `[tool]` as written in the scene file.
+#[derive(Clone, Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ToolSpec {
+    /// Sphere radius, m.
+    pub radius: Option<f64>,
+    /// Contact penalty, Pa per metre of penetration (force per unit surface area per metre).
+    pub stiffness: Option<f64>,
+    /// Contact damping, Pa·s/m (force per unit area per m/s of approach speed; default 0).
+    pub damping: Option<f64>,
+    /// Keyframes `[t s, x m, y m, z m]`, time strictly increasing; linear between them,
+    /// held after the last.
+    pub path: Option<Vec<[f64; 4]>>,
+    /// Where the haptic device's origin maps to, m (default: the first keyframe).
+    pub home: Option<[f64; 3]>,
+}
+
+/// A validated tool.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Tool {
+    /// Sphere radius, m.
+    pub radius: f64,
+    /// Contact penalty per unit area, Pa/m.
+    pub stiffness: f64,
+    /// Contact damping per unit area, Pa·s/m.
+    pub damping: f64,
+    /// Keyframes (t, position), t strictly increasing (may be empty for `haptic`).
+    pub path: Vec<(f64, DVec3)>,
+    /// The scene position of the device origin, m.
+    pub home: DVec3,
+}
+
+impl Tool {
+    /// The tool's centre at time `t` on the path: linear between keyframes, the first before
+    /// the first keyframe, held after the last; `home` without a path.
+    pub fn position_at(&self, t: f64) -> DVec3 {
+        let p = &self.path;
+        match p.iter().position(|(tk, _)| *tk > t) {
+            None => p.last().map_or(self.home, |(_, x)| *x),
+            Some(0) => p[0].1,
+            Some(k) => {
+                let (t0, x0) = p[k - 1];
+                let (t1, x1) = p[k];
+                x0 + (x1 - x0) * ((t - t0) / (t1 - t0))
+            }
+        }
+    }
+
+    /// Time of the last keyframe (0 without a path).
+    pub fn path_end(&self) -> f64 {
+        self.path.last().map_or(0.0, |(t, _)| *t)
+    }
+}
+
+/// Validate `[tool]`: radius and stiffness > 0, damping ≥ 0, keyframes finite with strictly
+/// increasing times, and a home or a path.
+pub(super) fn resolve_tool(spec: &ToolSpec, bad: &Bad) -> Result<Tool> {
+    let radius = positive(
+        bad,
+        "tool.radius",
+        spec.radius
+            .ok_or_else(|| bad("tool.radius", "is required (m)".into()))?,
+        "m",
+    )?;
+    let stiffness = positive(
+        bad,
+        "tool.stiffness",
+        spec.stiffness
+            .ok_or_else(|| bad("tool.stiffness", "is required (Pa/m)".into()))?,
+        "Pa/m",
+    )?;
+    let damping = spec.damping.unwrap_or(0.0);
+    if !(damping.is_finite() && damping >= 0.0) {
+        return Err(bad(
+            "tool.damping",
+            format!("must be >= 0 Pa s/m, got {damping}"),
+        ));
+    }
+    let mut path = Vec::new();
+    for (k, row) in spec.path.iter().flatten().enumerate() {
+        if row.iter().any(|v| !v.is_finite()) {
+            return Err(bad(
+                &format!("tool.path[{k}]"),
+                format!("must be finite, got {row:?}"),
+            ));
+        }
+        let (t, x) = (row[0], DVec3::new(row[1], row[2], row[3]));
+        if let Some((t_prev, _)) = path.last() {
+            if t <= *t_prev {
+                return Err(bad(
+                    &format!("tool.path[{k}]"),
+                    format!("time {t} s is not after the previous keyframe's {t_prev} s"),
+                ));
+            }
+        }
+        path.push((t, x));
+    }
+    let home = match (spec.home, path.first()) {
+        (Some(h), _) if h.iter().all(|v| v.is_finite()) => DVec3::from_array(h),
+        (Some(h), _) => {
+            return Err(bad("tool.home", format!("must be finite, got {h:?}")));
+        }
+        (None, Some((_, x))) => *x,
+        (None, None) => {
+            return Err(bad(
+                "tool",
+                "give a path of [t, x, y, z] keyframes or a home position".into(),
+            ))
+        }
+    };
+    Ok(Tool {
+        radius,
+        stiffness,
+        damping,
+        path,
+        home,
+    })
+}
