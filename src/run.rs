@@ -258,9 +258,8 @@ pub fn run(scene: &Scene, opts: &RunOptions) -> Result<RunSummary> {
     };
     // A moving tool keeps the body loaded in a changing way: static only after its path ends.
     let loads_settle_at = model.tool.as_ref().map_or(0.0, |t| t.tool.path_end());
-    let is_static = |r: Option<f64>, time: f64| {
-        time >= loads_settle_at && r.is_some_and(|r| r <= tolerance)
-    };
+    let is_static =
+        |r: Option<f64>, time: f64| time >= loads_settle_at && r.is_some_and(|r| r <= tolerance);
     let mut status = RunStatus::Ok;
     let mut residual = None;
     let start = Instant::now();

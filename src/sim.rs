@@ -296,9 +296,9 @@ impl Simulation {
         match &self.model.tool {
             None => BatchInput::default(),
             Some(t) => {
-                let to = self.tool_target.unwrap_or_else(|| {
-                    t.tool.position_at(self.time + steps as f64 * self.dt)
-                });
+                let to = self
+                    .tool_target
+                    .unwrap_or_else(|| t.tool.position_at(self.time + steps as f64 * self.dt));
                 BatchInput {
                     tool: Some((self.tool_position, to)),
                 }

@@ -97,11 +97,7 @@ impl ToolReport {
         ToolReport {
             position,
             force: v(FORCE),
-            stiffness: glam::DMat3::from_cols(
-                v(STIFFNESS),
-                v(STIFFNESS + 3),
-                v(STIFFNESS + 6),
-            ),
+            stiffness: glam::DMat3::from_cols(v(STIFFNESS), v(STIFFNESS + 3), v(STIFFNESS + 6)),
             max_penetration: r[MAX_PENETRATION] as f64,
             contacts: r[CONTACTS] as u32,
             contact_area: r[AREA] as f64,

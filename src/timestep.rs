@@ -63,9 +63,8 @@ impl TimeStepBounds {
     /// quadrature, ω² = ω_e² + ω_c², so dt = 1 / sqrt(1/dt_e² + 1/dt_c²) (dt = 2/ω).
     pub fn with_contact(mut self, dt_contact: f64) -> Self {
         self.dt_contact = dt_contact;
-        self.dt_bound = 1.0 / (1.0 / (self.dt_elastic * self.dt_elastic)
-            + 1.0 / (dt_contact * dt_contact))
-            .sqrt();
+        self.dt_bound = 1.0
+            / (1.0 / (self.dt_elastic * self.dt_elastic) + 1.0 / (dt_contact * dt_contact)).sqrt();
         self
     }
 

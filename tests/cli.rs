@@ -544,3 +544,54 @@ fn threads_are_recorded_and_bad_counts_or_missing_adapters_are_one_line_errors()
         lines[0]
     );
 }
+
+#[test]
+fn bad_tool_sections_are_one_line_errors_naming_the_key() {
+    let d = tmp("badtool");
+    let tool = |body: &str| BEAM.replacen("[solver]", &format!("[tool]\n{body}\n\n[solver]"), 1);
+    let cases: &[(&str, &[&str])] = &[
+        (
+            "radius = -0.004\nstiffness = 1e8\npath = [[0.0, 0.05, 0.01, 0.03]]",
+            &["tool.radius", "> 0"],
+        ),
+        (
+            "radius = 0.004\nstiffness = -1e8\npath = [[0.0, 0.05, 0.01, 0.03]]",
+            &["tool.stiffness", "> 0"],
+        ),
+        (
+            "radius = 0.004\nstiffness = 1e8\ndamping = -1.0\npath = [[0.0, 0.05, 0.01, 0.03]]",
+            &["tool.damping"],
+        ),
+        (
+            "radius = 0.004\nstiffness = 1e8\npath = [[0.0, 0.05, 0.01, 0.03], [0.1, 0.05, 0.01, 0.02], [0.1, 0.05, 0.01, 0.01]]",
+            &["tool.path[2]", "not after"],
+        ),
+        ("radius = 0.004\nstiffness = 1e8", &["tool", "path"]),
+        (
+            "radius = 0.004\nstiffness = 1e8\npath = [[0.0, 0.05, 0.01]]",
+            &["line", "path"],
+        ),
+        (
+            "radius = 0.004\nstiffness = 1e8\nspeed = 2.0\npath = [[0.0, 0.05, 0.01, 0.03]]",
+            &["line", "speed"],
+        ),
+    ];
+    for (i, (body, want)) in cases.iter().enumerate() {
+        let path = scene_file(&d, &format!("tool{i}.toml"), &tool(body));
+        let mut must: Vec<&str> = want.to_vec();
+        must.push(&path);
+        assert_one_line_error(
+            &[
+                "run",
+                &path,
+                "--steps",
+                "1",
+                "--backend",
+                "cpu",
+                "--out",
+                d.to_str().unwrap(),
+            ],
+            &must,
+        );
+    }
+}

@@ -116,6 +116,9 @@ fn gather_kernel_matches_cpu_twin() {
         &m.mass,
         &m.external_forces,
         &mut f,
+        &[],
+        &[],
+        false,
     );
     let gf = g.read_f32("forces").unwrap();
     let e = rel_err(&gf[..f.len()], &f);
@@ -200,6 +203,9 @@ fn reduce_kernel_matches_cpu_twin() {
         &m.external_forces,
         &te,
         &mut partials,
+        &[],
+        &[],
+        false,
     );
     cpu::reduce_final(&p, &partials, &mut stats);
     let gs = g.read_f32("stats").unwrap();

@@ -4,6 +4,7 @@
 //! * [`accuracy`]: error against a converged reference versus run time, and its Pareto front.
 
 pub mod accuracy;
+pub mod contact;
 pub mod stability;
 
 use crate::error::Result;

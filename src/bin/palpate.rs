@@ -96,6 +96,18 @@ enum BenchStudy {
         #[arg(long, default_value = "docs")]
         out: PathBuf,
     },
+    /// The tool's contact force against Hertz's solution: contact.csv, contact.md.
+    Contact {
+        /// Backend.
+        #[arg(long, value_enum, default_value = "auto")]
+        backend: Backend,
+        /// CI-sized run.
+        #[arg(long)]
+        quick: bool,
+        /// Output directory.
+        #[arg(long, default_value = "docs")]
+        out: PathBuf,
+    },
     /// Error against a converged reference versus run time: accuracy.csv, accuracy.png.
     Accuracy {
         /// Backend whose run time is measured.
@@ -251,6 +263,28 @@ fn execute(cli: Cli) -> Result<()> {
                     );
                 }
                 println!("wrote {0}/stability.csv, {0}/stability.md", out.display());
+                Ok(())
+            }
+            BenchStudy::Contact {
+                backend,
+                quick,
+                out,
+            } => {
+                use palpate::bench::contact;
+                let rows = contact::study(backend, quick, &out, &mut |s| {
+                    eprintln!("bench contact: {s}")
+                })?;
+                let header = format!(
+                    "Written by `palpate bench contact{}` on {}. A sphere of radius {} mm pressed into a block of E = {} kPa, nu = {} (bottom held, half-width and depth {} contact radii), relaxed to a static state; error = (F - F_Hertz)/F_Hertz.",
+                    if quick { " --quick" } else { "" },
+                    adapter_name(backend),
+                    contact::HertzCase::default().radius * 1e3,
+                    contact::HertzCase::default().youngs_modulus / 1e3,
+                    contact::HertzCase::default().poisson_ratio,
+                    contact::HertzCase::default().block
+                );
+                contact::write(&out, &rows, &header)?;
+                println!("wrote {0}/contact.csv, {0}/contact.md", out.display());
                 Ok(())
             }
             BenchStudy::Accuracy {

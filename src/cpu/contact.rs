@@ -63,15 +63,11 @@ pub fn contact(
 ) {
     let vc = tool_velocity(params, tool_input);
     let c = Vec3::from_array(tool_state.position);
-    super::par::for_each_chunk::<3>(
-        contact_forces,
-        tool_params.n_surface as usize,
-        |s, out| {
-            let i = surface_vertices[s] as usize;
-            let x = load3(rest_positions, i) + load3(displacements, i);
-            let v = load3(velocities, i);
-            let f = contact_force(tool_params, x, v, c, vc, surface_area[s]);
-            store3(out, 0, f.force);
-        },
-    );
+    super::par::for_each_chunk::<3>(contact_forces, tool_params.n_surface as usize, |s, out| {
+        let i = surface_vertices[s] as usize;
+        let x = load3(rest_positions, i) + load3(displacements, i);
+        let v = load3(velocities, i);
+        let f = contact_force(tool_params, x, v, c, vc, surface_area[s]);
+        store3(out, 0, f.force);
+    });
 }

@@ -15,11 +15,11 @@ pub mod stepper;
 pub mod tool_force;
 pub mod tool_motion;
 
+pub use contact::contact;
 pub use fem_forces::fem_forces;
 pub use gather::gather;
 pub use integrate::integrate;
 pub use reduce::{reduce_final, reduce_partial, REDUCE_WORKGROUP};
-pub use contact::contact;
 pub use stepper::CpuStepper;
 pub use tool_force::{tool_force_final, tool_force_partial};
 pub use tool_motion::tool_motion;

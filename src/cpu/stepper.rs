@@ -113,11 +113,7 @@ impl CpuStepper {
             velocities: vec![0.0; model.rest.len()],
         };
         let plan = StepPlan::for_model(&model);
-        let tool_params = model
-            .tool
-            .as_ref()
-            .map(|t| t.params())
-            .unwrap_or_default();
+        let tool_params = model.tool.as_ref().map(|t| t.params()).unwrap_or_default();
         let tool = ToolArrays {
             params: tool_params,
             input: ToolInput::default(),
@@ -129,7 +125,8 @@ impl CpuStepper {
             contact_forces: vec![0.0; 3 * tool_params.n_surface as usize],
             partials: vec![
                 0.0;
-                crate::cpu::tool_force::LANE * crate::cpu::tool_force::n_partials(&tool_params)
+                crate::cpu::tool_force::LANE
+                    * crate::cpu::tool_force::n_partials(&tool_params)
             ],
             report: vec![0.0; REPORT_LEN],
         };

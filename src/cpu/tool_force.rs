@@ -88,14 +88,7 @@ pub fn tool_force_partial(
             if s < n {
                 let i = surface_vertices[s] as usize;
                 let x = load3(rest_positions, i) + load3(displacements, i);
-                *slot = lane(
-                    tool_params,
-                    x,
-                    load3(velocities, i),
-                    c,
-                    vc,
-                    surface_area[s],
-                );
+                *slot = lane(tool_params, x, load3(velocities, i), c, vc, surface_area[s]);
             }
         }
         out.copy_from_slice(&tree(&mut lanes));

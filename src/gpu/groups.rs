@@ -79,7 +79,11 @@ pub fn tool<'a>(model: &'a Model, tool_params: &'a ToolParams) -> BufferGroup<'a
     BufferGroup {
         name: "tool",
         specs: vec![
-            BufferSpec::data("tool_params", Usage::Uniform, std::slice::from_ref(tool_params)),
+            BufferSpec::data(
+                "tool_params",
+                Usage::Uniform,
+                std::slice::from_ref(tool_params),
+            ),
             BufferSpec::zeroed(
                 "tool_input",
                 Usage::Uniform,

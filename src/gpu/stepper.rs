@@ -128,11 +128,7 @@ impl GpuStepper {
             )));
         }
         let max_dim = ctx.limits.max_compute_workgroups_per_dimension;
-        let tool_params = model
-            .tool
-            .as_ref()
-            .map(|t| t.params())
-            .unwrap_or_default();
+        let tool_params = model.tool.as_ref().map(|t| t.params()).unwrap_or_default();
         let groups = crate::gpu::groups::for_model(model, &params, &tool_params, max_dim);
         let buffers = GpuBuffers::new(&ctx, &groups)?;
         let plan = StepPlan::for_model(model);
@@ -177,7 +173,10 @@ impl GpuStepper {
             n_tets: m as u32,
             n_surface: tool_params.n_surface,
             has_tool: model.tool.is_some(),
-            tool_at: model.tool.as_ref().map_or(glam::DVec3::ZERO, |t| t.tool.position_at(0.0)),
+            tool_at: model
+                .tool
+                .as_ref()
+                .map_or(glam::DVec3::ZERO, |t| t.tool.position_at(0.0)),
             ring,
             report_layout,
             in_flight: VecDeque::new(),

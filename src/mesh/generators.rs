@@ -87,7 +87,18 @@ pub fn extrude(
 
 /// A box `size` (m) from the origin, `cells` hexahedral cells each cut into 6 tets.
 pub fn beam(size: [f64; 3], cells: [usize; 3]) -> TetMesh {
-    let [nx, ny, nz] = cells;
+    let axis = |k: usize| -> Vec<f64> {
+        (0..=cells[k])
+            .map(|i| i as f64 * (size[k] / cells[k] as f64))
+            .collect()
+    };
+    graded_box(&axis(0), &axis(1), &axis(2))
+}
+
+/// A box on the tensor grid of node coordinates `xs` × `ys` × `zs` (each strictly
+/// increasing, m), every hexahedral cell cut into 6 tets as [`beam`] does.
+pub fn graded_box(xs: &[f64], ys: &[f64], zs: &[f64]) -> TetMesh {
+    let (nx, ny, nz) = (xs.len() - 1, ys.len() - 1, zs.len() - 1);
     let mut grid = SurfaceGrid {
         n_nodes: (nx + 1) * (ny + 1),
         ..Default::default()
@@ -98,14 +109,9 @@ pub fn beam(size: [f64; 3], cells: [usize; 3]) -> TetMesh {
             grid.push_quad([id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1)]);
         }
     }
-    let d = [
-        size[0] / nx as f64,
-        size[1] / ny as f64,
-        size[2] / nz as f64,
-    ];
     let (positions, tets, _) = extrude(&grid, nz, |k, s| {
         let (i, j) = (s % (nx + 1), s / (nx + 1));
-        DVec3::new(i as f64 * d[0], j as f64 * d[1], k as f64 * d[2])
+        DVec3::new(xs[i], ys[j], zs[k])
     });
     let regions = vec![0; tets.len()];
     TetMesh {
@@ -114,6 +120,23 @@ pub fn beam(size: [f64; 3], cells: [usize; 3]) -> TetMesh {
         regions,
         ..Default::default()
     }
+}
+
+/// Node coordinates from `start` to `start + length` (m): cells of size `fine` next to
+/// `start`, each next cell `growth` times the previous, the last one stretched or shrunk
+/// so the coordinates end exactly at `start + length` (a geometric grading that resolves
+/// a contact at `start` with few cells).
+pub fn graded_axis(start: f64, length: f64, fine: f64, growth: f64) -> Vec<f64> {
+    let mut xs = vec![start];
+    let mut h = fine;
+    let end = start + length;
+    while xs[xs.len() - 1] + h < end - 0.5 * h {
+        let next = xs[xs.len() - 1] + h;
+        xs.push(next);
+        h *= growth;
+    }
+    xs.push(end);
+    xs
 }
 
 /// Cubed-sphere surface: six `n`×`n` grids on the faces of a cube, seams shared.

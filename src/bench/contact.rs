@@ -1,0 +1,276 @@
+//! `palpate bench contact`: the tool's penalty contact against Hertz's solution.
+//!
+//! A rigid sphere of radius R pressed to depth d into an elastic half-space (Young's modulus
+//! E, Poisson ratio ν, frictionless) carries F = 4/3 E* √R d^{3/2}, E* = E/(1 − ν²), over a
+//! contact radius a = √(R d) (Johnson, *Contact Mechanics*, 1985, §4.2). The half-space is
+//! a block of half-width and depth `block` × a, bottom held, meshed on a grid graded from
+//! cells of `fine` × a under the contact; the sphere moves down to depth d and the block is
+//! relaxed to a static state (`--until-static`). Errors come from the mesh (how well it
+//! resolves a), the penalty (the sphere sinks by about p/k into the surface, p ≈ E* a/R the
+//! contact pressure), the finite block (stiffer than a half-space by O(a/block)) and the
+//! static tolerance.
+
+use crate::error::Result;
+use crate::material::MaterialParams;
+use crate::mesh::{generators, TetMesh};
+use crate::run::{run, RunLength, RunOptions};
+use crate::scene::{Scene, SolverSettings, Tool};
+use crate::sim::Backend;
+use glam::DVec3;
+use std::path::Path;
+
+/// One Hertz case.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct HertzCase {
+    /// Sphere radius R, m.
+    pub radius: f64,
+    /// Indentation depth d, m.
+    pub depth: f64,
+    /// Young's modulus E, Pa.
+    pub youngs_modulus: f64,
+    /// Poisson ratio ν.
+    pub poisson_ratio: f64,
+    /// Cell size under the contact, in contact radii a.
+    pub fine: f64,
+    /// Growth of the cell size away from the contact.
+    pub growth: f64,
+    /// Half-width and depth of the block, in contact radii.
+    pub block: f64,
+    /// Contact penalty k, Pa/m.
+    pub penalty: f64,
+}
+
+impl Default for HertzCase {
+    fn default() -> Self {
+        HertzCase {
+            radius: 5e-3,
+            depth: 0.5e-3,
+            youngs_modulus: 1e4,
+            poisson_ratio: 0.3,
+            fine: 1.0 / 3.0,
+            growth: 1.4,
+            block: 8.0,
+            penalty: 1e9,
+        }
+    }
+}
+
+impl HertzCase {
+    /// Contact radius a = √(R d), m.
+    pub fn contact_radius(&self) -> f64 {
+        (self.radius * self.depth).sqrt()
+    }
+
+    /// Hertz's force F = 4/3 E/(1 − ν²) √R d^{3/2}, N.
+    pub fn hertz_force(&self) -> f64 {
+        let e_star = self.youngs_modulus / (1.0 - self.poisson_ratio * self.poisson_ratio);
+        4.0 / 3.0 * e_star * self.radius.sqrt() * self.depth.powf(1.5)
+    }
+
+    /// The block: x, y ∈ [−L, L], z ∈ [−L, 0], L = block·a, graded from `fine`·a cells at
+    /// the origin.
+    pub fn mesh(&self) -> TetMesh {
+        let a = self.contact_radius();
+        let l = self.block * a;
+        let half = generators::graded_axis(0.0, l, self.fine * a, self.growth);
+        let mut xs: Vec<f64> = half.iter().rev().map(|x| -x).collect();
+        xs.extend_from_slice(&half[1..]);
+        let zs: Vec<f64> = half.iter().rev().map(|z| -z).collect();
+        generators::graded_box(&xs, &xs, &zs)
+    }
+
+    /// The scene: the block with its bottom held, the sphere moved from just above the
+    /// surface to depth d over 5 ms and held there.
+    pub fn scene(&self) -> Result<Scene> {
+        let mut mesh = self.mesh();
+        let report = mesh.validate("hertz block")?;
+        let bottom = mesh
+            .positions
+            .iter()
+            .map(|p| p.z)
+            .fold(f64::INFINITY, f64::min);
+        let fixed = mesh
+            .positions
+            .iter()
+            .map(|p| p.z <= bottom + 1e-12)
+            .collect();
+        let n = mesh.n_vertices();
+        let r = self.radius;
+        Ok(Scene {
+            name: "hertz".into(),
+            origin: "hertz block".into(),
+            description: "sphere pressed into a block (Hertz)".into(),
+            mesh,
+            mesh_report: report,
+            material: MaterialParams::elastic(self.youngs_modulus, self.poisson_ratio, 1000.0),
+            fixed,
+            gravity: [0.0; 3],
+            external_forces: vec![DVec3::ZERO; n],
+            solver: SolverSettings {
+                dt: None,
+                safety: 0.5,
+                damping: 0.0,
+                static_tolerance: 1e-3,
+                duration: None,
+            },
+            tool: Some(Tool {
+                radius: r,
+                stiffness: self.penalty,
+                damping: 0.0,
+                path: vec![
+                    (0.0, DVec3::new(0.0, 0.0, r + 0.05 * self.depth)),
+                    (5e-3, DVec3::new(0.0, 0.0, r - self.depth)),
+                ],
+                home: DVec3::new(0.0, 0.0, r),
+            }),
+        })
+    }
+}
+
+/// The outcome of one case.
+#[derive(Clone, Debug, PartialEq)]
+pub struct HertzResult {
+    /// The case.
+    pub case: HertzCase,
+    /// Tets of the block.
+    pub tets: usize,
+    /// Vertical force on the tool at the static state, N.
+    pub force: f64,
+    /// Hertz's force, N.
+    pub hertz: f64,
+    /// (force − hertz)/hertz.
+    pub relative_error: f64,
+    /// Steps to the static state.
+    pub steps: u64,
+    /// Wall-clock seconds.
+    pub wall_seconds: f64,
+    /// The run's status (`ok` when it reached the static tolerance).
+    pub status: String,
+}
+
+/// Run one case to a static state on `backend`, writing the run's outputs to `out`.
+pub fn run_case(case: &HertzCase, backend: Backend, out: &Path) -> Result<HertzResult> {
+    let scene = case.scene()?;
+    let summary = run(
+        &scene,
+        &RunOptions {
+            backend,
+            length: RunLength::UntilStatic { max_steps: 400_000 },
+            out: out.to_path_buf(),
+            ..Default::default()
+        },
+    )?;
+    let force = summary.tool_force.map_or(0.0, |f| f[2]);
+    let hertz = case.hertz_force();
+    Ok(HertzResult {
+        case: *case,
+        tets: summary.tets,
+        force,
+        hertz,
+        relative_error: (force - hertz) / hertz,
+        steps: summary.steps,
+        wall_seconds: summary.wall_seconds,
+        status: summary.status.to_string(),
+    })
+}
+
+/// The study: the error against the cell size under the contact (penalty 1e9 Pa/m, three
+/// depths, since a node-based penalty's error oscillates with where the contact edge falls
+/// between vertices) and against the penalty (cells of a/2). `quick` runs a CI-sized subset.
+pub fn study(
+    backend: Backend,
+    quick: bool,
+    out: &Path,
+    log: &mut dyn FnMut(&str),
+) -> Result<Vec<HertzResult>> {
+    let base = HertzCase::default();
+    let mut cases = Vec::new();
+    let fines: &[f64] = if quick {
+        &[0.5]
+    } else {
+        &[1.0, 0.5, 1.0 / 3.0, 0.25, 1.0 / 6.0]
+    };
+    for &fine in fines {
+        for depth in [0.3e-3, 0.5e-3, 0.8e-3] {
+            cases.push(HertzCase {
+                fine,
+                depth,
+                ..base
+            });
+        }
+    }
+    let penalties: &[f64] = if quick { &[1e8] } else { &[1e7, 1e8] };
+    for &penalty in penalties {
+        cases.push(HertzCase {
+            penalty,
+            fine: 0.5,
+            ..base
+        });
+    }
+    let _ = out;
+    let dir = std::env::temp_dir().join(format!("palpate-hertz-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).map_err(|source| crate::error::PalpateError::OutputIo {
+        path: dir.clone(),
+        source,
+    })?;
+    let mut rows = Vec::new();
+    for case in cases {
+        let r = run_case(&case, backend, &dir)?;
+        log(&format!(
+            "cells a/{:.1}, depth {:.2} mm, penalty {:.0e} Pa/m: {} tets, F = {:.4e} N vs Hertz {:.4e} N ({:+.2} %), {} steps, {:.1} s",
+            1.0 / case.fine,
+            1e3 * case.depth,
+            case.penalty,
+            r.tets,
+            r.force,
+            r.hertz,
+            100.0 * r.relative_error,
+            r.steps,
+            r.wall_seconds
+        ));
+        rows.push(r);
+    }
+    Ok(rows)
+}
+
+/// Write `contact.csv` and `contact.md` into `out`.
+pub fn write(out: &Path, rows: &[HertzResult], header: &str) -> Result<()> {
+    let mut csv = String::from(
+        "radius_m,depth_m,contact_radius_m,cell_over_a,penalty_pa_per_m,tets,force_n,hertz_n,relative_error,steps,wall_seconds,status\n",
+    );
+    let mut md = format!(
+        "# Contact against Hertz\n\n{header}\n\n| cell under the contact | depth mm | penalty Pa/m | tets | F sim N | F Hertz N | error | steps | wall s |\n|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n"
+    );
+    for r in rows {
+        let c = &r.case;
+        csv.push_str(&format!(
+            "{},{},{},{},{},{},{},{},{},{},{},{}\n",
+            c.radius,
+            c.depth,
+            c.contact_radius(),
+            c.fine,
+            c.penalty,
+            r.tets,
+            r.force,
+            r.hertz,
+            r.relative_error,
+            r.steps,
+            r.wall_seconds,
+            r.status
+        ));
+        md.push_str(&format!(
+            "| a/{:.1} | {:.2} | {:.0e} | {} | {:.4e} | {:.4e} | {:+.2} % | {} | {:.1} |\n",
+            1.0 / c.fine,
+            1e3 * c.depth,
+            c.penalty,
+            r.tets,
+            r.force,
+            r.hertz,
+            100.0 * r.relative_error,
+            r.steps,
+            r.wall_seconds
+        ));
+    }
+    crate::output::write_atomic(&out.join("contact.csv"), csv.as_bytes())?;
+    crate::output::write_atomic(&out.join("contact.md"), md.as_bytes())
+}

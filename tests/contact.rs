@@ -1,0 +1,349 @@
+//! The tool's contact: its kernels against their CPU twins, a pressed-tool trajectory on
+//! both backends, the frozen stiffness against finite differences, the static force against
+//! depth on `beam` and `lv`, and Hertz's solution for a sphere pressed into a block.
+
+mod common;
+
+use common::{gpu, rel_err, Rng};
+use glam::{DVec3, Vec3};
+use palpate::bench::contact::{run_case, HertzCase};
+use palpate::contact::{batch_input, ToolInput, ToolState};
+use palpate::cpu;
+use palpate::gpu::stepper::Stage;
+use palpate::gpu::GpuStepper;
+use palpate::model::Model;
+use palpate::run::{run, RunLength, RunOptions};
+use palpate::sim::{Advance, Backend, SimOptions, Simulation};
+use palpate::Scene;
+use std::sync::Arc;
+
+const KERNEL_TOL: f64 = 1e-5;
+
+/// `beam` without gravity, with a tool of radius `radius` on a path from just above the top
+/// surface (z = 20 mm) down to `depth` below it, at x = 80 mm, over `ramp` s.
+fn beam_tool_radius(radius: f64, depth: f64, ramp: f64) -> Scene {
+    let top = 0.02 + radius;
+    let text = include_str!("../scenes/beam.toml")
+        .replace("gravity = [0.0, 0.0, -9.81]", "gravity = [0.0, 0.0, 0.0]")
+        .replace(
+            "[solver]",
+            &format!(
+                "[tool]\nradius = {radius}\nstiffness = 1.0e8\npath = [[0.0, 0.08, 0.01, {}], [{ramp}, 0.08, 0.01, {}]]\n\n[solver]",
+                top + 0.0005,
+                top - depth
+            ),
+        );
+    Scene::from_toml(&text, "beam with tool", "beam_tool", None).unwrap()
+}
+
+/// [`beam_tool_radius`] with a 5 mm tool.
+fn beam_with_tool(depth: f64, ramp: f64) -> Scene {
+    beam_tool_radius(0.005, depth, ramp)
+}
+
+/// `lv` (its 1 kPa endocardial pressure included) with a 4 mm tool pressing on the free wall
+/// at z = −5 mm along −x, to `depth` past the unloaded epicardium, over `ramp` s.
+fn lv_with_tool(depth: f64, ramp: f64) -> Scene {
+    // Epicardium at z = −5 mm: x = 10 mm · sqrt(1 − (5/20)²).
+    let surface = 0.010 * (1.0f64 - 0.25 * 0.25).sqrt();
+    let text = include_str!("../scenes/lv.toml").replace(
+        "[solver]",
+        &format!(
+            "[tool]\nradius = 0.004\nstiffness = 1.0e8\npath = [[0.0, {}, 0.0, -0.005], [{ramp}, {}, 0.0, -0.005]]\n\n[solver]",
+            surface + 0.0045,
+            surface + 0.004 - depth
+        ),
+    );
+    Scene::from_toml(&text, "lv with tool", "lv_tool", None).unwrap()
+}
+
+#[test]
+fn contact_kernels_match_their_cpu_twins() {
+    let scene = beam_tool_radius(0.008, 3e-3, 0.01);
+    let m = Arc::new(Model::from_scene(&scene));
+    let t = m.tool.as_ref().unwrap();
+    let p = m.step_params(0.5 * m.bounds.dt_bound, 0.0);
+    let tp = t.params();
+    let g = GpuStepper::new(gpu(), &m, p).unwrap();
+    let mut rng = Rng(21);
+    let n3 = 3 * m.n_vertices();
+    let u: Vec<f32> = (0..n3).map(|_| (rng.sym() * 1e-3) as f32).collect();
+    let v: Vec<f32> = (0..n3).map(|_| (rng.sym() * 0.05) as f32).collect();
+    let input = batch_input(
+        DVec3::new(0.08, 0.01, 0.0235),
+        DVec3::new(0.0805, 0.0102, 0.0225),
+        7,
+    );
+    let mut state = ToolState {
+        position: input.start,
+        step: 3,
+    };
+    g.write_f32("displacements", &u).unwrap();
+    g.write_f32("velocities", &v).unwrap();
+    g.write_f32(
+        "tool_input",
+        bytemuck::cast_slice::<ToolInput, f32>(&[input]),
+    )
+    .unwrap();
+    g.write_f32(
+        "tool_state",
+        bytemuck::cast_slice::<ToolState, f32>(&[state]),
+    )
+    .unwrap();
+    // tool_motion
+    g.run_stage(Stage::ToolMotion).unwrap();
+    cpu::tool_motion(&input, &mut state);
+    let gs = g.read_f32("tool_state").unwrap();
+    let cs: &[f32] = bytemuck::cast_slice(std::slice::from_ref(&state));
+    assert_eq!(gs[3].to_bits(), cs[3].to_bits(), "step counter");
+    let e = rel_err(&gs[..3], &cs[..3]);
+    assert!(e <= KERNEL_TOL, "tool_motion rel err {e:.2e}");
+    // contact
+    g.run_stage(Stage::Contact).unwrap();
+    let mut cf = vec![0.0; 3 * tp.n_surface as usize];
+    cpu::contact(
+        &p,
+        &tp,
+        &input,
+        &state,
+        &t.surface_vertices,
+        &t.surface_area,
+        &m.rest,
+        &u,
+        &v,
+        &mut cf,
+    );
+    let touching = cf.chunks(3).filter(|f| f.iter().any(|x| *x != 0.0)).count();
+    assert!(
+        touching >= 4,
+        "only {touching} vertices touch: the test would see nothing"
+    );
+    let e = rel_err(&g.read_f32("contact_forces").unwrap()[..cf.len()], &cf);
+    eprintln!("contact: {touching} vertices in contact, rel err {e:.2e}");
+    assert!(e <= KERNEL_TOL, "contact rel err {e:.2e}");
+    // tool_force
+    g.run_stage(Stage::ToolForce).unwrap();
+    let mut partials = vec![0.0; cpu::tool_force::LANE * cpu::tool_force::n_partials(&tp)];
+    let mut report = vec![0.0; palpate::contact::REPORT_LEN];
+    cpu::tool_force_partial(
+        &p,
+        &tp,
+        &input,
+        &t.surface_vertices,
+        &t.surface_area,
+        &m.rest,
+        &u,
+        &v,
+        &mut partials,
+    );
+    cpu::tool_force_final(&tp, &partials, &mut report);
+    let gr = g.read_f32("tool_report").unwrap();
+    let e = rel_err(&gr[..15], &report[..15]);
+    eprintln!("tool_force: report {:?}, rel err {e:.2e}", &report[..3]);
+    assert!(report[13] >= 4.0, "contacts counted: {}", report[13]);
+    assert!(e <= KERNEL_TOL, "tool_force rel err {e:.2e}");
+}
+
+#[test]
+fn frozen_stiffness_is_the_derivative_of_the_tool_force() {
+    let scene = beam_tool_radius(0.008, 3e-3, 0.01);
+    let m = Arc::new(Model::from_scene(&scene));
+    let t = m.tool.as_ref().unwrap();
+    let p = m.step_params(0.5 * m.bounds.dt_bound, 0.0);
+    let tp = t.params();
+    let u = vec![0.0f32; 3 * m.n_vertices()];
+    let force_at = |c: DVec3| {
+        let input = batch_input(c, c, 1);
+        let mut partials = vec![0.0; cpu::tool_force::LANE * cpu::tool_force::n_partials(&tp)];
+        let mut report = vec![0.0; palpate::contact::REPORT_LEN];
+        cpu::tool_force_partial(
+            &p,
+            &tp,
+            &input,
+            &t.surface_vertices,
+            &t.surface_area,
+            &m.rest,
+            &u,
+            &u,
+            &mut partials,
+        );
+        cpu::tool_force_final(&tp, &partials, &mut report);
+        report
+    };
+    let c = DVec3::new(0.0803, 0.0104, 0.0232);
+    let r = force_at(c);
+    assert!(r[13] >= 4.0);
+    let eps = 2e-5;
+    for k in 0..3 {
+        let dc = DVec3::AXES[k] * eps;
+        let (a, b) = (force_at(c + dc), force_at(c - dc));
+        for row in 0..3 {
+            let fd = (a[row] as f64 - b[row] as f64) / (2.0 * eps);
+            let an = r[3 + 3 * k + row] as f64;
+            let scale = (r[3 + 3 * k + k] as f64).abs();
+            assert!(
+                (fd - an).abs() <= 2e-2 * scale,
+                "K[{row}][{k}]: finite difference {fd:.4e} vs {an:.4e}"
+            );
+        }
+    }
+}
+
+#[test]
+fn pressed_tool_trajectory_gpu_matches_cpu() {
+    let scene = beam_with_tool(4e-3, 0.008);
+    let run_backend = |backend: Backend| {
+        let mut sim = Simulation::new(
+            &scene,
+            backend,
+            SimOptions {
+                gpu: (backend == Backend::Gpu).then(gpu),
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        let mut out = Vec::new();
+        for _ in 0..3 {
+            assert!(matches!(sim.advance(100).unwrap(), Advance::Done(_)));
+            let f = sim.last_tool.unwrap().force;
+            out.push((sim.state().unwrap().displacements, f));
+        }
+        out
+    };
+    let (c, g) = (run_backend(Backend::Cpu), run_backend(Backend::Gpu));
+    assert!(
+        c.iter().any(|(_, f)| f.length() > 0.0),
+        "the tool never touched"
+    );
+    for (k, ((cu, cf), (gu, gf))) in c.iter().zip(&g).enumerate() {
+        let e = rel_err(gu, cu);
+        let ef = (*gf - *cf).length() / cf.length().max(1e-30);
+        eprintln!(
+            "step {}: |F| {:.4e} N, displacement rel err {e:.2e}, force rel err {ef:.2e}",
+            100 * (k + 1),
+            cf.length()
+        );
+        assert!(e <= 1e-4, "displacement rel err {e:.2e}");
+        assert!(ef <= 1e-4, "tool force rel err {ef:.2e}");
+    }
+}
+
+fn static_force(scene: &Scene, dir: &str) -> (DVec3, f64) {
+    let out = std::env::temp_dir().join(format!("palpate-contact-{}-{dir}", std::process::id()));
+    let s = run(
+        scene,
+        &RunOptions {
+            backend: Backend::Cpu,
+            length: RunLength::UntilStatic { max_steps: 300_000 },
+            out,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    assert_eq!(s.status, "ok", "{}", s.status);
+    let f = s.tool_force.unwrap();
+    (DVec3::from_array(f), s.static_residual.unwrap())
+}
+
+#[test]
+fn static_force_rises_monotonically_with_depth_on_beam_and_lv() {
+    for (name, normal, scene_at) in [
+        (
+            "beam",
+            DVec3::Z,
+            &(|d: f64| beam_with_tool(d, 0.01)) as &dyn Fn(f64) -> Scene,
+        ),
+        ("lv", DVec3::X, &|d: f64| lv_with_tool(d, 0.01)),
+    ] {
+        let mut last = 0.0;
+        for (k, depth) in [1e-3, 2e-3, 3e-3].into_iter().enumerate() {
+            let (f, residual) = static_force(&scene_at(depth), &format!("{name}{k}"));
+            let along = f.dot(normal);
+            eprintln!(
+                "{name}: depth {:.1} mm: force {f:?} N (along the outward normal {along:.4e} N), residual {residual:.1e}",
+                depth * 1e3
+            );
+            assert!(
+                along > last,
+                "{name}: the force along the outward normal must rise with depth ({along} after {last})"
+            );
+            assert!(
+                along > 0.0,
+                "{name}: the force must push the tool out of the tissue: {f}"
+            );
+            last = along;
+        }
+    }
+}
+
+#[test]
+fn sphere_pressed_into_a_block_gives_hertz_force() {
+    // Cells of a/2 under the contact, a block of 8 a, penalty 1e9 Pa/m: the node-based
+    // penalty's error oscillates with where the contact edge falls between vertices, so three
+    // depths are checked, each within 15 % and their mean within 8 %.
+    let mut errors = Vec::new();
+    for depth in [0.3e-3, 0.5e-3, 0.8e-3] {
+        let case = HertzCase {
+            depth,
+            fine: 0.5,
+            ..Default::default()
+        };
+        let out = std::env::temp_dir().join(format!("palpate-hertz-{}", std::process::id()));
+        let r = run_case(&case, Backend::Cpu, &out).unwrap();
+        eprintln!(
+            "Hertz d = {:.1} mm (a = {:.2} mm, {} tets): F = {:.4e} N vs {:.4e} N ({:+.2} %), {} steps, {:.1} s",
+            depth * 1e3,
+            case.contact_radius() * 1e3,
+            r.tets,
+            r.force,
+            r.hertz,
+            100.0 * r.relative_error,
+            r.steps,
+            r.wall_seconds
+        );
+        assert_eq!(r.status, "ok");
+        assert!(
+            r.relative_error.abs() <= 0.15,
+            "d = {depth}: {:+.2} % from Hertz",
+            100.0 * r.relative_error
+        );
+        errors.push(r.relative_error);
+    }
+    let mean = errors.iter().map(|e| e.abs()).sum::<f64>() / errors.len() as f64;
+    assert!(mean <= 0.08, "mean |error| {:.2} %", 100.0 * mean);
+}
+
+#[test]
+fn contact_helpers_agree_with_the_formula() {
+    // f = A (k d − b min(0, v·n)) n on a point 1 mm inside a 5 mm sphere, approaching.
+    let p = palpate::contact::ToolParams {
+        radius: 5e-3,
+        stiffness: 1e8,
+        damping: 10.0,
+        n_surface: 1,
+    };
+    let c = cpu::contact::contact_force(
+        &p,
+        Vec3::new(0.0, 0.0, 4e-3),
+        Vec3::new(0.0, 0.0, -0.1),
+        Vec3::ZERO,
+        Vec3::ZERO,
+        2e-6,
+    );
+    let expect = 2e-6 * (1e8 * 1e-3 + 10.0 * 0.1);
+    assert!((c.force.z as f64 - expect).abs() <= 1e-6 * expect, "{c:?}");
+    assert!((c.penetration - 1e-3).abs() < 1e-9);
+    // Receding: no damping pull.
+    let r = cpu::contact::contact_force(
+        &p,
+        Vec3::new(0.0, 0.0, 4e-3),
+        Vec3::new(0.0, 0.0, 0.1),
+        Vec3::ZERO,
+        Vec3::ZERO,
+        2e-6,
+    );
+    assert!(
+        (r.force.z as f64 - 2e-6 * 1e8 * 1e-3).abs() <= 1e-6 * 0.2,
+        "{r:?}"
+    );
+}
