@@ -271,9 +271,8 @@ fn execute(cli: Cli) -> Result<()> {
                 out,
             } => {
                 use palpate::bench::contact;
-                let rows = contact::study(backend, quick, &out, &mut |s| {
-                    eprintln!("bench contact: {s}")
-                })?;
+                let rows =
+                    contact::study(backend, quick, &mut |s| eprintln!("bench contact: {s}"))?;
                 let header = format!(
                     "Written by `palpate bench contact{}` on {}. A sphere of radius {} mm pressed into a block of E = {} kPa, nu = {} (bottom held, half-width and depth {} contact radii), relaxed to a static state; error = (F - F_Hertz)/F_Hertz.",
                     if quick { " --quick" } else { "" },
