@@ -15,6 +15,7 @@ pub mod mesh;
 pub mod model;
 pub mod output;
 pub mod params;
+pub mod particles;
 pub mod plan;
 pub mod run;
 pub mod scene;

@@ -47,6 +47,8 @@ pub struct Model {
     pub bounds: TimeStepBounds,
     /// The tool and the surface it touches (None: no contact stages).
     pub tool: Option<crate::contact::ToolModel>,
+    /// The particle layer (None: no particle stages).
+    pub particles: Option<crate::particles::Particles>,
 }
 
 impl Model {
@@ -144,22 +146,57 @@ impl Model {
                 .collect(),
             bounds,
             tool: None,
+            particles: None,
         }
     }
 
-    /// Build from a validated scene.
+    /// Build from a validated scene (a scene with particles samples them here; see
+    /// [`Model::try_from_scene`] for the errors that can bring).
     pub fn from_scene(scene: &Scene) -> Model {
-        let model = Model::with_loads(
+        Model::try_from_scene(scene).expect("a validated scene whose particles sample")
+    }
+
+    /// Build from a validated scene; sampling the particle zone can fail (a spacing too
+    /// coarse for the zone), with an error naming the key.
+    pub fn try_from_scene(scene: &Scene) -> crate::error::Result<Model> {
+        let mut model = Model::with_loads(
             &scene.mesh,
             &scene.fixed,
             scene.material,
             scene.gravity,
             &scene.external_forces,
         );
-        match &scene.tool {
+        if let Some(settings) = &scene.particles {
+            let p = crate::particles::Particles::sample(
+                &scene.mesh,
+                settings,
+                scene.material.density,
+                &scene.origin,
+            )?;
+            model = model.with_particles(&scene.fixed, p);
+        }
+        Ok(match &scene.tool {
             Some(tool) => model.with_tool(&scene.mesh, tool.clone()),
             None => model,
-        }
+        })
+    }
+
+    /// Add the particle layer: vertex masses become the core mass plus the particles'
+    /// masses lumped with their barycentric weights (all particles start embedded).
+    pub fn with_particles(
+        mut self,
+        fixed: &[bool],
+        particles: crate::particles::Particles,
+    ) -> Model {
+        self.mass = particles.embedded_mass();
+        self.inv_mass = self
+            .mass
+            .iter()
+            .zip(fixed)
+            .map(|(&m, &f)| if f || m <= 0.0 { 0.0 } else { 1.0 / m })
+            .collect();
+        self.particles = Some(particles);
+        self
     }
 
     /// Add a tool: its surface data, and its contact springs in the stable step

@@ -56,6 +56,9 @@ pub struct Entry {
     pub entry: &'static str,
     /// What it is dispatched over.
     pub domain: Domain,
+    /// Bindings whose buffer has another name than the WGSL global: (global, buffer). A
+    /// generic kernel (a prefix sum) runs over different buffers this way.
+    pub aliases: &'static [(&'static str, &'static str)],
 }
 
 impl Stage {
@@ -87,49 +90,58 @@ impl Stage {
                 file: "tool_motion",
                 entry: "tool_motion",
                 domain: Domain::OneWorkgroup,
+                aliases: &[],
             }],
             Stage::Contact => &[Entry {
                 file: "contact",
                 entry: "contact",
                 domain: Domain::SurfaceVertices,
+                aliases: &[],
             }],
             Stage::ToolForce => &[
                 Entry {
                     file: "tool_force",
                     entry: "tool_force_partial",
                     domain: Domain::SurfaceVertices,
+                    aliases: &[],
                 },
                 Entry {
                     file: "tool_force",
                     entry: "tool_force_final",
                     domain: Domain::OneWorkgroup,
+                    aliases: &[],
                 },
             ],
             Stage::FemForces => &[Entry {
                 file: "fem_forces",
                 entry: "fem_forces",
                 domain: Domain::Tets,
+                aliases: &[],
             }],
             Stage::Gather => &[Entry {
                 file: "gather",
                 entry: "gather",
                 domain: Domain::Vertices,
+                aliases: &[],
             }],
             Stage::Integrate => &[Entry {
                 file: "integrate",
                 entry: "integrate",
                 domain: Domain::Vertices,
+                aliases: &[],
             }],
             Stage::Reduce => &[
                 Entry {
                     file: "reduce",
                     entry: "reduce_partial",
                     domain: Domain::VerticesAndTets,
+                    aliases: &[],
                 },
                 Entry {
                     file: "reduce",
                     entry: "reduce_final",
                     domain: Domain::OneWorkgroup,
+                    aliases: &[],
                 },
             ],
         }

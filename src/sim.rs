@@ -191,7 +191,7 @@ pub fn choose_dt(
 impl Simulation {
     /// Build a simulation of `scene` on `backend`.
     pub fn new(scene: &Scene, backend: Backend, opts: SimOptions) -> Result<Simulation> {
-        let model = Arc::new(Model::from_scene(scene));
+        let model = Arc::new(Model::try_from_scene(scene)?);
         model
             .check_f32()
             .map_err(|e| PalpateError::Usage(format!("{}: {e}", scene.origin)))?;

@@ -123,6 +123,7 @@ impl HertzCase {
                 ],
                 home: DVec3::new(0.0, 0.0, r),
             }),
+            particles: None,
         })
     }
 }

@@ -134,10 +134,21 @@ impl GpuBuffers {
     /// Check the groups against the adapter's limits, then create and fill every buffer.
     /// A duplicate name is an error (names are how kernels find their buffers).
     pub fn new(ctx: &GpuContext, groups: &[BufferGroup]) -> Result<GpuBuffers> {
+        let mut b = GpuBuffers {
+            buffers: Vec::new(),
+        };
+        b.extend(ctx, groups)?;
+        Ok(b)
+    }
+
+    /// Add the buffers of more groups (a group sized by an earlier GPU pass, such as the
+    /// neighbour lists), with the same checks.
+    pub fn extend(&mut self, ctx: &GpuContext, groups: &[BufferGroup]) -> Result<()> {
         check_limits(ctx, groups)?;
         let mut names: Vec<&str> = groups
             .iter()
             .flat_map(|g| g.specs.iter().map(|s| s.name))
+            .chain(self.buffers.iter().map(|(n, _, _)| *n))
             .collect();
         names.sort_unstable();
         if let Some(w) = names.windows(2).find(|w| w[0] == w[1]) {
@@ -148,7 +159,7 @@ impl GpuBuffers {
         }
         let scope = ctx.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
         let d = &ctx.device;
-        let mut buffers = Vec::new();
+        let buffers = &mut self.buffers;
         for spec in groups.iter().flat_map(|g| g.specs.iter()) {
             // Bindings must be non-empty and a multiple of 4 bytes.
             let size = spec.bytes.max(4).next_multiple_of(4);
@@ -190,8 +201,7 @@ impl GpuBuffers {
                 ctx.info.name
             )));
         }
-        ctx.check_errors()?;
-        Ok(GpuBuffers { buffers })
+        ctx.check_errors()
     }
 
     /// The buffer named `name`, if any.

@@ -118,3 +118,67 @@ pub fn for_model<'a>(
 ) -> Vec<BufferGroup<'a>> {
     vec![fem(model, params, max_dim), tool(model, tool_params)]
 }
+
+/// The uniform of one prefix-sum use (WGSL `ScanParams`): the number of values.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct ScanParams {
+    /// Values to scan.
+    pub n: u32,
+    /// Padding to 16 bytes.
+    pub _pad: [u32; 3],
+}
+
+impl ScanParams {
+    /// The uniform for `n` values.
+    pub fn new(n: u32) -> ScanParams {
+        ScanParams { n, _pad: [0; 3] }
+    }
+
+    /// Bytes of the block-totals buffer a scan of `n` values needs (one more for the total).
+    pub fn blocks_bytes(n: u32) -> u64 {
+        4 * (crate::cpu::scan::n_blocks(n as usize) as u64 + 1)
+    }
+}
+
+/// The particles' static data and the reference grid of the neighbour build. `scans` holds
+/// the uniforms of the two prefix sums (cells, neighbour counts), owned by the caller.
+pub fn particles<'a>(
+    p: &'a crate::particles::Particles,
+    grid: &'a crate::particles::params::GridParams,
+    scans: &'a [ScanParams; 2],
+) -> BufferGroup<'a> {
+    let n = p.len() as u64;
+    let nc = grid.n_cells as u64;
+    BufferGroup {
+        name: "particles",
+        specs: vec![
+            BufferSpec::data("grid_params", Usage::Uniform, std::slice::from_ref(grid)),
+            BufferSpec::data("particle_rest", Usage::Storage, &p.rest),
+            BufferSpec::data("particle_host", Usage::Storage, &p.host),
+            BufferSpec::data("particle_weights", Usage::Storage, &p.weights),
+            BufferSpec::data("particle_area", Usage::Storage, &p.contact_area),
+            BufferSpec::data("particle_tet_offsets", Usage::Storage, &p.tet_offsets),
+            BufferSpec::data("particle_slot_offsets", Usage::Storage, &p.slot_offsets),
+            BufferSpec::data("particle_slots", Usage::Storage, &p.slots),
+            BufferSpec::data("particle_core_mass", Usage::Storage, &p.core_mass),
+            BufferSpec::zeroed("particle_cell", Usage::Storage, 4 * n),
+            BufferSpec::zeroed("cell_offsets", Usage::Storage, 4 * (nc + 1)),
+            BufferSpec::zeroed("cell_fill", Usage::Storage, 4 * nc),
+            BufferSpec::zeroed("cell_particles", Usage::Storage, 4 * n),
+            BufferSpec::zeroed("neighbour_offsets", Usage::Storage, 4 * (n + 1)),
+            BufferSpec::data("cell_scan_params", Usage::Uniform, &scans[0..1]),
+            BufferSpec::zeroed(
+                "cell_scan_blocks",
+                Usage::Storage,
+                ScanParams::blocks_bytes(scans[0].n),
+            ),
+            BufferSpec::data("neighbour_scan_params", Usage::Uniform, &scans[1..2]),
+            BufferSpec::zeroed(
+                "neighbour_scan_blocks",
+                Usage::Storage,
+                ScanParams::blocks_bytes(scans[1].n),
+            ),
+        ],
+    }
+}

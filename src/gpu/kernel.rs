@@ -184,14 +184,24 @@ impl ComputeKernel {
         })
     }
 
-    /// Make the bind group: each binding gets the buffer with the global's name. A missing
-    /// buffer, or one smaller than the binding's minimum, is an error naming both.
-    pub fn bind(&self, ctx: &GpuContext, buffers: &GpuBuffers) -> Result<wgpu::BindGroup> {
+    /// Make the bind group: each binding gets the buffer with the global's name, or the
+    /// name `aliases` maps it to ((global, buffer) pairs). A missing buffer, or one smaller
+    /// than the binding's minimum, is an error naming both.
+    pub fn bind(
+        &self,
+        ctx: &GpuContext,
+        buffers: &GpuBuffers,
+        aliases: &[(&str, &str)],
+    ) -> Result<wgpu::BindGroup> {
         let mut entries = Vec::with_capacity(self.bindings.len());
         for b in &self.bindings {
-            let buf = buffers.get(&b.name).ok_or_else(|| {
+            let name = aliases
+                .iter()
+                .find(|(global, _)| *global == b.name)
+                .map_or(b.name.as_str(), |(_, buffer)| *buffer);
+            let buf = buffers.get(name).ok_or_else(|| {
                 PalpateError::Gpu(format!(
-                    "{}: binding {} '{}' has no buffer of that name",
+                    "{}: binding {} '{}' has no buffer named '{name}'",
                     self.label, b.binding, b.name
                 ))
             })?;
@@ -199,7 +209,7 @@ impl ComputeKernel {
                 return Err(PalpateError::Gpu(format!(
                     "{}: buffer '{}' has {} bytes, the shader needs at least {}",
                     self.label,
-                    b.name,
+                    name,
                     buf.size(),
                     b.min_bytes
                 )));

@@ -6,6 +6,7 @@ pub mod context;
 pub mod groups;
 pub mod kernel;
 pub mod preprocess;
+pub mod setup;
 pub mod stepper;
 
 pub use context::GpuContext;

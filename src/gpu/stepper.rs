@@ -138,7 +138,7 @@ impl GpuStepper {
             let bind_groups = pipelines
                 .kernels
                 .iter()
-                .map(|(_, k)| k.bind(&ctx, &buffers))
+                .map(|(e, k)| k.bind(&ctx, &buffers, e.aliases))
                 .collect::<Result<Vec<_>>>()?;
             stages.push(BoundStage {
                 pipelines,

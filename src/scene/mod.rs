@@ -8,6 +8,7 @@ mod fixed;
 mod loads;
 mod material;
 mod mesh;
+mod particles;
 mod solver;
 mod tool;
 
@@ -15,6 +16,7 @@ pub use fixed::{BoxSpec, FixedSpec, PlaneSpec};
 pub use loads::{LoadsSpec, PressureSpec};
 pub use material::MaterialSpec;
 pub use mesh::MeshSpec;
+pub use particles::{ParticleModel, ParticleSettings, ParticleSpec, MAX_PARTICLES};
 pub use solver::{DtSpec, SolverSettings, SolverSpec};
 pub use tool::{Tool, ToolSpec};
 
@@ -60,6 +62,8 @@ pub struct SceneFile {
     pub solver: SolverSpec,
     /// `[tool]` (none: no contact stage).
     pub tool: Option<ToolSpec>,
+    /// `[particles]` (none: no particle stages).
+    pub particles: Option<ParticleSpec>,
 }
 
 /// A validated scene, ready to build a simulation from.
@@ -87,6 +91,8 @@ pub struct Scene {
     pub solver: SolverSettings,
     /// The tool, if the scene has one.
     pub tool: Option<Tool>,
+    /// The particle layer, if the scene has one.
+    pub particles: Option<ParticleSettings>,
 }
 
 /// One line per built-in scene: its name and description.
@@ -187,6 +193,10 @@ impl Scene {
             Some(spec) => Some(tool::resolve_tool(spec, &bad)?),
             None => None,
         };
+        let particles = match &file.particles {
+            Some(spec) => Some(particles::resolve_particles(spec, &mesh, &bad)?),
+            None => None,
+        };
         Ok(Scene {
             name: file.name.unwrap_or_else(|| default_name.to_string()),
             origin: origin.to_string(),
@@ -199,6 +209,7 @@ impl Scene {
             external_forces,
             solver,
             tool,
+            particles,
         })
     }
 }

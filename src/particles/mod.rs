@@ -1,0 +1,107 @@
+//! The mesh-free particle layer (paper §3–4): sampling, embedding in host tets, and the
+//! static index structures the particle stages run over.
+//!
+//! ## The hybrid model
+//!
+//! The particle zone (the tets of one region) stays meshed by its coarse tets, and is also
+//! filled with particles on a lattice of spacing Δx. Each particle p lives in the zone tet
+//! that contains it (its host) with barycentric weights wᵢ (paper eq. 9–11; SOFA's
+//! barycentric mapping):
+//!
+//! * an **embedded** particle follows its host: x_p = Σ wᵢ xᵢ, and whatever force acts on it
+//!   goes to the host nodes as wᵢ·f (the exact transpose), so linear and angular momentum
+//!   are conserved; its mass is lumped onto the host nodes with the same weights;
+//! * a **dynamic** particle (near the tool) has its own position, velocity and mass.
+//!
+//! The strain energy is split by a partition of unity: a tet keeps the fraction 1 − φₑ of
+//! its energy, φₑ the fraction of its particles that carry SPH stress; stress-carrying
+//! particles are the dynamic ones and the embedded ones within a kernel support of them (so
+//! every dynamic particle sees a full neighbourhood). The zone's mass is carried once: by
+//! the particles (lumped or their own), never by the zone tets — except zone tets too small
+//! to hold a particle, which keep their own.
+//!
+//! Volumes are uniform, V = (volume of the particle-holding zone tets)/N, so the interior of
+//! the lattice is symmetric and a uniform stress leaves no residual force on interior
+//! particles.
+
+pub mod params;
+pub mod sampling;
+
+use crate::mesh::TetMesh;
+use crate::scene::ParticleSettings;
+
+/// Particles of one scene and their static index structures.
+#[derive(Clone, Debug)]
+pub struct Particles {
+    /// The scene's settings.
+    pub settings: ParticleSettings,
+    /// Rest positions X_p, packed xyz, m.
+    pub rest: Vec<f32>,
+    /// Volume of every particle, m³.
+    pub volume: f32,
+    /// Mass of every particle, kg.
+    pub mass: f32,
+    /// Host tet of each particle (particles are sorted by host).
+    pub host: Vec<u32>,
+    /// Barycentric weights in the host, 4 per particle (Σ = 1).
+    pub weights: Vec<f32>,
+    /// CSR over tets: the particles of tet e are `tet_offsets[e]..tet_offsets[e+1]`.
+    pub tet_offsets: Vec<u32>,
+    /// CSR over vertices: vertex i's particle slots are `slots[slot_offsets[i]..slot_offsets[i+1]]`.
+    pub slot_offsets: Vec<u32>,
+    /// Particle slots `p·4 + corner`, grouped by the host corner's vertex, ascending.
+    pub slots: Vec<u32>,
+    /// Contact area of each particle, m² (Δx² on the lattice's surface, 0 inside).
+    pub contact_area: Vec<f32>,
+    /// Kernel support radius R = kernel_radius·Δx, m.
+    pub support: f32,
+    /// Per vertex: the lumped mass of the tets that are not particle-holding zone tets, kg.
+    pub core_mass: Vec<f32>,
+}
+
+impl Particles {
+    /// Number of particles.
+    pub fn len(&self) -> usize {
+        self.host.len()
+    }
+
+    /// True when there are none.
+    pub fn is_empty(&self) -> bool {
+        self.host.is_empty()
+    }
+
+    /// Per vertex, the lumped mass with every particle embedded: the core mass plus
+    /// Σ wᵢ m_p over the particles hosted by the vertex's tets.
+    pub fn embedded_mass(&self) -> Vec<f32> {
+        let mut m: Vec<f64> = self.core_mass.iter().map(|&x| x as f64).collect();
+        for (i, mi) in m.iter_mut().enumerate() {
+            for k in self.slot_offsets[i]..self.slot_offsets[i + 1] {
+                *mi += self.weights[self.slots[k as usize] as usize] as f64 * self.mass as f64;
+            }
+        }
+        m.into_iter().map(|x| x as f32).collect()
+    }
+
+    /// The rest position of particle p.
+    pub fn rest_position(&self, p: usize) -> glam::Vec3 {
+        glam::Vec3::new(self.rest[3 * p], self.rest[3 * p + 1], self.rest[3 * p + 2])
+    }
+
+    /// Embedded displacement of particle p from node displacements: Σ wᵢ uᵢ.
+    pub fn embed(&self, tets: &[[u32; 4]], displacements: &[f32], p: usize) -> glam::Vec3 {
+        let t = tets[self.host[p] as usize];
+        (0..4)
+            .map(|c| crate::cpu::load3(displacements, t[c] as usize) * self.weights[4 * p + c])
+            .fold(glam::Vec3::ZERO, |a, b| a + b)
+    }
+
+    /// Sample the particle zone of `mesh` (see [`sampling::sample`]).
+    pub fn sample(
+        mesh: &TetMesh,
+        settings: &ParticleSettings,
+        density: f64,
+        origin: &str,
+    ) -> crate::error::Result<Particles> {
+        sampling::sample(mesh, settings, density, origin)
+    }
+}

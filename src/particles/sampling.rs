@@ -1,0 +1,177 @@
+//! Sampling the particle zone: lattice points inside the zone's tets, each hosted by the tet
+//! that contains it, in a fixed order (tets ascending, then lattice points in x-fastest
+//! order) so the particle numbering is deterministic.
+
+use super::Particles;
+use crate::error::{PalpateError, Result};
+use crate::mesh::TetMesh;
+use crate::scene::ParticleSettings;
+use glam::{DMat3, DVec3};
+use std::collections::{HashMap, HashSet};
+
+/// Lattice points closer than this (in barycentric terms) outside a tet still count as
+/// inside it; ties between tets go to the first (the lattice index is taken once).
+const INSIDE_TOLERANCE: f64 = 1e-10;
+
+/// Sample `mesh`'s particle zone (region `settings.region`) at spacing Δx: the cell-centred
+/// lattice X = X_min + (i + ½, j + ½, k + ½)·Δx over the zone's bounding box, nudged by a few
+/// millionths of Δx so no point lies exactly on a face. Errors name the settings key when
+/// the zone is empty or holds no lattice point.
+pub fn sample(
+    mesh: &TetMesh,
+    settings: &ParticleSettings,
+    density: f64,
+    origin: &str,
+) -> Result<Particles> {
+    let bad = |item: &str, message: String| PalpateError::SceneValue {
+        origin: origin.to_string(),
+        item: item.to_string(),
+        message,
+    };
+    let dx = settings.spacing;
+    let zone: Vec<usize> = (0..mesh.n_tets())
+        .filter(|&e| mesh.regions[e] == settings.region)
+        .collect();
+    if zone.is_empty() {
+        return Err(bad(
+            "particles.region",
+            format!("no tet has region {}", settings.region),
+        ));
+    }
+    let mut lo = DVec3::splat(f64::INFINITY);
+    for &e in &zone {
+        for p in mesh.corners(e) {
+            lo = lo.min(p);
+        }
+    }
+    let nudge = DVec3::new(1.3e-6, 2.9e-6, 4.7e-6) * dx;
+    let lattice = |i: i64, j: i64, k: i64| {
+        lo + DVec3::new(i as f64 + 0.5, j as f64 + 0.5, k as f64 + 0.5) * dx + nudge
+    };
+    let mut taken: HashSet<(i64, i64, i64)> = HashSet::new();
+    let mut index: Vec<(i64, i64, i64)> = Vec::new();
+    let mut rest = Vec::new();
+    let mut host = Vec::new();
+    let mut weights = Vec::new();
+    let mut hosting = vec![false; mesh.n_tets()];
+    for &e in &zone {
+        let x = mesh.corners(e);
+        let dm = DMat3::from_cols(x[1] - x[0], x[2] - x[0], x[3] - x[0]);
+        let inv = dm.inverse();
+        let (bmin, bmax) = x.iter().fold(
+            (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+            |(a, b), p| (a.min(*p), b.max(*p)),
+        );
+        let first = ((bmin - lo) / dx - 0.5).floor();
+        let last = ((bmax - lo) / dx - 0.5).ceil();
+        for k in first.z as i64..=last.z as i64 {
+            for j in first.y as i64..=last.y as i64 {
+                for i in first.x as i64..=last.x as i64 {
+                    let p = lattice(i, j, k);
+                    let b = inv * (p - x[0]);
+                    let w = [1.0 - b.x - b.y - b.z, b.x, b.y, b.z];
+                    if w.iter().any(|&c| c < -INSIDE_TOLERANCE) || !taken.insert((i, j, k)) {
+                        continue;
+                    }
+                    index.push((i, j, k));
+                    rest.extend(p.to_array().map(|c| c as f32));
+                    host.push(e as u32);
+                    weights.extend(w.map(|c| c as f32));
+                    hosting[e] = true;
+                }
+            }
+        }
+    }
+    let n = host.len();
+    if n == 0 {
+        return Err(bad(
+            "particles.spacing",
+            format!(
+                "{dx} m is too coarse: no lattice point falls inside the {} tets of region {}",
+                zone.len(),
+                settings.region
+            ),
+        ));
+    }
+    let holding_volume: f64 = zone
+        .iter()
+        .filter(|&&e| hosting[e])
+        .map(|&e| mesh.tet_volume(e))
+        .sum();
+    let volume = holding_volume / n as f64;
+    // Surface particles: a lattice neighbour along an axis is missing.
+    let present: HashMap<(i64, i64, i64), usize> =
+        index.iter().enumerate().map(|(p, &ijk)| (ijk, p)).collect();
+    let contact_area = index
+        .iter()
+        .map(|&(i, j, k)| {
+            let missing = [
+                (i - 1, j, k),
+                (i + 1, j, k),
+                (i, j - 1, k),
+                (i, j + 1, k),
+                (i, j, k - 1),
+                (i, j, k + 1),
+            ]
+            .iter()
+            .any(|ijk| !present.contains_key(ijk));
+            if missing {
+                (dx * dx) as f32
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    // CSR over tets (particles are already grouped by host, in tet order).
+    let mut tet_offsets = vec![0u32; mesh.n_tets() + 1];
+    for &e in &host {
+        tet_offsets[e as usize + 1] += 1;
+    }
+    for e in 0..mesh.n_tets() {
+        tet_offsets[e + 1] += tet_offsets[e];
+    }
+    // CSR over vertices of particle slots p·4 + corner.
+    let nv = mesh.n_vertices();
+    let mut slot_offsets = vec![0u32; nv + 1];
+    for &e in &host {
+        for v in mesh.tets[e as usize] {
+            slot_offsets[v as usize + 1] += 1;
+        }
+    }
+    for i in 0..nv {
+        slot_offsets[i + 1] += slot_offsets[i];
+    }
+    let mut fill = slot_offsets.clone();
+    let mut slots = vec![0u32; 4 * n];
+    for (p, &e) in host.iter().enumerate() {
+        for (c, v) in mesh.tets[e as usize].iter().enumerate() {
+            slots[fill[*v as usize] as usize] = (4 * p + c) as u32;
+            fill[*v as usize] += 1;
+        }
+    }
+    // Core mass: every tet except the particle-holding zone tets, ρV/4 per corner.
+    let mut core_mass = vec![0.0f64; nv];
+    for (e, tet) in mesh.tets.iter().enumerate() {
+        if hosting[e] {
+            continue;
+        }
+        let m = density * mesh.tet_volume(e) / 4.0;
+        for &v in tet {
+            core_mass[v as usize] += m;
+        }
+    }
+    Ok(Particles {
+        settings: settings.clone(),
+        rest,
+        volume: volume as f32,
+        mass: (density * volume) as f32,
+        host,
+        weights,
+        tet_offsets,
+        slot_offsets,
+        slots,
+        contact_area,
+        support: (settings.kernel_radius * dx) as f32,
+        core_mass: core_mass.into_iter().map(|m| m as f32).collect(),
+    })
+}

@@ -1,0 +1,209 @@
+//! `[particles]`: the mesh-free layer. The tets of one region become the particle zone:
+//! particles on a lattice of the given spacing fill it, embedded in the zone's tets, and the
+//! particles near the tool become dynamic (see [`crate::particles`]).
+
+use super::{positive, Bad};
+use crate::error::Result;
+use crate::mesh::TetMesh;
+use serde::Deserialize;
+
+/// `[particles]` as written in the scene file.
+#[derive(Clone, Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ParticleSpec {
+    /// The region id whose tets form the particle zone.
+    pub region: Option<u32>,
+    /// Lattice spacing Δx, m.
+    pub spacing: Option<f64>,
+    /// `"tlsph"` (default) or `"paper"`.
+    pub model: Option<String>,
+    /// Particles closer than this to the tool's surface become dynamic, m.
+    pub activation_radius: Option<f64>,
+    /// Kernel support radius in spacings (default 2.4).
+    pub kernel_radius: Option<f64>,
+    /// Hourglass-control coefficient α (Ganzenmüller 2015; default 0.1; 0 turns it off).
+    pub hourglass: Option<f64>,
+    /// Deactivation happens beyond `hysteresis` × the activation radius (default 1.5, ≥ 1).
+    pub hysteresis: Option<f64>,
+    /// A particle stays dynamic at least this long after it last qualified, s (default 0.01).
+    pub dwell: Option<f64>,
+    /// A released particle blends back onto its host over this time, s (default 0.01).
+    pub blend: Option<f64>,
+    /// Steps between activation updates (default 10).
+    pub activation_interval: Option<u32>,
+    /// `"tool"` (default: particles near the tool are dynamic) or `"all"` (every particle is
+    /// dynamic, the zone is purely mesh-free; for validation).
+    pub activation: Option<String>,
+}
+
+/// The most particles a scene may ask for (estimated from the zone volume and spacing).
+pub const MAX_PARTICLES: f64 = 5.0e7;
+
+/// The particle models.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ParticleModel {
+    /// Total-Lagrangian SPH with a Wendland C2 kernel, corrected gradients, the FEM's
+    /// material law and hourglass control.
+    #[default]
+    Tlsph,
+    /// The paper's eq. (8) Lennard-Jones-like kernel and eq. (13) acceleration.
+    Paper,
+}
+
+impl ParticleModel {
+    /// The scene-file name.
+    pub fn name(self) -> &'static str {
+        match self {
+            ParticleModel::Tlsph => "tlsph",
+            ParticleModel::Paper => "paper",
+        }
+    }
+}
+
+/// Validated `[particles]` settings.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ParticleSettings {
+    /// Region id of the zone.
+    pub region: u32,
+    /// Lattice spacing Δx, m.
+    pub spacing: f64,
+    /// The particle model.
+    pub model: ParticleModel,
+    /// Activation radius from the tool's surface, m.
+    pub activation_radius: f64,
+    /// Kernel support radius in spacings.
+    pub kernel_radius: f64,
+    /// Hourglass coefficient α.
+    pub hourglass: f64,
+    /// Deactivation radius / activation radius.
+    pub hysteresis: f64,
+    /// Dwell time, s.
+    pub dwell: f64,
+    /// Blend-back time, s.
+    pub blend: f64,
+    /// Steps between activation updates.
+    pub activation_interval: u32,
+    /// Every particle dynamic, whatever the tool (`activation = "all"`).
+    pub all_active: bool,
+}
+
+/// Validate `[particles]` against the mesh: the region must exist.
+pub(super) fn resolve_particles(
+    spec: &ParticleSpec,
+    mesh: &TetMesh,
+    bad: &Bad,
+) -> Result<ParticleSettings> {
+    let region = spec.region.ok_or_else(|| {
+        bad(
+            "particles.region",
+            "is required (a region id of the mesh)".into(),
+        )
+    })?;
+    let zone_tets = mesh.regions.iter().filter(|&&r| r == region).count();
+    if zone_tets == 0 {
+        let mut regions: Vec<u32> = mesh.regions.clone();
+        regions.sort_unstable();
+        regions.dedup();
+        return Err(bad(
+            "particles.region",
+            format!("no tet has region {region} (the mesh's regions: {regions:?})"),
+        ));
+    }
+    let spacing = positive(
+        bad,
+        "particles.spacing",
+        spec.spacing
+            .ok_or_else(|| bad("particles.spacing", "is required (m)".into()))?,
+        "m",
+    )?;
+    let zone_volume: f64 = (0..mesh.n_tets())
+        .filter(|&e| mesh.regions[e] == region)
+        .map(|e| mesh.tet_volume(e))
+        .sum();
+    let estimate = zone_volume / spacing.powi(3);
+    if estimate > MAX_PARTICLES {
+        return Err(bad(
+            "particles.spacing",
+            format!(
+                "{spacing} m would make about {estimate:.3e} particles in a zone of {zone_volume:.3e} m³ (limit {MAX_PARTICLES:.0e})"
+            ),
+        ));
+    }
+    let name = spec.model.as_deref().unwrap_or("tlsph");
+    let model = match name {
+        "tlsph" => ParticleModel::Tlsph,
+        "paper" => ParticleModel::Paper,
+        other => {
+            return Err(bad(
+                "particles.model",
+                format!("unknown particle model '{other}' (known: tlsph, paper)"),
+            ))
+        }
+    };
+    let activation_radius = positive(
+        bad,
+        "particles.activation_radius",
+        spec.activation_radius
+            .ok_or_else(|| bad("particles.activation_radius", "is required (m)".into()))?,
+        "m",
+    )?;
+    let kernel_radius = spec.kernel_radius.unwrap_or(2.4);
+    if !(kernel_radius.is_finite() && (1.5..=4.0).contains(&kernel_radius)) {
+        return Err(bad(
+            "particles.kernel_radius",
+            format!("must be in [1.5, 4] spacings, got {kernel_radius}"),
+        ));
+    }
+    let hourglass = spec.hourglass.unwrap_or(0.1);
+    if !(hourglass.is_finite() && hourglass >= 0.0) {
+        return Err(bad(
+            "particles.hourglass",
+            format!("must be >= 0, got {hourglass}"),
+        ));
+    }
+    let hysteresis = spec.hysteresis.unwrap_or(1.5);
+    if !(hysteresis.is_finite() && hysteresis >= 1.0) {
+        return Err(bad(
+            "particles.hysteresis",
+            format!("must be >= 1, got {hysteresis}"),
+        ));
+    }
+    let dwell = spec.dwell.unwrap_or(0.01);
+    let blend = spec.blend.unwrap_or(0.01);
+    for (item, v) in [("particles.dwell", dwell), ("particles.blend", blend)] {
+        if !(v.is_finite() && v >= 0.0) {
+            return Err(bad(item, format!("must be >= 0 s, got {v}")));
+        }
+    }
+    let activation_interval = spec.activation_interval.unwrap_or(10);
+    if activation_interval == 0 {
+        return Err(bad(
+            "particles.activation_interval",
+            "must be at least 1 step".into(),
+        ));
+    }
+    let all_active = match spec.activation.as_deref().unwrap_or("tool") {
+        "tool" => false,
+        "all" => true,
+        other => {
+            return Err(bad(
+                "particles.activation",
+                format!("must be \"tool\" or \"all\", got \"{other}\""),
+            ))
+        }
+    };
+    Ok(ParticleSettings {
+        all_active,
+        region,
+        spacing,
+        model,
+        activation_radius,
+        kernel_radius,
+        hourglass,
+        hysteresis,
+        dwell,
+        blend,
+        activation_interval,
+    })
+}
