@@ -17,6 +17,12 @@
 @group(0) @binding(7) var<storage, read> displacements: array<f32>;
 @group(0) @binding(8) var<storage, read> velocities: array<f32>;
 @group(0) @binding(9) var<storage, read_write> contact_forces: array<f32>;
+@group(0) @binding(10) var<storage, read> contact_weight: array<f32>;
+
+// Pipeline constant: the scene has particles; a vertex's contact is then scaled by
+// contact_weight (the smallest energy weight of its tets: where dynamic particles carry the
+// surface, they take the contact).
+override PARTICLES: bool = false;
 
 const WORKGROUP: u32 = 64u;
 
@@ -39,7 +45,11 @@ fn contact(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
     let x = position(i);
     let v = velocity(i);
     let vc = (tool_input.end - tool_input.start) / (f32(max(tool_input.steps, 1u)) * params.dt);
-    let c = contact_force(tool_params, x, v, tool_state.position, vc, surface_area[s]);
+    var area = surface_area[s];
+    if PARTICLES {
+        area *= contact_weight[i];
+    }
+    let c = contact_force(tool_params, x, v, tool_state.position, vc, area);
     contact_forces[3u * s] = c.force.x;
     contact_forces[3u * s + 1u] = c.force.y;
     contact_forces[3u * s + 2u] = c.force.z;

@@ -1,13 +1,14 @@
 // Stage 1: per tet, element forces (paper eq. 1-6) for the scene's material.
 // The state is the displacement u = x - X (finer f32 resolution than positions):
 // H = Du Dm^-1, F = I + H; P = first Piola-Kirchhoff stress of the material
-// (MATERIAL 0: St. Venant-Kirchhoff, 1: stable Neo-Hookean, 2: corotational; see
-// src/material.rs for the formulas), plus the viscous F S_v, S_v = phi tr(Edot) I + 2 psi Edot,
+// (MATERIAL 0: St. Venant-Kirchhoff, 1: stable Neo-Hookean, 2: corotational; shared with
+// the particles in shared/material.wgsl, formulas in src/material.rs), plus the viscous F S_v, S_v = phi tr(Edot) I + 2 psi Edot,
 // Edot = (Fdot^T F + F^T Fdot)/2, Fdot = Dv Dm^-1 (eq. 3-4);
 // corner forces [f1 f2 f3] = -V P Dm^-T, f0 = -(f1 + f2 + f3); energy V Psi.
 // CPU twin: src/cpu/fem_forces.rs.
 #import params
 #import index
+#import material
 
 @group(0) @binding(0) var<uniform> params: StepParams;
 @group(0) @binding(1) var<storage, read> displacements: array<f32>;
@@ -17,13 +18,16 @@
 @group(0) @binding(5) var<storage, read> rest_volume: array<f32>;
 @group(0) @binding(6) var<storage, read_write> corner_forces: array<f32>;
 @group(0) @binding(7) var<storage, read_write> tet_energy: array<f32>;
+@group(0) @binding(8) var<storage, read> tet_weight: array<f32>;
 
 // Pipeline constants: the material model, and whether the viscous terms are compiled in.
 override MATERIAL: u32 = 0u;
 override VISCOUS: bool = true;
+// With particles, each tet keeps the fraction tet_weight[e] = 1 - phi_e of its energy (the
+// rest is carried by the particles in it that bear SPH stress).
+override PARTICLES: bool = false;
 
 const WORKGROUP: u32 = 64u;
-const ROTATION_ITERATIONS: u32 = 24u;
 
 fn displacement(i: u32) -> vec3<f32> {
     return vec3<f32>(displacements[3u * i], displacements[3u * i + 1u], displacements[3u * i + 2u]);
@@ -37,91 +41,6 @@ fn store_corner(c: u32, f: vec3<f32>) {
     corner_forces[3u * c] = f.x;
     corner_forces[3u * c + 1u] = f.y;
     corner_forces[3u * c + 2u] = f.z;
-}
-
-fn trace3(m: mat3x3<f32>) -> f32 {
-    return m[0].x + m[1].y + m[2].z;
-}
-
-fn ddot(a: mat3x3<f32>, b: mat3x3<f32>) -> f32 {
-    return dot(a[0], b[0]) + dot(a[1], b[1]) + dot(a[2], b[2]);
-}
-
-fn cofactor(a: mat3x3<f32>) -> mat3x3<f32> {
-    return mat3x3<f32>(cross(a[1], a[2]), cross(a[2], a[0]), cross(a[0], a[1]));
-}
-
-fn identity3() -> mat3x3<f32> {
-    return mat3x3<f32>(vec3<f32>(1.0, 0.0, 0.0), vec3<f32>(0.0, 1.0, 0.0), vec3<f32>(0.0, 0.0, 1.0));
-}
-
-struct StressEnergy {
-    p: mat3x3<f32>,
-    psi: f32,
-}
-
-// St. Venant-Kirchhoff: E = (H + H^T + H^T H)/2, S = lambda tr(E) I + 2 mu E, P = F S.
-fn stvk(h: mat3x3<f32>) -> StressEnergy {
-    let e = (h + transpose(h) + transpose(h) * h) * 0.5;
-    let tr = trace3(e);
-    let s = identity3() * (params.lambda * tr) + e * (2.0 * params.mu);
-    return StressEnergy((identity3() + h) * s, params.mu * ddot(e, e) + 0.5 * params.lambda * tr * tr);
-}
-
-// Stable Neo-Hookean with lambda_hat = lambda + mu, written in H to avoid cancellation.
-fn stable_neohookean(h: mat3x3<f32>) -> StressEnergy {
-    let lambda_hat = params.lambda + params.mu;
-    let tr = trace3(h);
-    let j_minus_1 = tr + 0.5 * (tr * tr - trace3(h * h)) + determinant(h);
-    let f_minus_cof = h + transpose(h) - identity3() * tr - cofactor(h);
-    let p = f_minus_cof * params.mu + cofactor(identity3() + h) * (lambda_hat * j_minus_1);
-    let psi = 0.5 * params.mu * (2.0 * tr + ddot(h, h)) - params.mu * j_minus_1 + 0.5 * lambda_hat * j_minus_1 * j_minus_1;
-    return StressEnergy(p, psi);
-}
-
-fn quat_to_mat(q: vec4<f32>) -> mat3x3<f32> {
-    let x = q.x;
-    let y = q.y;
-    let z = q.z;
-    let w = q.w;
-    return mat3x3<f32>(
-        vec3<f32>(1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y + w * z), 2.0 * (x * z - w * y)),
-        vec3<f32>(2.0 * (x * y - w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z + w * x)),
-        vec3<f32>(2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y)),
-    );
-}
-
-fn quat_mul(a: vec4<f32>, b: vec4<f32>) -> vec4<f32> {
-    return vec4<f32>(a.w * b.xyz + b.w * a.xyz + cross(a.xyz, b.xyz), a.w * b.w - dot(a.xyz, b.xyz));
-}
-
-// The rotation nearest F (Mueller et al. 2016), from the identity.
-fn extract_rotation(f: mat3x3<f32>) -> mat3x3<f32> {
-    var q = vec4<f32>(0.0, 0.0, 0.0, 1.0);
-    for (var k = 0u; k < ROTATION_ITERATIONS; k++) {
-        let r = quat_to_mat(q);
-        let num = cross(r[0], f[0]) + cross(r[1], f[1]) + cross(r[2], f[2]);
-        let den = abs(dot(r[0], f[0]) + dot(r[1], f[1]) + dot(r[2], f[2])) + 1e-9;
-        let omega = num / den;
-        let w = length(omega);
-        if w < 1e-9 {
-            break;
-        }
-        let axis = omega / w;
-        let dq = vec4<f32>(axis * sin(0.5 * w), cos(0.5 * w));
-        q = normalize(quat_mul(dq, q));
-    }
-    return quat_to_mat(q);
-}
-
-// Corotational: P = 2 mu (F - R) + lambda tr(R^T F - I) R.
-fn corotational(h: mat3x3<f32>) -> StressEnergy {
-    let f = identity3() + h;
-    let r = extract_rotation(f);
-    let f_minus_r = f - r;
-    let tr = trace3(transpose(r) * f) - 3.0;
-    let p = f_minus_r * (2.0 * params.mu) + r * (params.lambda * tr);
-    return StressEnergy(p, params.mu * ddot(f_minus_r, f_minus_r) + 0.5 * params.lambda * tr * tr);
 }
 
 @compute @workgroup_size(64)
@@ -141,14 +60,7 @@ fn fem_forces(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgr
     );
     let volume = rest_volume[e];
     let h = du * dmi;
-    var se: StressEnergy;
-    if MATERIAL == 1u {
-        se = stable_neohookean(h);
-    } else if MATERIAL == 2u {
-        se = corotational(h);
-    } else {
-        se = stvk(h);
-    }
+    let se = material_stress_energy(MATERIAL, h, params.lambda, params.mu);
     var p = se.p;
     if VISCOUS {
         let f = identity3() + h;
@@ -158,10 +70,14 @@ fn fem_forces(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgr
         let rate = (transpose(f_dot) * f + transpose(f) * f_dot) * 0.5;
         p = p + f * (identity3() * (params.phi * trace3(rate)) + rate * (2.0 * params.psi));
     }
-    let g = p * transpose(dmi) * (-volume);
+    var weight = 1.0;
+    if PARTICLES {
+        weight = tet_weight[e];
+    }
+    let g = p * transpose(dmi) * (-volume * weight);
     store_corner(4u * e, -(g[0] + g[1] + g[2]));
     store_corner(4u * e + 1u, g[0]);
     store_corner(4u * e + 2u, g[1]);
     store_corner(4u * e + 3u, g[2]);
-    tet_energy[e] = volume * se.psi;
+    tet_energy[e] = volume * weight * se.psi;
 }

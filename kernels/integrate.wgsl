@@ -1,6 +1,8 @@
-// Stage 6: symplectic Euler (paper eq. 12): v <- (v + dt f/m) / (1 + alpha dt), u <- u + dt v
+// Stage: symplectic Euler (paper eq. 12): v <- (v + dt f/m) / (1 + alpha dt), u <- u + dt v
 // (the state is the displacement u = x - X).
-// Fixed vertices have inverse mass 0 and keep v = 0.
+// Fixed vertices have inverse mass 0 and keep v = 0. A negative inverse mass marks a vertex
+// left without mass by dynamic particles: it moves kinematically, u <- u + dt v, with the
+// velocity activate_relump gave it.
 // status[0] <- min(status[0], i) when u or v is not finite or |v| exceeds the speed limit
 // (an instability caught long before it overflows to Inf/NaN).
 // CPU twin: src/cpu/integrate.rs.
@@ -28,6 +30,8 @@ fn integrate(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgro
     if w > 0.0 {
         let f = vec3<f32>(forces[3u * i], forces[3u * i + 1u], forces[3u * i + 2u]);
         v = (v + f * (params.dt * w)) / (1.0 + params.damping * params.dt);
+        x += v * params.dt;
+    } else if w < 0.0 {
         x += v * params.dt;
     } else {
         v = vec3<f32>(0.0);

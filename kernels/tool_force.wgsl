@@ -1,9 +1,10 @@
 // Stage (last step of a batch): the force the tissue exerts on the tool, F = -sum f_i, and
 // its frozen-tissue stiffness K = dF/dc = sum k A_i [(R/r)(I - n n^T) - I], with the tool
 // at the batch's end position `end` and the vertices where the batch left them; also the
-// largest penetration, the number of vertices in contact and their rest area. Two-level
-// tree reduction like reduce.wgsl: tool_force_partial (128 surface vertices per
-// workgroup), tool_force_final (one workgroup) -> tool_report. CPU twin: src/cpu/tool_force.rs.
+// largest penetration, the number of contacts and their rest area. Two-level tree reduction
+// like reduce.wgsl: tool_force_partial (128 surface vertices per workgroup),
+// tool_force_particles (128 particles per workgroup, blocks after the vertices'; scenes with
+// particles), tool_force_final (one workgroup) -> tool_report. CPU twin: src/cpu/tool_force.rs.
 #import params
 #import tool
 #import index
@@ -18,6 +19,17 @@
 @group(0) @binding(7) var<storage, read> velocities: array<f32>;
 @group(0) @binding(8) var<storage, read_write> tool_partials: array<f32>;
 @group(0) @binding(9) var<storage, read_write> tool_report: array<f32>;
+@group(0) @binding(10) var<storage, read> contact_weight: array<f32>;
+@group(0) @binding(11) var<storage, read> particle_mode: array<u32>;
+@group(0) @binding(12) var<storage, read> particle_rest: array<f32>;
+@group(0) @binding(13) var<storage, read> particle_displacements: array<f32>;
+@group(0) @binding(14) var<storage, read> particle_velocities: array<f32>;
+@group(0) @binding(15) var<storage, read> particle_area: array<f32>;
+
+// Pipeline constant: the scene has particles (vertex contacts are weighted as in contact.wgsl;
+// tool_force_particles adds the dynamic particles' contacts in blocks after the vertices').
+override PARTICLES: bool = false;
+const MODE_DYNAMIC: u32 = 1u;
 
 const WORKGROUP: u32 = 128u;
 const LANE: u32 = 15u;
@@ -55,6 +67,46 @@ fn tree(l: u32) {
     workgroupBarrier();
 }
 
+// The lane of one contact point at x (velocity v, rest area share `area`).
+fn contact_lane(x: vec3<f32>, v: vec3<f32>, area: f32) -> array<f32, 15> {
+    var lane: array<f32, 15>;
+    for (var k = 0u; k < LANE; k++) {
+        lane[k] = 0.0;
+    }
+    let vc = (tool_input.end - tool_input.start) / (f32(max(tool_input.steps, 1u)) * params.dt);
+    let c = contact_force(tool_params, x, v, tool_input.end, vc, area);
+    if c.penetration > 0.0 {
+        let n = c.normal;
+        let a = tool_params.radius / c.distance;
+        let ka = tool_params.stiffness * area;
+        lane[0] = -c.force.x;
+        lane[1] = -c.force.y;
+        lane[2] = -c.force.z;
+        for (var col = 0u; col < 3u; col++) {
+            for (var row = 0u; row < 3u; row++) {
+                var delta = 0.0;
+                if row == col {
+                    delta = 1.0;
+                }
+                lane[3u + 3u * col + row] = ka * (a * (delta - n[row] * n[col]) - delta);
+            }
+        }
+        lane[12] = c.penetration;
+        lane[13] = 1.0;
+        lane[14] = area;
+    }
+    return lane;
+}
+
+fn finish_block(l: u32, block: u32) {
+    tree(l);
+    if l == 0u {
+        for (var k = 0u; k < LANE; k++) {
+            tool_partials[LANE * block + k] = lanes[0][k];
+        }
+    }
+}
+
 @compute @workgroup_size(128)
 fn tool_force_partial(
     @builtin(global_invocation_id) gid: vec3<u32>,
@@ -69,45 +121,43 @@ fn tool_force_partial(
     }
     if s < tool_params.n_surface {
         let i = surface_vertices[s];
-        let x = position(i);
-        let v = velocity(i);
-        let vc = (tool_input.end - tool_input.start) / (f32(max(tool_input.steps, 1u)) * params.dt);
-        let area = surface_area[s];
-        let c = contact_force(tool_params, x, v, tool_input.end, vc, area);
-        if c.penetration > 0.0 {
-            let n = c.normal;
-            let a = tool_params.radius / c.distance;
-            let ka = tool_params.stiffness * area;
-            lane[0] = -c.force.x;
-            lane[1] = -c.force.y;
-            lane[2] = -c.force.z;
-            for (var col = 0u; col < 3u; col++) {
-                for (var row = 0u; row < 3u; row++) {
-                    var delta = 0.0;
-                    if row == col {
-                        delta = 1.0;
-                    }
-                    lane[3u + 3u * col + row] = ka * (a * (delta - n[row] * n[col]) - delta);
-                }
-            }
-            lane[12] = c.penetration;
-            lane[13] = 1.0;
-            lane[14] = area;
+        var area = surface_area[s];
+        if PARTICLES {
+            area *= contact_weight[i];
         }
+        lane = contact_lane(position(i), velocity(i), area);
     }
     lanes[l] = lane;
-    tree(l);
-    if l == 0u {
-        let block = wid.y * nwg.x + wid.x;
-        for (var k = 0u; k < LANE; k++) {
-            tool_partials[LANE * block + k] = lanes[0][k];
-        }
+    finish_block(l, wid.y * nwg.x + wid.x);
+}
+
+@compute @workgroup_size(128)
+fn tool_force_particles(
+    @builtin(global_invocation_id) gid: vec3<u32>,
+    @builtin(num_workgroups) nwg: vec3<u32>,
+    @builtin(local_invocation_index) l: u32,
+    @builtin(workgroup_id) wid: vec3<u32>,
+) {
+    let p = linear_index(gid, nwg, WORKGROUP);
+    var lane: array<f32, 15>;
+    for (var k = 0u; k < LANE; k++) {
+        lane[k] = 0.0;
     }
+    if p < tool_params.n_particles && (particle_mode[p] & MODE_DYNAMIC) != 0u && particle_area[p] > 0.0 {
+        let x = vec3<f32>(particle_rest[3u * p], particle_rest[3u * p + 1u], particle_rest[3u * p + 2u])
+            + vec3<f32>(particle_displacements[3u * p], particle_displacements[3u * p + 1u], particle_displacements[3u * p + 2u]);
+        let v = vec3<f32>(particle_velocities[3u * p], particle_velocities[3u * p + 1u], particle_velocities[3u * p + 2u]);
+        lane = contact_lane(x, v, particle_area[p]);
+    }
+    lanes[l] = lane;
+    let vertex_blocks = (tool_params.n_surface + WORKGROUP - 1u) / WORKGROUP;
+    finish_block(l, vertex_blocks + wid.y * nwg.x + wid.x);
 }
 
 @compute @workgroup_size(128)
 fn tool_force_final(@builtin(local_invocation_index) l: u32) {
-    let n = (tool_params.n_surface + WORKGROUP - 1u) / WORKGROUP;
+    let n = (tool_params.n_surface + WORKGROUP - 1u) / WORKGROUP
+        + (tool_params.n_particles + WORKGROUP - 1u) / WORKGROUP;
     var lane: array<f32, 15>;
     for (var k = 0u; k < LANE; k++) {
         lane[k] = 0.0;

@@ -38,7 +38,7 @@ pub mod report {
     pub const AREA: usize = 14;
 }
 
-/// Per-run tool constants (WGSL `ToolParams`), 16 bytes.
+/// Per-run tool constants (WGSL `ToolParams`), 32 bytes.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct ToolParams {
@@ -50,6 +50,10 @@ pub struct ToolParams {
     pub damping: f32,
     /// Number of surface vertices.
     pub n_surface: u32,
+    /// Number of particles (their contact forces count in the tool's report).
+    pub n_particles: u32,
+    /// Padding.
+    pub _pad: [u32; 3],
 }
 
 /// Per-batch tool input (WGSL `ToolInput`), 32 bytes: the tool moves linearly from `start`
@@ -127,6 +131,8 @@ impl ToolModel {
             stiffness: self.tool.stiffness as f32,
             damping: self.tool.damping as f32,
             n_surface: self.surface_vertices.len() as u32,
+            n_particles: 0,
+            _pad: [0; 3],
         }
     }
 

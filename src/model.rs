@@ -273,6 +273,57 @@ impl Model {
         }
     }
 
+    /// Particle sub-steps per core step of `dt`: ⌈dt / (safety·particle bound)⌉ with the
+    /// scene's safety factor 0.5 (1 without particles).
+    pub fn particle_substeps(&self, dt: f64) -> u32 {
+        match &self.particles {
+            None => 1,
+            Some(p) => {
+                let bound =
+                    p.dt_bound(&self.material, self.tool.as_ref().map(|t| t.tool.stiffness));
+                (dt / (crate::timestep::DEFAULT_SAFETY * bound))
+                    .ceil()
+                    .clamp(1.0, 64.0) as u32
+            }
+        }
+    }
+
+    /// The particles' per-run uniform for core step `params.dt` (None without particles).
+    pub fn particle_params(
+        &self,
+        params: &StepParams,
+    ) -> Option<crate::particles::params::ParticleParams> {
+        let p = self.particles.as_ref()?;
+        let s = &p.settings;
+        let dt = params.dt as f64;
+        let substeps = self.particle_substeps(dt);
+        let m = &self.material;
+        let youngs = m.mu * (3.0 * m.lambda + 2.0 * m.mu) / (m.lambda + m.mu);
+        Some(crate::particles::params::ParticleParams {
+            n_particles: p.len() as u32,
+            model: match s.model {
+                crate::scene::ParticleModel::Tlsph => 0,
+                crate::scene::ParticleModel::Paper => 1,
+            },
+            substeps,
+            all_active: s.all_active as u32,
+            volume: p.volume,
+            mass: p.mass,
+            spacing: s.spacing as f32,
+            support: p.support,
+            hourglass: s.hourglass as f32,
+            youngs: youngs as f32,
+            activation_radius: s.activation_radius as f32,
+            release_radius: (s.activation_radius * s.hysteresis) as f32,
+            candidate_radius: (s.activation_radius * s.hysteresis + 2.0 * p.support as f64) as f32,
+            dwell: s.dwell as f32,
+            blend: s.blend as f32,
+            interval: (s.activation_interval as f64 * dt) as f32,
+            sub_dt: (dt / substeps as f64) as f32,
+            _pad: [0; 3],
+        })
+    }
+
     /// Number of vertices.
     pub fn n_vertices(&self) -> usize {
         self.mass.len()

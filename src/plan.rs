@@ -15,18 +15,36 @@ use crate::model::Model;
 pub enum Stage {
     /// One thread: the tool's centre for this step of the batch.
     ToolMotion,
+    /// Particles: which are dynamic, the stress and force sets, compacted lists with
+    /// indirect dispatch arguments, tet energy weights, vertex masses (every K steps).
+    Activate,
+    /// Per particle of the force set: embedded particles follow their host.
+    Follow,
+    /// Per particle of the stress set: deformation gradient and stress.
+    SphStress,
+    /// Per particle of the force set: SPH forces (the first sub-step of a core step).
+    SphForces,
+    /// Per particle of the force set: SPH forces, added to the sub-step sum (later sub-steps).
+    SphForcesAccumulate,
+    /// Per dynamic particle: symplectic Euler with the particle sub-step.
+    IntegrateParticles,
     /// Per tet: deformation gradient, material stress, four corner forces, energy.
     FemForces,
     /// Per surface vertex: the tool's penalty contact force.
     Contact,
     /// Per vertex: Σ incident corner forces + m·g + f_ext (CSR, fixed order).
     Gather,
+    /// Per vertex: as `Gather`, plus the tool's contact force and the forces of the embedded
+    /// particles the vertex hosts (scenes with a tool or particles).
+    GatherCoupled,
     /// Per vertex: symplectic Euler, constraints, divergence flag.
     Integrate,
     /// Force on the tool and its frozen-tissue stiffness (two-level tree reduction).
     ToolForce,
     /// Energies, max speed, residual (two-level tree reduction).
     Reduce,
+    /// The particles' energies, max speed and residual (two-level tree reduction).
+    ParticleReduce,
 }
 
 /// The threads a kernel entry point is dispatched over.
@@ -40,6 +58,10 @@ pub enum Domain {
     VerticesAndTets,
     /// One thread per boundary-surface vertex.
     SurfaceVertices,
+    /// One thread per particle.
+    Particles,
+    /// One thread per particle and one more (prefix sums over n + 1 marks).
+    ParticlesPlusOne,
     /// A single workgroup.
     OneWorkgroup,
     /// Workgroup counts read from an indirect-argument buffer written by an earlier kernel:
@@ -74,6 +96,14 @@ impl Stage {
     pub fn name(self) -> &'static str {
         match self {
             Stage::ToolMotion => "tool_motion",
+            Stage::Activate => "activate",
+            Stage::Follow => "follow",
+            Stage::SphStress => "sph_stress",
+            Stage::SphForces => "sph_forces",
+            Stage::SphForcesAccumulate => "sph_forces_accumulate",
+            Stage::IntegrateParticles => "integrate_particles",
+            Stage::GatherCoupled => "gather_coupled",
+            Stage::ParticleReduce => "particle_reduce",
             Stage::Contact => "contact",
             Stage::ToolForce => "tool_force",
             Stage::FemForces => "fem_forces",
@@ -92,6 +122,51 @@ impl Stage {
                 domain: Domain::OneWorkgroup,
                 aliases: &[],
             }],
+            Stage::Activate => ACTIVATE,
+            Stage::Follow => &[Entry {
+                file: "follow",
+                entry: "follow",
+                domain: Domain::Indirect("particle_dispatch", 24),
+                aliases: &[],
+            }],
+            Stage::SphStress => &[Entry {
+                file: "sph_stress",
+                entry: "sph_stress",
+                domain: Domain::Indirect("particle_dispatch", 12),
+                aliases: &[],
+            }],
+            Stage::SphForces | Stage::SphForcesAccumulate => &[Entry {
+                file: "sph_forces",
+                entry: "sph_forces",
+                domain: Domain::Indirect("particle_dispatch", 24),
+                aliases: &[],
+            }],
+            Stage::IntegrateParticles => &[Entry {
+                file: "integrate_particles",
+                entry: "integrate_particles",
+                domain: Domain::Indirect("particle_dispatch", 0),
+                aliases: &[],
+            }],
+            Stage::GatherCoupled => &[Entry {
+                file: "gather",
+                entry: "gather_coupled",
+                domain: Domain::Vertices,
+                aliases: &[],
+            }],
+            Stage::ParticleReduce => &[
+                Entry {
+                    file: "particle_reduce",
+                    entry: "particle_reduce_partial",
+                    domain: Domain::Particles,
+                    aliases: &[],
+                },
+                Entry {
+                    file: "particle_reduce",
+                    entry: "particle_reduce_final",
+                    domain: Domain::OneWorkgroup,
+                    aliases: &[],
+                },
+            ],
             Stage::Contact => &[Entry {
                 file: "contact",
                 entry: "contact",
@@ -148,6 +223,66 @@ impl Stage {
     }
 }
 
+/// The activation stage: the mode machine, the two set marks, the compaction (marks, one
+/// prefix sum per list, scatter, dispatch arguments), tet weights and vertex masses.
+const ACTIVATE: &[Entry] = {
+    const fn e(file: &'static str, entry: &'static str, domain: Domain) -> Entry {
+        Entry {
+            file,
+            entry,
+            domain,
+            aliases: &[],
+        }
+    }
+    const fn scan(
+        entry: &'static str,
+        domain: Domain,
+        aliases: &'static [(&'static str, &'static str)],
+    ) -> Entry {
+        Entry {
+            file: "scan",
+            entry,
+            domain,
+            aliases,
+        }
+    }
+    const D: &[(&str, &str)] = &[
+        ("scan_params", "list_scan_params"),
+        ("scan_data", "dynamic_scan"),
+        ("scan_blocks", "dynamic_scan_blocks"),
+    ];
+    const S: &[(&str, &str)] = &[
+        ("scan_params", "list_scan_params"),
+        ("scan_data", "stress_scan"),
+        ("scan_blocks", "stress_scan_blocks"),
+    ];
+    const F: &[(&str, &str)] = &[
+        ("scan_params", "list_scan_params"),
+        ("scan_data", "force_scan"),
+        ("scan_blocks", "force_scan_blocks"),
+    ];
+    const P1: Domain = Domain::ParticlesPlusOne;
+    &[
+        e("activate", "activate", Domain::Particles),
+        e("activate", "activate_stress_set", Domain::Particles),
+        e("activate", "activate_force_set", Domain::Particles),
+        e("compact", "compact_mark", P1),
+        scan("scan_local", P1, D),
+        scan("scan_totals", Domain::OneWorkgroup, D),
+        scan("scan_apply", P1, D),
+        scan("scan_local", P1, S),
+        scan("scan_totals", Domain::OneWorkgroup, S),
+        scan("scan_apply", P1, S),
+        scan("scan_local", P1, F),
+        scan("scan_totals", Domain::OneWorkgroup, F),
+        scan("scan_apply", P1, F),
+        e("compact", "compact_scatter", Domain::Particles),
+        e("compact", "compact_args", Domain::OneWorkgroup),
+        e("activate", "activate_tet_weights", Domain::Tets),
+        e("activate", "activate_relump", Domain::Vertices),
+    ]
+};
+
 /// When a planned stage runs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
@@ -189,8 +324,13 @@ pub struct StepPlan {
 }
 
 impl StepPlan {
-    /// The plan a model needs: only the stages its scene uses.
+    /// The plan a model needs: only the stages its scene uses (one particle sub-step).
     pub fn for_model(model: &Model) -> StepPlan {
+        StepPlan::for_model_at(model, 1)
+    }
+
+    /// The plan with `substeps` particle sub-steps per core step.
+    pub fn for_model_at(model: &Model, substeps: u32) -> StepPlan {
         let every = |stage| PlannedStage {
             stage,
             when: When::EveryStep,
@@ -200,20 +340,48 @@ impl StepPlan {
             when: When::LastStepOfBatch,
         };
         let tool = model.tool.is_some();
+        // Particles run when something can make them dynamic: a tool, or activation = "all".
+        let particles = model
+            .particles
+            .as_ref()
+            .filter(|p| tool || p.settings.all_active);
         let mut stages = Vec::new();
         if tool {
             stages.push(every(Stage::ToolMotion));
+        }
+        if let Some(p) = particles {
+            stages.push(PlannedStage {
+                stage: Stage::Activate,
+                when: When::EveryKSteps(p.settings.activation_interval),
+            });
+            for k in 0..substeps.max(1) {
+                stages.push(every(Stage::Follow));
+                stages.push(every(Stage::SphStress));
+                stages.push(every(if k == 0 {
+                    Stage::SphForces
+                } else {
+                    Stage::SphForcesAccumulate
+                }));
+                stages.push(every(Stage::IntegrateParticles));
+            }
         }
         stages.push(every(Stage::FemForces));
         if tool {
             stages.push(every(Stage::Contact));
         }
-        stages.push(every(Stage::Gather));
+        stages.push(every(if tool || particles.is_some() {
+            Stage::GatherCoupled
+        } else {
+            Stage::Gather
+        }));
         stages.push(every(Stage::Integrate));
         if tool {
             stages.push(last(Stage::ToolForce));
         }
         stages.push(last(Stage::Reduce));
+        if particles.is_some() {
+            stages.push(last(Stage::ParticleReduce));
+        }
         StepPlan { stages }
     }
 

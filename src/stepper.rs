@@ -105,6 +105,43 @@ impl ToolReport {
     }
 }
 
+/// What the particle stages report at the end of a batch.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ParticleReport {
+    /// Dynamic particles (as of the last activation update).
+    pub dynamic: u32,
+    /// Particles carrying SPH stress.
+    pub stress: u32,
+    /// Particles receiving SPH force.
+    pub force: u32,
+    /// Kinetic energy of the dynamic particles, J.
+    pub kinetic_energy: f64,
+    /// SPH strain energy, J.
+    pub elastic_energy: f64,
+    /// Largest dynamic-particle speed, m/s.
+    pub max_speed: f64,
+    /// ‖f‖₂ over dynamic particles, N.
+    pub residual_norm: f64,
+    /// Σ m|u|² over dynamic particles, kg·m².
+    pub mass_displacement_sq: f64,
+}
+
+impl ParticleReport {
+    /// From `particle_counts` (4 u32) and `particle_stats` (5 f32 used).
+    pub fn from_parts(counts: &[u32], stats: &[f32]) -> ParticleReport {
+        ParticleReport {
+            dynamic: counts[0],
+            stress: counts[1],
+            force: counts[2],
+            kinetic_energy: stats[0] as f64,
+            elastic_energy: stats[1] as f64,
+            max_speed: stats[2] as f64,
+            residual_norm: (stats[3] as f64).sqrt(),
+            mass_displacement_sq: stats[4] as f64,
+        }
+    }
+}
+
 /// The report of one finished batch.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct BatchReport {
@@ -114,6 +151,8 @@ pub struct BatchReport {
     pub stats: BatchStats,
     /// The tool's force and stiffness (scenes with a tool).
     pub tool: Option<ToolReport>,
+    /// The particles' counts and diagnostics (scenes with particles).
+    pub particles: Option<ParticleReport>,
 }
 
 /// A backend that advances the model.

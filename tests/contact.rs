@@ -112,6 +112,7 @@ fn contact_kernels_match_their_cpu_twins() {
         &u,
         &v,
         &mut cf,
+        None,
     );
     let touching = cf.chunks(3).filter(|f| f.iter().any(|x| *x != 0.0)).count();
     assert!(
@@ -135,6 +136,7 @@ fn contact_kernels_match_their_cpu_twins() {
         &u,
         &v,
         &mut partials,
+        None,
     );
     cpu::tool_force_final(&tp, &partials, &mut report);
     let gr = g.read_f32("tool_report").unwrap();
@@ -166,6 +168,7 @@ fn frozen_stiffness_is_the_derivative_of_the_tool_force() {
             &u,
             &u,
             &mut partials,
+            None,
         );
         cpu::tool_force_final(&tp, &partials, &mut report);
         report
@@ -321,6 +324,7 @@ fn contact_helpers_agree_with_the_formula() {
         stiffness: 1e8,
         damping: 10.0,
         n_surface: 1,
+        ..Default::default()
     };
     let c = cpu::contact::contact_force(
         &p,

@@ -116,9 +116,6 @@ fn gather_kernel_matches_cpu_twin() {
         &m.mass,
         &m.external_forces,
         &mut f,
-        &[],
-        &[],
-        false,
     );
     let gf = g.read_f32("forces").unwrap();
     let e = rel_err(&gf[..f.len()], &f);

@@ -13,6 +13,43 @@ struct GridParams {
     _pad1: u32,
 }
 
+// Per-run particle constants (src/particles/params.rs `ParticleParams`).
+struct ParticleParams {
+    n_particles: u32,
+    model: u32,           // 0 tlsph, 1 paper
+    substeps: u32,        // particle sub-steps per core step
+    all_active: u32,      // 1: every (unpinned) particle is dynamic
+    volume: f32,          // m^3, every particle
+    mass: f32,            // kg, every particle
+    spacing: f32,         // m, lattice spacing
+    support: f32,         // m, kernel support radius R
+    hourglass: f32,       // alpha of the hourglass penalty
+    youngs: f32,          // Pa, E in the hourglass penalty
+    activation_radius: f32, // m from the tool's surface
+    release_radius: f32,  // m, activation radius x hysteresis
+    candidate_radius: f32, // m: beyond it a particle cannot be near a dynamic one
+    dwell: f32,           // s
+    blend: f32,           // s
+    interval: f32,        // s between activation updates
+    sub_dt: f32,          // s, particle sub-step
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
+}
+
+// Bits of particle_mode.
+const MODE_DYNAMIC: u32 = 1u;        // own position, velocity and mass
+const MODE_BLENDING: u32 = 2u;       // released: embedded with a fading offset
+const MODE_PINNED: u32 = 4u;         // host touches the core or a fixed vertex: never dynamic
+const MODE_NEAR: u32 = 8u;           // close enough to the tool to matter this update
+const MODE_IN_S: u32 = 16u;          // carries SPH stress (dynamic, or a neighbour of one)
+const MODE_IN_F: u32 = 32u;          // receives SPH force (in S, or a neighbour of S)
+const MODE_ACTIVATED: u32 = 64u;     // became dynamic at this update
+const MODE_RELEASED: u32 = 128u;     // stopped being dynamic at this update
+
+// Bits of node_flags.
+const NODE_COUPLED: u32 = 1u;        // hosts an embedded particle that receives force
+
 // Wendland C2 kernel in 3-D with support R = 2h (Wendland 1995; Dehnen & Aly 2012):
 // W(q) = 21/(16 pi h^3) (1 - q/2)^4 (2q + 1), q = r/h; its gradient with respect to the
 // offset vector d (r = |d|) is -105/(16 pi h^5) (1 - q/2)^3 d.

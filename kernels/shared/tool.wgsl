@@ -5,6 +5,10 @@ struct ToolParams {
     stiffness: f32,       // penalty per unit area, Pa/m
     damping: f32,         // damping per unit area, Pa s/m
     n_surface: u32,       // surface vertices
+    n_particles: u32,     // particles (their contacts count too), 0 without particles
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
 }
 
 // Per batch: the tool moves linearly from `start` to `end` over `steps` steps.

@@ -47,7 +47,8 @@ pub fn tool_velocity(params: &StepParams, tool_input: &ToolInput) -> Vec3 {
 }
 
 /// Per surface vertex s: `contact_forces[s]` = the tool's penalty force on vertex
-/// `surface_vertices[s]` at x = X + u.
+/// `surface_vertices[s]` at x = X + u (its area scaled by `contact_weight`, the `PARTICLES`
+/// variant).
 #[allow(clippy::too_many_arguments)]
 pub fn contact(
     params: &StepParams,
@@ -60,6 +61,7 @@ pub fn contact(
     displacements: &[f32],
     velocities: &[f32],
     contact_forces: &mut [f32],
+    contact_weight: Option<&[f32]>,
 ) {
     let vc = tool_velocity(params, tool_input);
     let c = Vec3::from_array(tool_state.position);
@@ -67,7 +69,8 @@ pub fn contact(
         let i = surface_vertices[s] as usize;
         let x = load3(rest_positions, i) + load3(displacements, i);
         let v = load3(velocities, i);
-        let f = contact_force(tool_params, x, v, c, vc, surface_area[s]);
+        let area = surface_area[s] * contact_weight.map_or(1.0, |w| w[i]);
+        let f = contact_force(tool_params, x, v, c, vc, area);
         store3(out, 0, f.force);
     });
 }

@@ -1,14 +1,13 @@
 //! CPU twin of `kernels/gather.wgsl`: per vertex, f = m·g + f_ext + Σ incident corner forces,
-//! summed in CSR order (no atomics, deterministic), + the tool's contact force on a surface
-//! vertex when `contact` (the `CONTACT` pipeline constant).
+//! summed in CSR order (no atomics, deterministic); `gather_coupled` adds the tool's contact
+//! force and the embedded particles' forces.
 
 use super::{load3, store3};
 use crate::params::StepParams;
 use glam::Vec3;
 
 /// Per vertex i: `forces[i] = mass[i]·g + external_forces[i] + Σ_{k ∈ offsets[i]..offsets[i+1]} corner_forces[incidence[k]]`
-/// (+ `contact_forces[surface_index[i]]` when `contact` and i is on the surface).
-#[allow(clippy::too_many_arguments)]
+/// (twin of entry `gather`).
 pub fn gather(
     params: &StepParams,
     corner_forces: &[f32],
@@ -17,9 +16,6 @@ pub fn gather(
     mass: &[f32],
     external_forces: &[f32],
     forces: &mut [f32],
-    surface_index: &[u32],
-    contact_forces: &[f32],
-    contact: bool,
 ) {
     let g = Vec3::from_array(params.gravity);
     super::par::for_each_chunk::<3>(forces, params.n_vertices as usize, |i, out| {
@@ -27,10 +23,69 @@ pub fn gather(
         for k in incidence_offsets[i]..incidence_offsets[i + 1] {
             f += load3(corner_forces, incidence[k as usize] as usize);
         }
-        if contact {
-            let s = surface_index[i];
+        store3(out, 0, f);
+    });
+}
+
+/// What `gather_coupled` adds to a vertex: the tool's contact force (when there is a tool)
+/// and the particle coupling (when there are particles).
+pub struct Coupling<'a> {
+    /// Per vertex, its surface index (tool scenes; empty otherwise).
+    pub surface_index: &'a [u32],
+    /// Contact force per surface vertex.
+    pub contact_forces: &'a [f32],
+    /// The scene has a tool (`CONTACT`).
+    pub contact: bool,
+    /// Per vertex flags (`NODE_COUPLED`).
+    pub node_flags: &'a [u32],
+    /// CSR vertex → particle slots.
+    pub slot_offsets: &'a [u32],
+    /// Particle slots p·4 + corner.
+    pub slots: &'a [u32],
+    /// Barycentric weights, 4 per particle.
+    pub weights: &'a [f32],
+    /// Particle modes.
+    pub mode: &'a [u32],
+    /// Particle force sums over the sub-steps.
+    pub force_sum: &'a [f32],
+    /// The scene has particles (`PARTICLES`).
+    pub particles: bool,
+}
+
+/// Twin of entry `gather_coupled`: [`gather`] plus the contact force of a surface vertex
+/// and Σ wᵢ f_p over the embedded particles of the force set it hosts.
+#[allow(clippy::too_many_arguments)]
+pub fn gather_coupled(
+    params: &StepParams,
+    corner_forces: &[f32],
+    incidence_offsets: &[u32],
+    incidence: &[u32],
+    mass: &[f32],
+    external_forces: &[f32],
+    forces: &mut [f32],
+    c: &Coupling,
+) {
+    let g = Vec3::from_array(params.gravity);
+    super::par::for_each_chunk::<3>(forces, params.n_vertices as usize, |i, out| {
+        let mut f = g * mass[i] + load3(external_forces, i);
+        for k in incidence_offsets[i]..incidence_offsets[i + 1] {
+            f += load3(corner_forces, incidence[k as usize] as usize);
+        }
+        if c.contact {
+            let s = c.surface_index[i];
             if s != crate::contact::NOT_ON_SURFACE {
-                f += load3(contact_forces, s as usize);
+                f += load3(c.contact_forces, s as usize);
+            }
+        }
+        if c.particles && c.node_flags[i] & crate::particles::params::NODE_COUPLED != 0 {
+            use crate::particles::params::mode;
+            for k in c.slot_offsets[i]..c.slot_offsets[i + 1] {
+                let slot = c.slots[k as usize] as usize;
+                let p = slot / 4;
+                let m = c.mode[p];
+                if m & mode::IN_F != 0 && m & mode::DYNAMIC == 0 {
+                    f += load3(c.force_sum, p) * c.weights[slot];
+                }
             }
         }
         store3(out, 0, f);

@@ -16,7 +16,8 @@ pub fn is_finite3(v: Vec3) -> bool {
 }
 
 /// Per vertex i: v ← (v + dt·f/m) / (1 + α·dt), u ← u + dt·v (u = x − X, the displacement);
-/// fixed vertices (inverse mass 0) keep v = 0. `status[0]` becomes min(status[0], i) when u or
+/// fixed vertices (inverse mass 0) keep v = 0; a negative inverse mass marks a vertex moved
+/// kinematically by its dynamic particles (u ← u + dt·v, v as given). `status[0]` becomes min(status[0], i) when u or
 /// v is not finite or |v| exceeds `params.speed_limit`.
 pub fn integrate(
     params: &StepParams,
@@ -36,6 +37,8 @@ pub fn integrate(
             let mut x = load3(x_out, 0);
             if w > 0.0 {
                 v = (v + load3(forces, i) * (params.dt * w)) / (1.0 + params.damping * params.dt);
+                x += v * params.dt;
+            } else if w < 0.0 {
                 x += v * params.dt;
             } else {
                 v = Vec3::ZERO;

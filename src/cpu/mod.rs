@@ -5,14 +5,23 @@
 //! read like the shaders.
 #![allow(clippy::needless_range_loop)]
 
+pub mod activate;
+pub mod compact;
 pub mod contact;
 pub mod fem_forces;
+pub mod follow;
 pub mod gather;
 pub mod integrate;
+pub mod integrate_particles;
 pub mod neighbours;
 pub mod par;
+pub mod particle_reduce;
 pub mod reduce;
 pub mod scan;
+pub mod sph;
+pub mod sph_forces;
+pub mod sph_setup;
+pub mod sph_stress;
 pub mod stepper;
 pub mod tool_force;
 pub mod tool_motion;

@@ -1,7 +1,9 @@
 //! The CPU backend: executes the step plan with the kernels' twins, on a pool of `threads`
 //! worker threads. Every twin writes only per-index outputs, so the result is bit-identical
-//! for any thread count; the reduction sums in the GPU's fixed tree order.
+//! for any thread count; the reductions sum in the GPU's fixed tree order.
 
+use super::activate::{mark_set, ParticleStatic};
+use super::gather::Coupling;
 use super::{
     contact, fem_forces, gather, integrate, reduce_final, reduce_partial, tool_force_final,
     tool_force_partial, tool_motion,
@@ -9,12 +11,16 @@ use super::{
 use crate::contact::{ToolInput, ToolParams, ToolState, REPORT_LEN};
 use crate::cpu::fem_forces::FemVariant;
 use crate::cpu::integrate::ALL_FINITE;
+use crate::cpu::neighbours::NeighbourLists;
 use crate::cpu::reduce::{n_partials, PARTIAL_LEN};
 use crate::error::{PalpateError, Result};
 use crate::model::Model;
 use crate::params::{stat, StepParams};
+use crate::particles::params::{mode, GridParams, ParticleParams};
 use crate::plan::{Stage, StepPlan};
-use crate::stepper::{BatchInput, BatchReport, BatchStats, State, Stepper, ToolReport, RING};
+use crate::stepper::{
+    BatchInput, BatchReport, BatchStats, ParticleReport, State, Stepper, ToolReport, RING,
+};
 use std::collections::VecDeque;
 use std::sync::Arc;
 
@@ -60,6 +66,100 @@ struct ToolArrays {
     report: Vec<f32>,
 }
 
+/// The particles' state (checkpointed with the vertices').
+#[derive(Clone)]
+struct ParticleState {
+    displacements: Vec<f32>,
+    velocities: Vec<f32>,
+    mode: Vec<u32>,
+    timer: Vec<f32>,
+    offset: Vec<f32>,
+    mass: Vec<f32>,
+    inv_mass: Vec<f32>,
+}
+
+/// The particles' arrays.
+struct ParticleArrays {
+    params: ParticleParams,
+    lists: NeighbourLists,
+    correction: Vec<f32>,
+    state: ParticleState,
+    stress: Vec<f32>,
+    gradient: Vec<f32>,
+    energy: Vec<f32>,
+    forces: Vec<f32>,
+    force_sum: Vec<f32>,
+    contact: Vec<f32>,
+    dynamic_list: Vec<u32>,
+    stress_list: Vec<u32>,
+    force_list: Vec<u32>,
+    counts: [u32; 4],
+    dispatch: [u32; 9],
+    tet_weight: Vec<f32>,
+    node_fixed: Vec<u32>,
+    node_flags: Vec<u32>,
+    contact_weight: Vec<f32>,
+    partials: Vec<f32>,
+    stats: Vec<f32>,
+}
+
+impl ParticleArrays {
+    fn new(model: &Model, params: &StepParams) -> Option<ParticleArrays> {
+        let p = model.particles.as_ref()?;
+        let pp = model.particle_params(params)?;
+        let n = p.len();
+        let grid = GridParams::over(&p.rest, p.support);
+        let lists = super::neighbours::build(&grid, &p.rest);
+        let mut correction = vec![0.0; 9 * n];
+        super::sph_setup::sph_setup(
+            &pp,
+            &p.rest,
+            &lists.neighbour_offsets,
+            &lists.neighbours,
+            &mut correction,
+        );
+        let modes = p
+            .pinned
+            .iter()
+            .map(|&pin| if pin { mode::PINNED } else { 0 })
+            .collect();
+        Some(ParticleArrays {
+            params: pp,
+            lists,
+            correction,
+            state: ParticleState {
+                displacements: vec![0.0; 3 * n],
+                velocities: vec![0.0; 3 * n],
+                mode: modes,
+                timer: vec![0.0; n],
+                offset: vec![0.0; 3 * n],
+                mass: model.mass.clone(),
+                inv_mass: model.inv_mass.clone(),
+            },
+            stress: vec![0.0; 9 * n],
+            gradient: vec![0.0; 9 * n],
+            energy: vec![0.0; n],
+            forces: vec![0.0; 3 * n],
+            force_sum: vec![0.0; 3 * n],
+            contact: vec![0.0; 3 * n],
+            dynamic_list: Vec::new(),
+            stress_list: Vec::new(),
+            force_list: Vec::new(),
+            counts: [0; 4],
+            dispatch: [0, 1, 1, 0, 1, 1, 0, 1, 1],
+            tet_weight: vec![1.0; model.n_tets()],
+            node_fixed: model.inv_mass.iter().map(|&w| (w == 0.0) as u32).collect(),
+            node_flags: vec![0; model.n_vertices()],
+            contact_weight: vec![1.0; model.n_vertices()],
+            partials: vec![
+                0.0;
+                super::particle_reduce::LANE * super::particle_reduce::n_partials(&pp)
+            ],
+            stats: vec![0.0; 8],
+        })
+    }
+}
+
 /// CPU stepper: the reference path, parallel over tets and vertices.
 pub struct CpuStepper {
     model: Arc<Model>,
@@ -69,7 +169,7 @@ pub struct CpuStepper {
     pool: Arc<rayon::ThreadPool>,
     threads: usize,
     state: State,
-    checkpoint: Option<State>,
+    checkpoint: Option<(State, Option<ParticleState>)>,
     corner_forces: Vec<f32>,
     tet_energy: Vec<f32>,
     forces: Vec<f32>,
@@ -77,6 +177,7 @@ pub struct CpuStepper {
     stats: Vec<f32>,
     status: Vec<u32>,
     tool: ToolArrays,
+    particles: Option<ParticleArrays>,
     steps_done: u64,
     reports: VecDeque<BatchReport>,
     counts: Vec<(Stage, u32)>,
@@ -112,8 +213,9 @@ impl CpuStepper {
             displacements: vec![0.0; model.rest.len()],
             velocities: vec![0.0; model.rest.len()],
         };
-        let plan = StepPlan::for_model(&model);
-        let tool_params = model.tool.as_ref().map(|t| t.params()).unwrap_or_default();
+        let plan = StepPlan::for_model_at(&model, model.particle_substeps(params.dt as f64));
+        let mut tool_params = model.tool.as_ref().map(|t| t.params()).unwrap_or_default();
+        tool_params.n_particles = model.particles.as_ref().map_or(0, |p| p.len() as u32);
         let tool = ToolArrays {
             params: tool_params,
             input: ToolInput::default(),
@@ -130,8 +232,10 @@ impl CpuStepper {
             ],
             report: vec![0.0; REPORT_LEN],
         };
+        let particles = pool.install(|| ParticleArrays::new(&model, &params));
         CpuStepper {
             tool,
+            particles,
             counts: plan.stages.iter().map(|p| (p.stage, 0)).collect(),
             plan,
             variant: model.fem_variant(),
@@ -174,6 +278,12 @@ impl CpuStepper {
                 None => (&[], &[], &[]),
             };
         let has_tool = surface.is_some();
+        // Vertex masses: the model's, or the particles' re-lumped ones.
+        let (mass, inv_mass): (&[f32], &[f32]) = match &self.particles {
+            Some(pa) => (&pa.state.mass, &pa.state.inv_mass),
+            None => (&m.mass, &m.inv_mass),
+        };
+        let pdata = m.particles.as_ref();
         match stage {
             Stage::ToolMotion => tool_motion(&t.input, &mut t.state),
             Stage::Contact => contact(
@@ -187,6 +297,9 @@ impl CpuStepper {
                 &self.state.displacements,
                 &self.state.velocities,
                 &mut t.contact_forces,
+                self.particles
+                    .as_ref()
+                    .map(|pa| pa.contact_weight.as_slice()),
             ),
             Stage::ToolForce => {
                 tool_force_partial(
@@ -199,36 +312,101 @@ impl CpuStepper {
                     &self.state.displacements,
                     &self.state.velocities,
                     &mut t.partials,
+                    self.particles
+                        .as_ref()
+                        .map(|pa| pa.contact_weight.as_slice()),
                 );
+                if let (Some(pa), Some(pd)) = (&self.particles, pdata) {
+                    super::tool_force::tool_force_particles(
+                        p,
+                        &t.params,
+                        &t.input,
+                        &pa.state.mode,
+                        &pd.rest,
+                        &pa.state.displacements,
+                        &pa.state.velocities,
+                        &pd.contact_area,
+                        &mut t.partials,
+                    );
+                }
                 tool_force_final(&t.params, &t.partials, &mut t.report);
             }
-            Stage::FemForces => fem_forces(
-                p,
-                &self.state.displacements,
-                &self.state.velocities,
-                &m.tets,
-                &m.dm_inv,
-                &m.rest_volume,
-                &mut self.corner_forces,
-                &mut self.tet_energy,
-                self.variant,
-            ),
+            Stage::FemForces => {
+                fem_forces(
+                    p,
+                    &self.state.displacements,
+                    &self.state.velocities,
+                    &m.tets,
+                    &m.dm_inv,
+                    &m.rest_volume,
+                    &mut self.corner_forces,
+                    &mut self.tet_energy,
+                    self.variant,
+                );
+                // The PARTICLES variant of fem_forces: each tet keeps 1 − φₑ of its energy.
+                if let Some(pa) = &self.particles {
+                    super::par::for_each_chunk2::<12, 1>(
+                        &mut self.corner_forces,
+                        &mut self.tet_energy,
+                        m.n_tets(),
+                        |e, corner, energy| {
+                            let w = pa.tet_weight[e];
+                            corner.iter_mut().for_each(|c| *c *= w);
+                            energy[0] *= w;
+                        },
+                    );
+                }
+            }
             Stage::Gather => gather(
                 p,
                 &self.corner_forces,
                 &m.incidence_offsets,
                 &m.incidence,
-                &m.mass,
+                mass,
                 &m.external_forces,
                 &mut self.forces,
-                surface_index,
-                &t.contact_forces,
-                has_tool,
             ),
+            Stage::GatherCoupled => {
+                let empty: (&[u32], &[u32], &[u32], &[f32], &[u32], &[f32]) =
+                    (&[], &[], &[], &[], &[], &[]);
+                let (node_flags, slot_offsets, slots, weights, pmode, force_sum) =
+                    match (&self.particles, pdata) {
+                        (Some(pa), Some(pd)) => (
+                            pa.node_flags.as_slice(),
+                            pd.slot_offsets.as_slice(),
+                            pd.slots.as_slice(),
+                            pd.weights.as_slice(),
+                            pa.state.mode.as_slice(),
+                            pa.force_sum.as_slice(),
+                        ),
+                        _ => empty,
+                    };
+                super::gather::gather_coupled(
+                    p,
+                    &self.corner_forces,
+                    &m.incidence_offsets,
+                    &m.incidence,
+                    mass,
+                    &m.external_forces,
+                    &mut self.forces,
+                    &Coupling {
+                        surface_index,
+                        contact_forces: &t.contact_forces,
+                        contact: has_tool,
+                        node_flags,
+                        slot_offsets,
+                        slots,
+                        weights,
+                        mode: pmode,
+                        force_sum,
+                        particles: self.particles.is_some(),
+                    },
+                );
+            }
             Stage::Integrate => integrate(
                 p,
                 &self.forces,
-                &m.inv_mass,
+                inv_mass,
                 &mut self.state.displacements,
                 &mut self.state.velocities,
                 &mut self.status,
@@ -238,8 +416,8 @@ impl CpuStepper {
                     p,
                     &self.state.displacements,
                     &self.state.velocities,
-                    &m.mass,
-                    &m.inv_mass,
+                    mass,
+                    inv_mass,
                     &self.forces,
                     &m.external_forces,
                     &self.tet_energy,
@@ -250,6 +428,156 @@ impl CpuStepper {
                 );
                 reduce_final(p, &self.partials, &mut self.stats);
             }
+            Stage::Activate
+            | Stage::Follow
+            | Stage::SphStress
+            | Stage::SphForces
+            | Stage::SphForcesAccumulate
+            | Stage::IntegrateParticles
+            | Stage::ParticleReduce => self.run_particle_stage(stage),
+        }
+    }
+
+    /// The particle stages' twins.
+    fn run_particle_stage(&mut self, stage: Stage) {
+        let m = &*self.model;
+        let p = &self.params;
+        let (Some(pa), Some(pd)) = (self.particles.as_mut(), m.particles.as_ref()) else {
+            return;
+        };
+        let pp = pa.params;
+        let st = ParticleStatic {
+            rest: &pd.rest,
+            host: &pd.host,
+            weights: &pd.weights,
+            tets: &m.tets,
+        };
+        let n = pd.len();
+        let (noff, nbrs) = (&pa.lists.neighbour_offsets, &pa.lists.neighbours);
+        match stage {
+            Stage::Activate => {
+                super::activate::activate(
+                    &pp,
+                    &self.tool.params,
+                    &self.tool.state,
+                    m.tool.is_some(),
+                    &st,
+                    &self.state.displacements,
+                    &self.state.velocities,
+                    &mut pa.state.displacements,
+                    &mut pa.state.velocities,
+                    &mut pa.state.mode,
+                    &mut pa.state.timer,
+                    &mut pa.state.offset,
+                );
+                mark_set(n, mode::DYNAMIC, mode::IN_S, noff, nbrs, &mut pa.state.mode);
+                mark_set(n, mode::IN_S, mode::IN_F, noff, nbrs, &mut pa.state.mode);
+                super::compact::compact(
+                    &pa.state.mode,
+                    &mut pa.dynamic_list,
+                    &mut pa.stress_list,
+                    &mut pa.force_list,
+                    &mut pa.counts,
+                    &mut pa.dispatch,
+                );
+                super::activate::tet_weights(
+                    p,
+                    &pd.tet_offsets,
+                    &pa.state.mode,
+                    &mut pa.tet_weight,
+                );
+                super::activate::relump(
+                    p,
+                    &pp,
+                    &pd.slot_offsets,
+                    &pd.slots,
+                    &pd.weights,
+                    &pa.state.mode,
+                    &pa.state.velocities,
+                    &pd.core_mass,
+                    &pa.node_fixed,
+                    &m.incidence_offsets,
+                    &m.incidence,
+                    &pa.tet_weight,
+                    &mut pa.state.mass,
+                    &mut pa.state.inv_mass,
+                    &mut self.state.velocities,
+                    &mut pa.node_flags,
+                    &mut pa.contact_weight,
+                );
+            }
+            Stage::Follow => super::follow::follow(
+                &pp,
+                &pa.force_list,
+                &pa.state.mode,
+                &st,
+                &self.state.displacements,
+                &pa.state.timer,
+                &pa.state.offset,
+                &mut pa.state.displacements,
+            ),
+            Stage::SphStress => super::sph_stress::sph_stress(
+                p,
+                &pp,
+                self.variant.model,
+                &pa.stress_list,
+                &pd.rest,
+                &pa.state.displacements,
+                noff,
+                nbrs,
+                &pa.correction,
+                &mut pa.stress,
+                &mut pa.gradient,
+                &mut pa.energy,
+            ),
+            Stage::SphForces | Stage::SphForcesAccumulate => {
+                let tool = m
+                    .tool
+                    .as_ref()
+                    .map(|_| (&self.tool.params, &self.tool.input, &self.tool.state));
+                let inp = super::sph_forces::ForceInputs {
+                    params: p,
+                    pp: &pp,
+                    tool,
+                    mode: &pa.state.mode,
+                    rest: &pd.rest,
+                    displacements: &pa.state.displacements,
+                    velocities: &pa.state.velocities,
+                    neighbour_offsets: noff,
+                    neighbours: nbrs,
+                    stress: &pa.stress,
+                    gradient: &pa.gradient,
+                    area: &pd.contact_area,
+                };
+                super::sph_forces::sph_forces(
+                    &inp,
+                    &pa.force_list,
+                    stage == Stage::SphForcesAccumulate,
+                    &mut pa.forces,
+                    &mut pa.force_sum,
+                    &mut pa.contact,
+                );
+            }
+            Stage::IntegrateParticles => super::integrate_particles::integrate_particles(
+                p,
+                &pp,
+                &pa.dynamic_list,
+                &pa.forces,
+                &mut pa.state.displacements,
+                &mut pa.state.velocities,
+                &mut self.status,
+            ),
+            Stage::ParticleReduce => super::particle_reduce::particle_reduce(
+                &pp,
+                &pa.state.mode,
+                &pa.state.displacements,
+                &pa.state.velocities,
+                &pa.forces,
+                &pa.energy,
+                &mut pa.partials,
+                &mut pa.stats,
+            ),
+            _ => {}
         }
     }
 
@@ -280,6 +608,25 @@ impl CpuStepper {
     pub fn forces(&self) -> &[f32] {
         &self.forces
     }
+
+    /// The particles' displacements and velocities (embedded ones as of their last
+    /// `follow`; see [`crate::particles`]), or None without particles.
+    pub fn particle_state(&self) -> Option<State> {
+        self.particles.as_ref().map(|pa| State {
+            displacements: pa.state.displacements.clone(),
+            velocities: pa.state.velocities.clone(),
+        })
+    }
+
+    /// The particles' modes (bits of [`crate::particles::params::mode`]).
+    pub fn particle_modes(&self) -> Option<&[u32]> {
+        self.particles.as_ref().map(|pa| pa.state.mode.as_slice())
+    }
+
+    /// The CPU-built neighbour lists (None without particles).
+    pub fn neighbour_lists(&self) -> Option<&NeighbourLists> {
+        self.particles.as_ref().map(|pa| &pa.lists)
+    }
 }
 
 impl Stepper for CpuStepper {
@@ -293,6 +640,15 @@ impl Stepper for CpuStepper {
 
     fn set_params(&mut self, params: &StepParams) -> Result<()> {
         self.params = *params;
+        if let Some(pa) = &mut self.particles {
+            // Keep the plan's sub-step count; only the sub-step and interval follow dt.
+            let substeps = pa.params.substeps;
+            if let Some(mut pp) = self.model.particle_params(params) {
+                pp.substeps = substeps;
+                pp.sub_dt = params.dt / substeps as f32;
+                pa.params = pp;
+            }
+        }
         Ok(())
     }
 
@@ -325,7 +681,16 @@ impl Stepper for CpuStepper {
             .tool
             .is_some()
             .then(|| ToolReport::from_floats(to, &self.tool.report));
-        self.reports.push_back(BatchReport { steps, stats, tool });
+        let particles = self
+            .particles
+            .as_ref()
+            .map(|pa| ParticleReport::from_parts(&pa.counts, &pa.stats));
+        self.reports.push_back(BatchReport {
+            steps,
+            stats,
+            tool,
+            particles,
+        });
         Ok(())
     }
 
@@ -344,14 +709,22 @@ impl Stepper for CpuStepper {
     }
 
     fn checkpoint(&mut self) -> Result<()> {
-        self.checkpoint = Some(self.state.clone());
+        self.checkpoint = Some((
+            self.state.clone(),
+            self.particles.as_ref().map(|pa| pa.state.clone()),
+        ));
         Ok(())
     }
 
     fn restore(&mut self) -> Result<()> {
         self.reports.clear();
         match &self.checkpoint {
-            Some(state) => self.state = state.clone(),
+            Some((state, particles)) => {
+                self.state = state.clone();
+                if let (Some(pa), Some(ps)) = (&mut self.particles, particles) {
+                    pa.state = ps.clone();
+                }
+            }
             None => {
                 self.state.displacements.iter_mut().for_each(|x| *x = 0.0);
                 self.state.velocities.iter_mut().for_each(|x| *x = 0.0);

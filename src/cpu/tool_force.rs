@@ -14,9 +14,10 @@ pub const TOOL_WORKGROUP: usize = 128;
 pub const LANE: usize = 15;
 const MAX_SLOT: usize = 12;
 
-/// Number of partials `tool_force_partial` writes.
+/// Number of partials `tool_force_partial` and `tool_force_particles` write.
 pub fn n_partials(tool_params: &ToolParams) -> usize {
     (tool_params.n_surface as usize).div_ceil(TOOL_WORKGROUP)
+        + (tool_params.n_particles as usize).div_ceil(TOOL_WORKGROUP)
 }
 
 fn combine(a: &mut [f32; LANE], o: &[f32; LANE]) {
@@ -77,22 +78,76 @@ pub fn tool_force_partial(
     displacements: &[f32],
     velocities: &[f32],
     tool_partials: &mut [f32],
+    contact_weight: Option<&[f32]>,
 ) {
     let vc = tool_velocity(params, tool_input);
     let c = Vec3::from_array(tool_input.end);
     let n = tool_params.n_surface as usize;
-    super::par::for_each_chunk::<LANE>(tool_partials, n_partials(tool_params), |block, out| {
+    let blocks = n.div_ceil(TOOL_WORKGROUP);
+    super::par::for_each_chunk::<LANE>(tool_partials, blocks, |block, out| {
         let mut lanes = [[0.0f32; LANE]; TOOL_WORKGROUP];
         for (l, slot) in lanes.iter_mut().enumerate() {
             let s = block * TOOL_WORKGROUP + l;
             if s < n {
                 let i = surface_vertices[s] as usize;
                 let x = load3(rest_positions, i) + load3(displacements, i);
-                *slot = lane(tool_params, x, load3(velocities, i), c, vc, surface_area[s]);
+                *slot = lane(
+                    tool_params,
+                    x,
+                    load3(velocities, i),
+                    c,
+                    vc,
+                    surface_area[s] * contact_weight.map_or(1.0, |w| w[i]),
+                );
             }
         }
         out.copy_from_slice(&tree(&mut lanes));
     });
+}
+
+/// Per block of 128 particles (after the vertices' blocks): the dynamic surface particles'
+/// contact lanes (twin of `tool_force_particles`).
+#[allow(clippy::too_many_arguments)]
+pub fn tool_force_particles(
+    params: &StepParams,
+    tool_params: &ToolParams,
+    tool_input: &ToolInput,
+    particle_mode: &[u32],
+    particle_rest: &[f32],
+    particle_displacements: &[f32],
+    particle_velocities: &[f32],
+    particle_area: &[f32],
+    tool_partials: &mut [f32],
+) {
+    let vc = tool_velocity(params, tool_input);
+    let c = Vec3::from_array(tool_input.end);
+    let n = tool_params.n_particles as usize;
+    let first = (tool_params.n_surface as usize).div_ceil(TOOL_WORKGROUP);
+    super::par::for_each_chunk::<LANE>(
+        &mut tool_partials[LANE * first..],
+        n.div_ceil(TOOL_WORKGROUP),
+        |block, out| {
+            let mut lanes = [[0.0f32; LANE]; TOOL_WORKGROUP];
+            for (l, slot) in lanes.iter_mut().enumerate() {
+                let p = block * TOOL_WORKGROUP + l;
+                if p < n
+                    && particle_mode[p] & crate::particles::params::mode::DYNAMIC != 0
+                    && particle_area[p] > 0.0
+                {
+                    let x = load3(particle_rest, p) + load3(particle_displacements, p);
+                    *slot = lane(
+                        tool_params,
+                        x,
+                        load3(particle_velocities, p),
+                        c,
+                        vc,
+                        particle_area[p],
+                    );
+                }
+            }
+            out.copy_from_slice(&tree(&mut lanes));
+        },
+    );
 }
 
 /// One block: lane l combines partials l, l+128, …; then the tree. Writes `tool_report`.

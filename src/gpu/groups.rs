@@ -27,6 +27,12 @@ pub fn fem<'a>(model: &'a Model, params: &'a StepParams, max_dim: u32) -> Buffer
         );
         x as u64 * y as u64
     };
+    // With particles, vertex masses change at activation updates: part of the state.
+    let state_if_particles = if model.particles.is_some() {
+        Usage::State
+    } else {
+        Usage::Storage
+    };
     BufferGroup {
         name: "fem",
         specs: vec![
@@ -44,8 +50,8 @@ pub fn fem<'a>(model: &'a Model, params: &'a StepParams, max_dim: u32) -> Buffer
                 &model.incidence_offsets,
             ),
             BufferSpec::data("incidence", Usage::Storage, &model.incidence),
-            BufferSpec::data("mass", Usage::Storage, &model.mass),
-            BufferSpec::data("inv_mass", Usage::Storage, &model.inv_mass),
+            BufferSpec::data("mass", state_if_particles, &model.mass),
+            BufferSpec::data("inv_mass", state_if_particles, &model.inv_mass),
             BufferSpec::data("external_forces", Usage::Storage, &model.external_forces),
             BufferSpec::zeroed("forces", Usage::Storage, 12 * n),
             BufferSpec::zeroed("partials", Usage::Storage, 4 * PARTIAL_LEN as u64 * blocks),
@@ -66,12 +72,31 @@ pub fn fem<'a>(model: &'a Model, params: &'a StepParams, max_dim: u32) -> Buffer
 /// false, so they are never read).
 pub fn tool<'a>(model: &'a Model, tool_params: &'a ToolParams) -> BufferGroup<'a> {
     let Some(t) = &model.tool else {
+        let mut specs = vec![
+            BufferSpec::zeroed("surface_index", Usage::Storage, 4),
+            BufferSpec::zeroed("contact_forces", Usage::Storage, 4),
+        ];
+        if model.particles.is_some() {
+            // The particle kernels' TOOL = false variants still bind these.
+            specs.push(BufferSpec::data(
+                "tool_params",
+                Usage::Uniform,
+                std::slice::from_ref(tool_params),
+            ));
+            specs.push(BufferSpec::zeroed(
+                "tool_input",
+                Usage::Uniform,
+                std::mem::size_of::<ToolInput>() as u64,
+            ));
+            specs.push(BufferSpec::zeroed(
+                "tool_state",
+                Usage::Storage,
+                std::mem::size_of::<ToolState>() as u64,
+            ));
+        }
         return BufferGroup {
             name: "tool",
-            specs: vec![
-                BufferSpec::zeroed("surface_index", Usage::Storage, 4),
-                BufferSpec::zeroed("contact_forces", Usage::Storage, 4),
-            ],
+            specs,
         };
     };
     let n_surface = t.surface_vertices.len() as u64;
@@ -109,14 +134,156 @@ pub fn tool<'a>(model: &'a Model, tool_params: &'a ToolParams) -> BufferGroup<'a
     }
 }
 
-/// Every group a model needs, in order.
+/// Per-run data of the particle stages, owned by the stepper and borrowed by the tables.
+pub struct ParticleTables {
+    /// The per-run uniform.
+    pub params: crate::particles::params::ParticleParams,
+    /// The reference grid.
+    pub grid: crate::particles::params::GridParams,
+    /// Uniforms of the setup prefix sums (cells, neighbour counts).
+    pub setup_scans: [ScanParams; 2],
+    /// Uniform of the per-update prefix sums (n + 1 marks).
+    pub list_scan: [ScanParams; 1],
+    /// Initial modes (PINNED bits).
+    pub modes: Vec<u32>,
+    /// Per vertex, 1 for a fixed vertex.
+    pub node_fixed: Vec<u32>,
+    /// Initial tet weights and contact weights (all 1).
+    pub ones_tets: Vec<f32>,
+    /// All-1 per vertex.
+    pub ones_vertices: Vec<f32>,
+    /// Initial indirect arguments: no work.
+    pub no_dispatch: [u32; 9],
+}
+
+impl ParticleTables {
+    /// The tables of `model` at step parameters `params` (None without particles).
+    pub fn new(model: &Model, params: &StepParams) -> Option<ParticleTables> {
+        let p = model.particles.as_ref()?;
+        let pp = model.particle_params(params)?;
+        let grid = crate::particles::params::GridParams::over(&p.rest, p.support);
+        let n = p.len() as u32;
+        Some(ParticleTables {
+            params: pp,
+            setup_scans: [ScanParams::new(grid.n_cells + 1), ScanParams::new(n + 1)],
+            grid,
+            list_scan: [ScanParams::new(n + 1)],
+            modes: p
+                .pinned
+                .iter()
+                .map(|&pin| {
+                    if pin {
+                        crate::particles::params::mode::PINNED
+                    } else {
+                        0
+                    }
+                })
+                .collect(),
+            node_fixed: model.inv_mass.iter().map(|&w| (w == 0.0) as u32).collect(),
+            ones_tets: vec![1.0; model.n_tets()],
+            ones_vertices: vec![1.0; model.n_vertices()],
+            no_dispatch: [0, 1, 1, 0, 1, 1, 0, 1, 1],
+        })
+    }
+}
+
+/// The particle stages' state (checkpointed) and per-step arrays, the lists, the indirect
+/// dispatch arguments and the per-batch report.
+pub fn particle_step<'a>(model: &'a Model, t: &'a ParticleTables) -> BufferGroup<'a> {
+    let n = t.params.n_particles as u64;
+    let nv = model.n_vertices() as u64;
+    let blocks = |k: u64| 4 * (k.div_ceil(256) + 1);
+    let partial_blocks = n.div_ceil(crate::cpu::particle_reduce::WORKGROUP as u64);
+    BufferGroup {
+        name: "particle step",
+        specs: vec![
+            BufferSpec::data(
+                "particle_params",
+                Usage::Uniform,
+                std::slice::from_ref(&t.params),
+            ),
+            BufferSpec::zeroed("particle_displacements", Usage::State, 12 * n),
+            BufferSpec::zeroed("particle_velocities", Usage::State, 12 * n),
+            BufferSpec::data("particle_mode", Usage::State, &t.modes),
+            BufferSpec::zeroed("particle_timer", Usage::State, 4 * n),
+            BufferSpec::zeroed("particle_offset", Usage::State, 12 * n),
+            BufferSpec::zeroed("particle_correction", Usage::Storage, 36 * n),
+            BufferSpec::zeroed("particle_stress", Usage::Storage, 36 * n),
+            BufferSpec::zeroed("particle_gradient", Usage::Storage, 36 * n),
+            BufferSpec::zeroed("particle_energy", Usage::Storage, 4 * n),
+            BufferSpec::zeroed("particle_forces", Usage::Storage, 12 * n),
+            BufferSpec::zeroed("particle_force_sum", Usage::Storage, 12 * n),
+            BufferSpec::zeroed("particle_contact", Usage::Storage, 12 * n),
+            BufferSpec::data("list_scan_params", Usage::Uniform, &t.list_scan),
+            BufferSpec::zeroed("dynamic_scan", Usage::Storage, 4 * (n + 1)),
+            BufferSpec::zeroed("stress_scan", Usage::Storage, 4 * (n + 1)),
+            BufferSpec::zeroed("force_scan", Usage::Storage, 4 * (n + 1)),
+            BufferSpec::zeroed("dynamic_scan_blocks", Usage::Storage, blocks(n + 1)),
+            BufferSpec::zeroed("stress_scan_blocks", Usage::Storage, blocks(n + 1)),
+            BufferSpec::zeroed("force_scan_blocks", Usage::Storage, blocks(n + 1)),
+            BufferSpec::zeroed("dynamic_list", Usage::Storage, 4 * n),
+            BufferSpec::zeroed("stress_list", Usage::Storage, 4 * n),
+            BufferSpec::zeroed("force_list", Usage::Storage, 4 * n),
+            BufferSpec::zeroed("particle_counts", Usage::Report, 16),
+            BufferSpec::data("particle_dispatch", Usage::Indirect, &t.no_dispatch),
+            BufferSpec::data("tet_weight", Usage::Storage, &t.ones_tets),
+            BufferSpec::data("node_fixed", Usage::Storage, &t.node_fixed),
+            BufferSpec::zeroed("node_flags", Usage::Storage, 4 * nv),
+            BufferSpec::data("contact_weight", Usage::Storage, &t.ones_vertices),
+            BufferSpec::zeroed(
+                "particle_partials",
+                Usage::Storage,
+                4 * crate::cpu::particle_reduce::LANE as u64 * partial_blocks.max(1),
+            ),
+            BufferSpec::zeroed("particle_stats", Usage::Report, 32),
+        ],
+    }
+}
+
+/// Without particles: 4-byte stand-ins for the bindings of the kernels' `PARTICLES = false`
+/// variants (fem_forces, contact, gather_coupled, tool_force), which never read them.
+pub fn particle_stubs() -> BufferGroup<'static> {
+    let names = [
+        "tet_weight",
+        "contact_weight",
+        "node_flags",
+        "particle_slot_offsets",
+        "particle_slots",
+        "particle_weights",
+        "particle_mode",
+        "particle_force_sum",
+        "particle_rest",
+        "particle_displacements",
+        "particle_velocities",
+        "particle_area",
+    ];
+    BufferGroup {
+        name: "particle stand-ins",
+        specs: names
+            .iter()
+            .map(|&n| BufferSpec::zeroed(n, Usage::Storage, 4))
+            .collect(),
+    }
+}
+
+/// Every group a model needs, in order (the neighbour lists come later, sized on the
+/// device).
 pub fn for_model<'a>(
     model: &'a Model,
     params: &'a StepParams,
     tool_params: &'a ToolParams,
+    particles: Option<&'a ParticleTables>,
     max_dim: u32,
 ) -> Vec<BufferGroup<'a>> {
-    vec![fem(model, params, max_dim), tool(model, tool_params)]
+    let mut groups = vec![fem(model, params, max_dim), tool(model, tool_params)];
+    match (particles, &model.particles) {
+        (Some(t), Some(p)) => {
+            groups.push(self::particles(p, &t.grid, &t.setup_scans));
+            groups.push(particle_step(model, t));
+        }
+        _ => groups.push(particle_stubs()),
+    }
+    groups
 }
 
 /// The uniform of one prefix-sum use (WGSL `ScanParams`): the number of values.

@@ -25,12 +25,34 @@ pub fn stage_constants(stage: Stage, model: &Model) -> Vec<(&'static str, f64)> 
             let v = model.fem_variant();
             vec![
                 ("MATERIAL", v.model as u32 as f64),
-                ("VISCOUS", if v.viscous { 1.0 } else { 0.0 }),
+                ("VISCOUS", flag(v.viscous)),
+                ("PARTICLES", flag(model.particles.is_some())),
             ]
         }
-        Stage::Gather | Stage::Reduce => {
-            vec![("CONTACT", if model.tool.is_some() { 1.0 } else { 0.0 })]
-        }
+        _ => stage_flags(stage, model),
+    }
+}
+
+fn flag(b: bool) -> f64 {
+    if b {
+        1.0
+    } else {
+        0.0
+    }
+}
+
+/// The boolean and material constants of the coupled stages.
+fn stage_flags(stage: Stage, model: &Model) -> Vec<(&'static str, f64)> {
+    let tool = flag(model.tool.is_some());
+    let particles = flag(model.particles.is_some());
+    match stage {
+        Stage::Reduce => vec![("CONTACT", tool)],
+        Stage::GatherCoupled => vec![("CONTACT", tool), ("PARTICLES", particles)],
+        Stage::Contact | Stage::ToolForce => vec![("PARTICLES", particles)],
+        Stage::Activate => vec![("TOOL", tool)],
+        Stage::SphStress => vec![("MATERIAL", model.fem_variant().model as u32 as f64)],
+        Stage::SphForces => vec![("ACCUMULATE", 0.0), ("TOOL", tool)],
+        Stage::SphForcesAccumulate => vec![("ACCUMULATE", 1.0), ("TOOL", tool)],
         _ => Vec::new(),
     }
 }
@@ -50,7 +72,16 @@ impl StagePipelines {
         let kernels = stage
             .entries()
             .iter()
-            .map(|e| Ok((*e, ComputeKernel::new(ctx, e.file, e.entry, &constants)?)))
+            .map(|e| {
+                // Each entry gets the constants its shader declares.
+                let source = crate::gpu::kernel_source(e.file).unwrap_or("");
+                let own: Vec<(&str, f64)> = constants
+                    .iter()
+                    .copied()
+                    .filter(|(name, _)| source.contains(&format!("override {name}")))
+                    .collect();
+                Ok((*e, ComputeKernel::new(ctx, e.file, e.entry, &own)?))
+            })
             .collect::<Result<Vec<_>>>()?;
         Ok(StagePipelines { stage, kernels })
     }
@@ -99,7 +130,13 @@ struct InFlight {
 pub struct GpuStepper {
     ctx: Arc<GpuContext>,
     plan: StepPlan,
+    /// One bound stage per distinct stage of the plan (sub-steps repeat stages).
     stages: Vec<BoundStage>,
+    /// For each plan position, its index in `stages`.
+    plan_stage: Vec<usize>,
+    model_particles: Option<crate::gpu::groups::ParticleTables>,
+    n_particles: u32,
+    params_dt_before: f32,
     buffers: GpuBuffers,
     params: StepParams,
     n_vertices: u32,
@@ -128,18 +165,41 @@ impl GpuStepper {
             )));
         }
         let max_dim = ctx.limits.max_compute_workgroups_per_dimension;
-        let tool_params = model.tool.as_ref().map(|t| t.params()).unwrap_or_default();
-        let groups = crate::gpu::groups::for_model(model, &params, &tool_params, max_dim);
-        let buffers = GpuBuffers::new(&ctx, &groups)?;
-        let plan = StepPlan::for_model(model);
-        let mut stages = Vec::new();
+        let mut tool_params = model.tool.as_ref().map(|t| t.params()).unwrap_or_default();
+        tool_params.n_particles = model.particles.as_ref().map_or(0, |p| p.len() as u32);
+        let tables = crate::gpu::groups::ParticleTables::new(model, &params);
+        let groups =
+            crate::gpu::groups::for_model(model, &params, &tool_params, tables.as_ref(), max_dim);
+        let mut buffers = GpuBuffers::new(&ctx, &groups)?;
+        drop(groups);
+        if let Some(t) = &tables {
+            crate::gpu::setup::build_neighbour_lists(&ctx, &mut buffers, &t.grid)?;
+            crate::gpu::setup::run_passes(
+                &ctx,
+                &buffers,
+                &[crate::gpu::setup::SetupPass {
+                    file: "sph_setup",
+                    entry: "sph_setup",
+                    dispatch: crate::gpu::setup::SetupDispatch::Items(t.params.n_particles),
+                    aliases: &[],
+                }],
+            )?;
+        }
+        let plan = StepPlan::for_model_at(model, model.particle_substeps(params.dt as f64));
+        let mut stages: Vec<BoundStage> = Vec::new();
+        let mut plan_stage = Vec::new();
         for p in &plan.stages {
+            if let Some(k) = stages.iter().position(|b| b.pipelines.stage == p.stage) {
+                plan_stage.push(k);
+                continue;
+            }
             let pipelines = StagePipelines::new(&ctx, p.stage, model)?;
             let bind_groups = pipelines
                 .kernels
                 .iter()
                 .map(|(e, k)| k.bind(&ctx, &buffers, e.aliases))
                 .collect::<Result<Vec<_>>>()?;
+            plan_stage.push(stages.len());
             stages.push(BoundStage {
                 pipelines,
                 bind_groups,
@@ -167,6 +227,10 @@ impl GpuStepper {
             counts: plan.stages.iter().map(|p| (p.stage, 0)).collect(),
             plan,
             stages,
+            plan_stage,
+            n_particles: tool_params.n_particles,
+            params_dt_before: params.dt,
+            model_particles: tables,
             buffers,
             params,
             n_vertices: n as u32,
@@ -204,6 +268,8 @@ impl GpuStepper {
             Domain::Vertices => Dispatch::Items(self.n_vertices),
             Domain::VerticesAndTets => Dispatch::Items(self.n_vertices.max(self.n_tets)),
             Domain::SurfaceVertices => Dispatch::Items(self.n_surface),
+            Domain::Particles => Dispatch::Items(self.n_particles),
+            Domain::ParticlesPlusOne => Dispatch::Items(self.n_particles + 1),
             Domain::OneWorkgroup => Dispatch::One,
             Domain::Indirect(name, offset) => {
                 Dispatch::Indirect(self.buffers.require(name)?, offset)
@@ -223,6 +289,19 @@ impl GpuStepper {
         Ok(())
     }
 
+    /// The particles' displacements and velocities (embedded ones as of their last `follow`),
+    /// or None without particles (waits for the batches in flight).
+    pub fn read_particle_state(&mut self) -> Result<Option<State>> {
+        if self.n_particles == 0 {
+            return Ok(None);
+        }
+        self.drain()?;
+        Ok(Some(State {
+            displacements: self.read_f32("particle_displacements")?,
+            velocities: self.read_f32("particle_velocities")?,
+        }))
+    }
+
     fn stage_index(&self, stage: Stage) -> Result<usize> {
         self.stages
             .iter()
@@ -235,7 +314,7 @@ impl GpuStepper {
     /// Record `steps` steps of the plan into `encoder` (one compute pass), counting stage runs.
     fn record_batch(&mut self, encoder: &mut wgpu::CommandEncoder, steps: u32) -> Result<()> {
         self.counts.iter_mut().for_each(|(_, c)| *c = 0);
-        let mut runs = vec![0u32; self.stages.len()];
+        let mut runs = vec![0u32; self.plan.stages.len()];
         {
             let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
                 label: Some("steps"),
@@ -244,7 +323,7 @@ impl GpuStepper {
             for s in 0..steps {
                 for (k, run) in runs.iter_mut().enumerate() {
                     if self.plan.stages[k].runs_at(self.steps_done + s as u64, s, steps) {
-                        self.record_stage_at(&mut pass, k)?;
+                        self.record_stage_at(&mut pass, self.plan_stage[k])?;
                         *run += 1;
                     }
                 }
@@ -383,6 +462,8 @@ impl GpuStepper {
             steps,
             ..Default::default()
         };
+        let mut counts = [0u32; 4];
+        let mut pstats = [0f32; 8];
         for &(name, offset, size) in &self.report_layout {
             let data = &bytes[offset as usize..(offset + size) as usize];
             match name {
@@ -398,8 +479,13 @@ impl GpuStepper {
                     let floats: &[f32] = bytemuck::cast_slice(data);
                     report.tool = Some(crate::stepper::ToolReport::from_floats(tool_to, floats));
                 }
+                "particle_counts" => counts.copy_from_slice(&bytemuck::cast_slice(data)[..4]),
+                "particle_stats" => pstats.copy_from_slice(&bytemuck::cast_slice(data)[..8]),
                 _ => {}
             }
+        }
+        if self.n_particles > 0 {
+            report.particles = Some(crate::stepper::ParticleReport::from_parts(&counts, &pstats));
         }
         report
     }
@@ -459,6 +545,19 @@ impl Stepper for GpuStepper {
             0,
             bytemuck::bytes_of(params),
         );
+        if let Some(t) = &mut self.model_particles {
+            // Keep the plan's sub-step count; the sub-step and interval follow dt.
+            let substeps = t.params.substeps;
+            t.params.sub_dt = params.dt / substeps as f32;
+            t.params.interval =
+                t.params.interval / self.params_dt_before.max(f32::MIN_POSITIVE) * params.dt;
+            self.ctx.queue.write_buffer(
+                self.buffers.require("particle_params")?,
+                0,
+                bytemuck::bytes_of(&t.params),
+            );
+        }
+        self.params_dt_before = params.dt;
         Ok(())
     }
 

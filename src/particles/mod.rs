@@ -57,6 +57,9 @@ pub struct Particles {
     pub support: f32,
     /// Per vertex: the lumped mass of the tets that are not particle-holding zone tets, kg.
     pub core_mass: Vec<f32>,
+    /// Per particle: its host touches the core (a vertex with core mass) or a fixed vertex,
+    /// so it always stays embedded and ties the particles to the rest of the body.
+    pub pinned: Vec<bool>,
 }
 
 impl Particles {
@@ -93,6 +96,26 @@ impl Particles {
         (0..4)
             .map(|c| crate::cpu::load3(displacements, t[c] as usize) * self.weights[4 * p + c])
             .fold(glam::Vec3::ZERO, |a, b| a + b)
+    }
+
+    /// The largest stable particle step: the lattice's highest frequency, ω ≈ 2 c_p/Δx, as
+    /// for a tet of altitude Δx, and the tool's contact springs on surface particles,
+    /// ω² = k Δx²/m; combined in quadrature (see [`crate::timestep`]).
+    pub fn dt_bound(
+        &self,
+        material: &crate::material::MaterialParams,
+        contact_stiffness: Option<f64>,
+    ) -> f64 {
+        let dx = self.settings.spacing;
+        let elastic = dx / material.p_wave_speed();
+        match contact_stiffness {
+            Some(k) => {
+                let omega = (k * dx * dx / self.mass as f64).sqrt();
+                let contact = 2.0 / omega;
+                1.0 / (1.0 / (elastic * elastic) + 1.0 / (contact * contact)).sqrt()
+            }
+            None => elastic,
+        }
     }
 
     /// Sample the particle zone of `mesh` (see [`sampling::sample`]).

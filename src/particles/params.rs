@@ -53,3 +53,69 @@ impl GridParams {
         }
     }
 }
+
+/// Bits of `particle_mode` (WGSL `MODE_*`).
+pub mod mode {
+    /// Own position, velocity and mass.
+    pub const DYNAMIC: u32 = 1;
+    /// Released: embedded with a fading offset.
+    pub const BLENDING: u32 = 2;
+    /// Its host touches the core or a fixed vertex: never dynamic.
+    pub const PINNED: u32 = 4;
+    /// Close enough to the tool to matter this update.
+    pub const NEAR: u32 = 8;
+    /// Carries SPH stress (dynamic, or a neighbour of a dynamic particle).
+    pub const IN_S: u32 = 16;
+    /// Receives SPH force (in S, or a neighbour of a particle in S).
+    pub const IN_F: u32 = 32;
+    /// Became dynamic at this update.
+    pub const ACTIVATED: u32 = 64;
+    /// Stopped being dynamic at this update.
+    pub const RELEASED: u32 = 128;
+}
+
+/// Bit of `node_flags`: the vertex hosts an embedded particle that receives force.
+pub const NODE_COUPLED: u32 = 1;
+
+/// Per-run particle constants (WGSL `ParticleParams`), 80 bytes.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct ParticleParams {
+    /// Number of particles.
+    pub n_particles: u32,
+    /// 0: tlsph, 1: paper.
+    pub model: u32,
+    /// Particle sub-steps per core step.
+    pub substeps: u32,
+    /// 1: every unpinned particle is dynamic.
+    pub all_active: u32,
+    /// Volume of every particle, m³.
+    pub volume: f32,
+    /// Mass of every particle, kg.
+    pub mass: f32,
+    /// Lattice spacing, m.
+    pub spacing: f32,
+    /// Kernel support radius R, m.
+    pub support: f32,
+    /// Hourglass coefficient α.
+    pub hourglass: f32,
+    /// Young's modulus in the hourglass penalty, Pa.
+    pub youngs: f32,
+    /// Activation radius from the tool's surface, m.
+    pub activation_radius: f32,
+    /// Release radius (activation × hysteresis), m.
+    pub release_radius: f32,
+    /// Beyond this distance from the tool's surface a particle cannot neighbour a dynamic
+    /// one, m (release radius + two supports).
+    pub candidate_radius: f32,
+    /// Dwell time, s.
+    pub dwell: f32,
+    /// Blend-back time, s.
+    pub blend: f32,
+    /// Time between activation updates, s.
+    pub interval: f32,
+    /// Particle sub-step, s.
+    pub sub_dt: f32,
+    /// Padding.
+    pub _pad: [u32; 3],
+}

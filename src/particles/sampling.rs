@@ -172,6 +172,7 @@ pub fn sample(
         slots,
         contact_area,
         support: (settings.kernel_radius * dx) as f32,
+        pinned: vec![false; n],
         core_mass: core_mass.into_iter().map(|m| m as f32).collect(),
     })
 }

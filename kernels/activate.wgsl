@@ -1,0 +1,275 @@
+// Stage (every `activation_interval` steps): which particles are dynamic, which carry SPH
+// stress (set S) and which receive SPH force (set F), the tets' energy weights and the
+// vertices' lumped masses. Entry points, in order:
+//   activate                  per particle: the mode state machine (below)
+//   activate_stress_set       per dynamic particle: marks itself and its neighbours IN_S
+//   activate_force_set        per particle in S: marks itself and its neighbours IN_F
+//   activate_tet_weights      per tet: 1 - phi_e, phi_e = (its particles in S)/(its particles)
+//   activate_relump           per vertex: mass = core + sum w_i m_p over non-dynamic hosted
+//                             particles; velocity keeps the momentum of released particles;
+//                             vertices with no mass left follow their dynamic particles
+// Mode machine (a particle at distance d from the tool's surface; PINNED never moves):
+//   embedded or blending, d < activation radius -> DYNAMIC at its embedded position and
+//     velocity (its momentum leaves the host vertices exactly);
+//   dynamic, d < release radius (activation x hysteresis) -> stays, dwell timer reset;
+//   dynamic, farther for `dwell` s -> BLENDING with offset u_p - embed(u) that fades to zero
+//     over `blend` s (no jump), then embedded.
+// The IN_S/IN_F marks are integer atomic ORs, so the result is the same in any order.
+// CPU twin: src/cpu/activate.rs.
+#import params
+#import index
+#import tool
+#import particles
+
+@group(0) @binding(0) var<uniform> params: StepParams;
+@group(0) @binding(1) var<uniform> particle_params: ParticleParams;
+@group(0) @binding(2) var<uniform> tool_params: ToolParams;
+@group(0) @binding(3) var<storage, read> tool_state: ToolState;
+@group(0) @binding(4) var<storage, read> particle_rest: array<f32>;
+@group(0) @binding(5) var<storage, read> particle_host: array<u32>;
+@group(0) @binding(6) var<storage, read> particle_weights: array<f32>;
+@group(0) @binding(7) var<storage, read> tets: array<vec4<u32>>;
+@group(0) @binding(8) var<storage, read_write> displacements: array<f32>;
+@group(0) @binding(9) var<storage, read_write> velocities: array<f32>;
+@group(0) @binding(10) var<storage, read_write> particle_displacements: array<f32>;
+@group(0) @binding(11) var<storage, read_write> particle_velocities: array<f32>;
+@group(0) @binding(12) var<storage, read_write> particle_mode: array<atomic<u32>>;
+@group(0) @binding(13) var<storage, read_write> particle_timer: array<f32>;
+@group(0) @binding(14) var<storage, read_write> particle_offset: array<f32>;
+@group(0) @binding(15) var<storage, read> neighbour_offsets: array<u32>;
+@group(0) @binding(16) var<storage, read> neighbours: array<u32>;
+@group(0) @binding(17) var<storage, read> particle_tet_offsets: array<u32>;
+@group(0) @binding(18) var<storage, read_write> tet_weight: array<f32>;
+@group(0) @binding(19) var<storage, read> particle_slot_offsets: array<u32>;
+@group(0) @binding(20) var<storage, read> particle_slots: array<u32>;
+@group(0) @binding(21) var<storage, read> particle_core_mass: array<f32>;
+@group(0) @binding(22) var<storage, read> node_fixed: array<u32>;
+@group(0) @binding(23) var<storage, read_write> mass: array<f32>;
+@group(0) @binding(24) var<storage, read_write> inv_mass: array<f32>;
+@group(0) @binding(25) var<storage, read_write> node_flags: array<u32>;
+@group(0) @binding(26) var<storage, read> incidence_offsets: array<u32>;
+@group(0) @binding(27) var<storage, read> incidence: array<u32>;
+@group(0) @binding(28) var<storage, read_write> contact_weight: array<f32>;
+
+// Pipeline constant: the scene has a tool (else only activation = "all" runs particles).
+override TOOL: bool = false;
+
+const WORKGROUP: u32 = 64u;
+const PER_UPDATE: u32 = MODE_NEAR | MODE_IN_S | MODE_IN_F | MODE_ACTIVATED | MODE_RELEASED;
+
+fn node_u(i: u32) -> vec3<f32> {
+    return vec3<f32>(displacements[3u * i], displacements[3u * i + 1u], displacements[3u * i + 2u]);
+}
+
+fn node_v(i: u32) -> vec3<f32> {
+    return vec3<f32>(velocities[3u * i], velocities[3u * i + 1u], velocities[3u * i + 2u]);
+}
+
+fn particle_u(p: u32) -> vec3<f32> {
+    return vec3<f32>(particle_displacements[3u * p], particle_displacements[3u * p + 1u], particle_displacements[3u * p + 2u]);
+}
+
+fn particle_v(p: u32) -> vec3<f32> {
+    return vec3<f32>(particle_velocities[3u * p], particle_velocities[3u * p + 1u], particle_velocities[3u * p + 2u]);
+}
+
+fn particle_x0(p: u32) -> vec3<f32> {
+    return vec3<f32>(particle_rest[3u * p], particle_rest[3u * p + 1u], particle_rest[3u * p + 2u]);
+}
+
+fn weight(p: u32, c: u32) -> f32 {
+    return particle_weights[4u * p + c];
+}
+
+// Embedded displacement of particle p: sum w_i u_i over its host's corners.
+fn embed_u(p: u32) -> vec3<f32> {
+    let t = tets[particle_host[p]];
+    return node_u(t.x) * weight(p, 0u) + node_u(t.y) * weight(p, 1u) + node_u(t.z) * weight(p, 2u) + node_u(t.w) * weight(p, 3u);
+}
+
+// Embedded velocity of particle p: sum w_i v_i.
+fn embed_v(p: u32) -> vec3<f32> {
+    let t = tets[particle_host[p]];
+    return node_v(t.x) * weight(p, 0u) + node_v(t.y) * weight(p, 1u) + node_v(t.z) * weight(p, 2u) + node_v(t.w) * weight(p, 3u);
+}
+
+@compute @workgroup_size(64)
+fn activate(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let p = linear_index(gid, nwg, WORKGROUP);
+    if p >= particle_params.n_particles {
+        return;
+    }
+    var mode = atomicLoad(&particle_mode[p]) & ~PER_UPDATE;
+    if (mode & MODE_PINNED) != 0u {
+        atomicStore(&particle_mode[p], mode);
+        return;
+    }
+    let pp = particle_params;
+    var timer = particle_timer[p];
+    var offset = vec3<f32>(particle_offset[3u * p], particle_offset[3u * p + 1u], particle_offset[3u * p + 2u]);
+    let ue = embed_u(p);
+    var blend = 0.0;
+    if (mode & MODE_BLENDING) != 0u {
+        blend = max(0.0, 1.0 - timer / max(pp.blend, 1e-30));
+    }
+    var u = ue + offset * blend;
+    if (mode & MODE_DYNAMIC) != 0u {
+        u = particle_u(p);
+    }
+    var qualifies = pp.all_active != 0u;
+    var keep = qualifies;
+    if TOOL && !qualifies {
+        let d = length(particle_x0(p) + u - tool_state.position) - tool_params.radius;
+        qualifies = d < pp.activation_radius;
+        keep = d < pp.release_radius;
+    }
+    if (mode & MODE_DYNAMIC) != 0u {
+        if keep {
+            timer = 0.0;
+        } else {
+            timer += pp.interval;
+            if timer >= pp.dwell {
+                offset = u - ue;
+                mode = (mode & ~MODE_DYNAMIC) | MODE_BLENDING | MODE_RELEASED;
+                timer = 0.0;
+            }
+        }
+    } else if qualifies {
+        let ve = embed_v(p);
+        particle_displacements[3u * p] = u.x;
+        particle_displacements[3u * p + 1u] = u.y;
+        particle_displacements[3u * p + 2u] = u.z;
+        particle_velocities[3u * p] = ve.x;
+        particle_velocities[3u * p + 1u] = ve.y;
+        particle_velocities[3u * p + 2u] = ve.z;
+        mode = (mode & ~MODE_BLENDING) | MODE_DYNAMIC | MODE_ACTIVATED;
+        timer = 0.0;
+        offset = vec3<f32>(0.0);
+    } else if (mode & MODE_BLENDING) != 0u {
+        timer += pp.interval;
+        if timer >= pp.blend {
+            mode = mode & ~MODE_BLENDING;
+            offset = vec3<f32>(0.0);
+        }
+    }
+    particle_timer[p] = timer;
+    particle_offset[3u * p] = offset.x;
+    particle_offset[3u * p + 1u] = offset.y;
+    particle_offset[3u * p + 2u] = offset.z;
+    atomicStore(&particle_mode[p], mode);
+}
+
+@compute @workgroup_size(64)
+fn activate_stress_set(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let p = linear_index(gid, nwg, WORKGROUP);
+    if p >= particle_params.n_particles {
+        return;
+    }
+    if (atomicLoad(&particle_mode[p]) & MODE_DYNAMIC) == 0u {
+        return;
+    }
+    atomicOr(&particle_mode[p], MODE_IN_S);
+    for (var k = neighbour_offsets[p]; k < neighbour_offsets[p + 1u]; k++) {
+        atomicOr(&particle_mode[neighbours[k]], MODE_IN_S);
+    }
+}
+
+@compute @workgroup_size(64)
+fn activate_force_set(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let p = linear_index(gid, nwg, WORKGROUP);
+    if p >= particle_params.n_particles {
+        return;
+    }
+    if (atomicLoad(&particle_mode[p]) & MODE_IN_S) == 0u {
+        return;
+    }
+    atomicOr(&particle_mode[p], MODE_IN_F);
+    for (var k = neighbour_offsets[p]; k < neighbour_offsets[p + 1u]; k++) {
+        atomicOr(&particle_mode[neighbours[k]], MODE_IN_F);
+    }
+}
+
+@compute @workgroup_size(64)
+fn activate_tet_weights(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let e = linear_index(gid, nwg, WORKGROUP);
+    if e >= params.n_tets {
+        return;
+    }
+    let first = particle_tet_offsets[e];
+    let last = particle_tet_offsets[e + 1u];
+    var in_s = 0u;
+    for (var p = first; p < last; p++) {
+        if (atomicLoad(&particle_mode[p]) & MODE_IN_S) != 0u {
+            in_s += 1u;
+        }
+    }
+    var w = 1.0;
+    if last > first {
+        w = 1.0 - f32(in_s) / f32(last - first);
+    }
+    tet_weight[e] = w;
+}
+
+@compute @workgroup_size(64)
+fn activate_relump(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let i = linear_index(gid, nwg, WORKGROUP);
+    if i >= params.n_vertices {
+        return;
+    }
+    let mp = particle_params.mass;
+    var m = particle_core_mass[i];
+    var m_released = 0.0;
+    var p_released = vec3<f32>(0.0);
+    var m_dynamic = 0.0;
+    var p_dynamic = vec3<f32>(0.0);
+    var coupled = false;
+    for (var k = particle_slot_offsets[i]; k < particle_slot_offsets[i + 1u]; k++) {
+        let slot = particle_slots[k];
+        let p = slot / 4u;
+        let w = particle_weights[slot];
+        let mode = atomicLoad(&particle_mode[p]);
+        if (mode & MODE_DYNAMIC) == 0u {
+            m += w * mp;
+            if (mode & MODE_RELEASED) != 0u {
+                m_released += w * mp;
+                p_released += particle_v(p) * (w * mp);
+            }
+            if (mode & MODE_IN_F) != 0u {
+                coupled = true;
+            }
+        } else {
+            m_dynamic += w * mp;
+            p_dynamic += particle_v(p) * (w * mp);
+        }
+    }
+    mass[i] = m;
+    var v = node_v(i);
+    var w_inv = 0.0;
+    if node_fixed[i] != 0u {
+        v = vec3<f32>(0.0);
+    } else if m > 0.0 {
+        w_inv = 1.0 / m;
+        v = (v * (m - m_released) + p_released) / m;
+    } else {
+        // No mass left: the vertex is carried (kinematically) by its dynamic particles.
+        w_inv = -1.0;
+        v = vec3<f32>(0.0);
+        if m_dynamic > 0.0 {
+            v = p_dynamic / m_dynamic;
+        }
+    }
+    inv_mass[i] = w_inv;
+    velocities[3u * i] = v.x;
+    velocities[3u * i + 1u] = v.y;
+    velocities[3u * i + 2u] = v.z;
+    var flags = 0u;
+    if coupled {
+        flags = NODE_COUPLED;
+    }
+    node_flags[i] = flags;
+    var cw = 1.0;
+    for (var k = incidence_offsets[i]; k < incidence_offsets[i + 1u]; k++) {
+        cw = min(cw, tet_weight[incidence[k] / 4u]);
+    }
+    contact_weight[i] = cw;
+}

@@ -1,0 +1,166 @@
+// Stage (every particle sub-step; indirect over the force set F): the force on each particle
+// from the SPH strain energy E = sum_{p in S} V Psi(F_p) (total-Lagrangian SPH):
+//   tlsph: f_c = -dE/dx_c = V^2 sum_b (A_c + A_b) grad W(X_b - X_c), A = P G^T for particles
+//          in S and 0 outside (an exact gradient: linear and angular momentum are conserved);
+//          plus Ganzenmueller's (2015) hourglass penalty, a central pair force
+//          f_c += alpha E V^2 W(X_cb)/|X_cb|^2 (delta_cb + delta_bc)/2 x_cb/|x_cb|,
+//          delta_ab = (F_a X_ab - x_ab).x_ab/|x_ab| (zero for affine motion);
+//   paper: eq. (13) as printed, one-sided: f_c = V^2 sum_b A_b grad W(X_b - X_c).
+// Dynamic particles also get m g and the tool's contact on surface particles (area Δx^2),
+// kept in particle_contact for the tool's report. particle_force_sum collects f/substeps
+// over the sub-steps of a core step (ACCUMULATE is false on the first): embedded particles
+// pass it to their host vertices in gather_coupled, so the vertices receive the impulse
+// the particles received. CPU twin: src/cpu/sph_forces.rs.
+#import params
+#import index
+#import tool
+#import particles
+#import material
+
+@group(0) @binding(0) var<uniform> params: StepParams;
+@group(0) @binding(1) var<uniform> particle_params: ParticleParams;
+@group(0) @binding(2) var<uniform> tool_params: ToolParams;
+@group(0) @binding(3) var<uniform> tool_input: ToolInput;
+@group(0) @binding(4) var<storage, read> tool_state: ToolState;
+@group(0) @binding(5) var<storage, read> particle_counts: array<u32>;
+@group(0) @binding(6) var<storage, read> force_list: array<u32>;
+@group(0) @binding(7) var<storage, read> particle_mode: array<u32>;
+@group(0) @binding(8) var<storage, read> particle_rest: array<f32>;
+@group(0) @binding(9) var<storage, read> particle_displacements: array<f32>;
+@group(0) @binding(10) var<storage, read> particle_velocities: array<f32>;
+@group(0) @binding(11) var<storage, read> neighbour_offsets: array<u32>;
+@group(0) @binding(12) var<storage, read> neighbours: array<u32>;
+@group(0) @binding(13) var<storage, read> particle_stress: array<f32>;
+@group(0) @binding(14) var<storage, read> particle_gradient: array<f32>;
+@group(0) @binding(15) var<storage, read> particle_area: array<f32>;
+@group(0) @binding(16) var<storage, read_write> particle_forces: array<f32>;
+@group(0) @binding(17) var<storage, read_write> particle_force_sum: array<f32>;
+@group(0) @binding(18) var<storage, read_write> particle_contact: array<f32>;
+
+// Pipeline constants: add to particle_force_sum (not the first sub-step); the scene has a tool.
+override ACCUMULATE: bool = false;
+override TOOL: bool = false;
+
+const WORKGROUP: u32 = 64u;
+
+fn rest(p: u32) -> vec3<f32> {
+    return vec3<f32>(particle_rest[3u * p], particle_rest[3u * p + 1u], particle_rest[3u * p + 2u]);
+}
+
+fn disp(p: u32) -> vec3<f32> {
+    return vec3<f32>(particle_displacements[3u * p], particle_displacements[3u * p + 1u], particle_displacements[3u * p + 2u]);
+}
+
+fn mat(p: u32, which: u32) -> mat3x3<f32> {
+    let c = 9u * p;
+    if which == 0u {
+        return mat3x3<f32>(
+            vec3<f32>(particle_stress[c], particle_stress[c + 1u], particle_stress[c + 2u]),
+            vec3<f32>(particle_stress[c + 3u], particle_stress[c + 4u], particle_stress[c + 5u]),
+            vec3<f32>(particle_stress[c + 6u], particle_stress[c + 7u], particle_stress[c + 8u]),
+        );
+    }
+    return mat3x3<f32>(
+        vec3<f32>(particle_gradient[c], particle_gradient[c + 1u], particle_gradient[c + 2u]),
+        vec3<f32>(particle_gradient[c + 3u], particle_gradient[c + 4u], particle_gradient[c + 5u]),
+        vec3<f32>(particle_gradient[c + 6u], particle_gradient[c + 7u], particle_gradient[c + 8u]),
+    );
+}
+
+fn kernel_gradient(d: vec3<f32>) -> vec3<f32> {
+    if particle_params.model == 1u {
+        return paper_gradient(d, particle_params.spacing, particle_params.support);
+    }
+    return wendland_gradient(d, particle_params.support);
+}
+
+fn store3(p: u32, which: u32, v: vec3<f32>) {
+    if which == 0u {
+        particle_forces[3u * p] = v.x;
+        particle_forces[3u * p + 1u] = v.y;
+        particle_forces[3u * p + 2u] = v.z;
+    } else if which == 1u {
+        particle_force_sum[3u * p] = v.x;
+        particle_force_sum[3u * p + 1u] = v.y;
+        particle_force_sum[3u * p + 2u] = v.z;
+    } else {
+        particle_contact[3u * p] = v.x;
+        particle_contact[3u * p + 1u] = v.y;
+        particle_contact[3u * p + 2u] = v.z;
+    }
+}
+
+@compute @workgroup_size(64)
+fn sph_forces(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let k = linear_index(gid, nwg, WORKGROUP);
+    if k >= particle_counts[2] {
+        return;
+    }
+    let pp = particle_params;
+    let c = force_list[k];
+    let mode_c = particle_mode[c];
+    let in_s_c = (mode_c & MODE_IN_S) != 0u;
+    let x0c = rest(c);
+    let uc = disp(c);
+    var a_c = mat3x3<f32>(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0));
+    var f_c = identity3();
+    if in_s_c {
+        a_c = mat(c, 0u);
+        f_c = identity3() + mat(c, 1u);
+    }
+    let v2 = pp.volume * pp.volume;
+    let hg = 0.5 * pp.hourglass * pp.youngs * v2;
+    var f = vec3<f32>(0.0);
+    for (var n = neighbour_offsets[c]; n < neighbour_offsets[c + 1u]; n++) {
+        let b = neighbours[n];
+        let in_s_b = (particle_mode[b] & MODE_IN_S) != 0u;
+        if !in_s_c && !in_s_b {
+            continue;
+        }
+        let x0b = rest(b);
+        let w = kernel_gradient(x0b - x0c);
+        var a_b = mat3x3<f32>(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0));
+        if in_s_b {
+            a_b = mat(b, 0u);
+        }
+        if pp.model == 1u {
+            f += (a_b * w) * v2;
+        } else {
+            f += ((a_c + a_b) * w) * v2;
+            if pp.hourglass > 0.0 {
+                let x0cb = x0c - x0b;
+                let xcb = x0cb + uc - disp(b);
+                let r = length(xcb);
+                let r0 = length(x0cb);
+                if r > 0.0 && r0 > 0.0 {
+                    var delta = 0.0;
+                    if in_s_c {
+                        delta += dot(f_c * x0cb - xcb, xcb) / r;
+                    }
+                    if in_s_b {
+                        delta += dot((identity3() + mat(b, 1u)) * x0cb - xcb, xcb) / r;
+                    }
+                    f += xcb * (hg * wendland(r0, pp.support) / (r0 * r0) * delta / r);
+                }
+            }
+        }
+    }
+    var contact = vec3<f32>(0.0);
+    if (mode_c & MODE_DYNAMIC) != 0u {
+        f += params.gravity * pp.mass;
+        let area = particle_area[c];
+        if TOOL && area > 0.0 {
+            let vc = (tool_input.end - tool_input.start) / (f32(max(tool_input.steps, 1u)) * params.dt);
+            let v = vec3<f32>(particle_velocities[3u * c], particle_velocities[3u * c + 1u], particle_velocities[3u * c + 2u]);
+            contact = contact_force(tool_params, x0c + uc, v, tool_state.position, vc, area).force;
+            f += contact;
+        }
+    }
+    store3(c, 0u, f);
+    store3(c, 2u, contact);
+    var sum = f / f32(max(pp.substeps, 1u));
+    if ACCUMULATE {
+        sum += vec3<f32>(particle_force_sum[3u * c], particle_force_sum[3u * c + 1u], particle_force_sum[3u * c + 2u]);
+    }
+    store3(c, 1u, sum);
+}

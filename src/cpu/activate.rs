@@ -1,0 +1,223 @@
+//! CPU twin of `kernels/activate.wgsl`: the particle mode machine, the stress and force sets,
+//! the tets' energy weights and the vertices' lumped masses (see the kernel for the rules).
+
+use super::{load3, store3};
+use crate::contact::{ToolParams, ToolState};
+use crate::params::StepParams;
+use crate::particles::params::{mode, ParticleParams, NODE_COUPLED};
+use glam::Vec3;
+
+const PER_UPDATE: u32 = mode::NEAR | mode::IN_S | mode::IN_F | mode::ACTIVATED | mode::RELEASED;
+
+/// Read-only particle data the activation stage needs.
+pub struct ParticleStatic<'a> {
+    /// Rest positions, xyz.
+    pub rest: &'a [f32],
+    /// Host tet per particle.
+    pub host: &'a [u32],
+    /// Barycentric weights, 4 per particle.
+    pub weights: &'a [f32],
+    /// Tets of the mesh.
+    pub tets: &'a [[u32; 4]],
+}
+
+impl ParticleStatic<'_> {
+    /// Σ wᵢ aᵢ over particle p's host corners (a: packed xyz per vertex).
+    pub fn embed(&self, a: &[f32], p: usize) -> Vec3 {
+        let t = self.tets[self.host[p] as usize];
+        (0..4).fold(Vec3::ZERO, |acc, c| {
+            acc + load3(a, t[c] as usize) * self.weights[4 * p + c]
+        })
+    }
+}
+
+/// Per particle: the mode machine (twin of entry `activate`).
+#[allow(clippy::too_many_arguments)]
+pub fn activate(
+    pp: &ParticleParams,
+    tool_params: &ToolParams,
+    tool_state: &ToolState,
+    tool: bool,
+    s: &ParticleStatic,
+    displacements: &[f32],
+    velocities: &[f32],
+    particle_displacements: &mut [f32],
+    particle_velocities: &mut [f32],
+    particle_mode: &mut [u32],
+    particle_timer: &mut [f32],
+    particle_offset: &mut [f32],
+) {
+    let c = Vec3::from_array(tool_state.position);
+    for p in 0..pp.n_particles as usize {
+        let mut m = particle_mode[p] & !PER_UPDATE;
+        if m & mode::PINNED != 0 {
+            particle_mode[p] = m;
+            continue;
+        }
+        let mut timer = particle_timer[p];
+        let mut offset = load3(particle_offset, p);
+        let ue = s.embed(displacements, p);
+        let blend = if m & mode::BLENDING != 0 {
+            0.0f32.max(1.0 - timer / pp.blend.max(1e-30))
+        } else {
+            0.0
+        };
+        let u = if m & mode::DYNAMIC != 0 {
+            load3(particle_displacements, p)
+        } else {
+            ue + offset * blend
+        };
+        let mut qualifies = pp.all_active != 0;
+        let mut keep = qualifies;
+        if tool && !qualifies {
+            let d = (load3(s.rest, p) + u - c).length() - tool_params.radius;
+            qualifies = d < pp.activation_radius;
+            keep = d < pp.release_radius;
+        }
+        if m & mode::DYNAMIC != 0 {
+            if keep {
+                timer = 0.0;
+            } else {
+                timer += pp.interval;
+                if timer >= pp.dwell {
+                    offset = u - ue;
+                    m = (m & !mode::DYNAMIC) | mode::BLENDING | mode::RELEASED;
+                    timer = 0.0;
+                }
+            }
+        } else if qualifies {
+            store3(particle_displacements, p, u);
+            store3(particle_velocities, p, s.embed(velocities, p));
+            m = (m & !mode::BLENDING) | mode::DYNAMIC | mode::ACTIVATED;
+            timer = 0.0;
+            offset = Vec3::ZERO;
+        } else if m & mode::BLENDING != 0 {
+            timer += pp.interval;
+            if timer >= pp.blend {
+                m &= !mode::BLENDING;
+                offset = Vec3::ZERO;
+            }
+        }
+        particle_timer[p] = timer;
+        store3(particle_offset, p, offset);
+        particle_mode[p] = m;
+    }
+}
+
+/// Mark `bit` on every particle with `source` set and on its neighbours (twin of
+/// `activate_stress_set` with source DYNAMIC / bit IN_S and `activate_force_set` with
+/// source IN_S / bit IN_F; an OR, so the order does not matter).
+pub fn mark_set(
+    n: usize,
+    source: u32,
+    bit: u32,
+    neighbour_offsets: &[u32],
+    neighbours: &[u32],
+    particle_mode: &mut [u32],
+) {
+    for p in 0..n {
+        if particle_mode[p] & source == 0 {
+            continue;
+        }
+        particle_mode[p] |= bit;
+        for k in neighbour_offsets[p]..neighbour_offsets[p + 1] {
+            particle_mode[neighbours[k as usize] as usize] |= bit;
+        }
+    }
+}
+
+/// Per tet: 1 − (its particles in S)/(its particles), 1 without particles (twin of
+/// `activate_tet_weights`).
+pub fn tet_weights(
+    params: &StepParams,
+    tet_offsets: &[u32],
+    particle_mode: &[u32],
+    tet_weight: &mut [f32],
+) {
+    super::par::for_each_chunk::<1>(tet_weight, params.n_tets as usize, |e, out| {
+        let (first, last) = (tet_offsets[e], tet_offsets[e + 1]);
+        let in_s = (first..last)
+            .filter(|&p| particle_mode[p as usize] & mode::IN_S != 0)
+            .count() as u32;
+        out[0] = if last > first {
+            1.0 - in_s as f32 / (last - first) as f32
+        } else {
+            1.0
+        };
+    });
+}
+
+/// Per vertex: lumped mass, momentum-preserving velocity, kinematic vertices, coupling flag
+/// and contact weight (twin of `activate_relump`).
+#[allow(clippy::too_many_arguments)]
+pub fn relump(
+    params: &StepParams,
+    pp: &ParticleParams,
+    slot_offsets: &[u32],
+    slots: &[u32],
+    weights: &[f32],
+    particle_mode: &[u32],
+    particle_velocities: &[f32],
+    core_mass: &[f32],
+    node_fixed: &[u32],
+    incidence_offsets: &[u32],
+    incidence: &[u32],
+    tet_weight: &[f32],
+    mass: &mut [f32],
+    inv_mass: &mut [f32],
+    velocities: &mut [f32],
+    node_flags: &mut [u32],
+    contact_weight: &mut [f32],
+) {
+    let mp = pp.mass;
+    for i in 0..params.n_vertices as usize {
+        let mut m = core_mass[i];
+        let (mut m_released, mut p_released) = (0.0f32, Vec3::ZERO);
+        let (mut m_dynamic, mut p_dynamic) = (0.0f32, Vec3::ZERO);
+        let mut coupled = false;
+        for k in slot_offsets[i]..slot_offsets[i + 1] {
+            let slot = slots[k as usize] as usize;
+            let p = slot / 4;
+            let w = weights[slot];
+            let md = particle_mode[p];
+            if md & mode::DYNAMIC == 0 {
+                m += w * mp;
+                if md & mode::RELEASED != 0 {
+                    m_released += w * mp;
+                    p_released += load3(particle_velocities, p) * (w * mp);
+                }
+                if md & mode::IN_F != 0 {
+                    coupled = true;
+                }
+            } else {
+                m_dynamic += w * mp;
+                p_dynamic += load3(particle_velocities, p) * (w * mp);
+            }
+        }
+        mass[i] = m;
+        let mut v = load3(velocities, i);
+        let w_inv;
+        if node_fixed[i] != 0 {
+            v = Vec3::ZERO;
+            w_inv = 0.0;
+        } else if m > 0.0 {
+            w_inv = 1.0 / m;
+            v = (v * (m - m_released) + p_released) / m;
+        } else {
+            w_inv = -1.0;
+            v = if m_dynamic > 0.0 {
+                p_dynamic / m_dynamic
+            } else {
+                Vec3::ZERO
+            };
+        }
+        inv_mass[i] = w_inv;
+        store3(velocities, i, v);
+        node_flags[i] = if coupled { NODE_COUPLED } else { 0 };
+        let mut cw = 1.0f32;
+        for k in incidence_offsets[i]..incidence_offsets[i + 1] {
+            cw = cw.min(tet_weight[incidence[k as usize] as usize / 4]);
+        }
+        contact_weight[i] = cw;
+    }
+}

@@ -1,0 +1,70 @@
+//! CPU twin of `kernels/sph_setup.wgsl`: each particle's kernel-gradient correction
+//! G_p = M_p⁻¹, M_p = Σ_b V (X_b − X_p) ⊗ ∇W(X_b − X_p) (0 when M is singular).
+
+use super::load3;
+use super::sph::kernel_gradient;
+use crate::particles::params::ParticleParams;
+use glam::{Mat3, Vec3};
+
+/// The correction matrix of particle p.
+pub fn correction(
+    pp: &ParticleParams,
+    rest: &[f32],
+    neighbour_offsets: &[u32],
+    neighbours: &[u32],
+    p: usize,
+) -> Mat3 {
+    let x = load3(rest, p);
+    let mut m = Mat3::ZERO;
+    for k in neighbour_offsets[p]..neighbour_offsets[p + 1] {
+        let d = load3(rest, neighbours[k as usize] as usize) - x;
+        let w = kernel_gradient(pp.model, d, pp.spacing, pp.support) * pp.volume;
+        m += Mat3::from_cols(d * w.x, d * w.y, d * w.z);
+    }
+    let det = m.determinant();
+    let scale = m.x_axis.x.abs() + m.y_axis.y.abs() + m.z_axis.z.abs();
+    if det.abs() > 1e-6 * scale * scale * scale {
+        let r0 = m.y_axis.cross(m.z_axis);
+        let r1 = m.z_axis.cross(m.x_axis);
+        let r2 = m.x_axis.cross(m.y_axis);
+        Mat3::from_cols(r0, r1, r2).transpose() * (1.0 / det)
+    } else {
+        Mat3::ZERO
+    }
+}
+
+/// Per particle: `particle_correction[9p..]` = G_p, column-major.
+pub fn sph_setup(
+    pp: &ParticleParams,
+    rest: &[f32],
+    neighbour_offsets: &[u32],
+    neighbours: &[u32],
+    particle_correction: &mut [f32],
+) {
+    super::par::for_each_chunk::<9>(particle_correction, pp.n_particles as usize, |p, out| {
+        out.copy_from_slice(
+            &correction(pp, rest, neighbour_offsets, neighbours, p).to_cols_array(),
+        );
+    });
+}
+
+/// Σ_b V (a_b − a_p) ⊗ ∇W(X_b − X_p) (the bracket of F_p; a = displacements or positions).
+pub fn gradient_sum(
+    pp: &ParticleParams,
+    rest: &[f32],
+    a: &[f32],
+    neighbour_offsets: &[u32],
+    neighbours: &[u32],
+    p: usize,
+) -> Mat3 {
+    let x = load3(rest, p);
+    let ap = load3(a, p);
+    let mut s = Mat3::ZERO;
+    for k in neighbour_offsets[p]..neighbour_offsets[p + 1] {
+        let b = neighbours[k as usize] as usize;
+        let w = kernel_gradient(pp.model, load3(rest, b) - x, pp.spacing, pp.support) * pp.volume;
+        let du: Vec3 = load3(a, b) - ap;
+        s += Mat3::from_cols(du * w.x, du * w.y, du * w.z);
+    }
+    s
+}

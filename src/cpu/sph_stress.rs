@@ -1,0 +1,80 @@
+//! CPU twin of `kernels/sph_stress.wgsl`: per particle of the stress set, H_p, the material's
+//! P (tlsph) or the paper's eq. (1)–(2) stress (paper), A_p = P G_pᵀ and V Ψ.
+
+use super::fem_forces::load_dm_inv;
+use super::sph_setup::gradient_sum;
+use crate::material::{ddot, elastic_stress_energy, trace, MaterialModel};
+use crate::params::StepParams;
+use crate::particles::params::ParticleParams;
+use glam::Mat3;
+
+/// A_p, H_p and V Ψ of particle p.
+#[allow(clippy::too_many_arguments)]
+pub fn stress_of(
+    params: &StepParams,
+    pp: &ParticleParams,
+    material: MaterialModel,
+    rest: &[f32],
+    displacements: &[f32],
+    neighbour_offsets: &[u32],
+    neighbours: &[u32],
+    correction: &[f32],
+    p: usize,
+) -> (Mat3, Mat3, f32) {
+    let s = gradient_sum(pp, rest, displacements, neighbour_offsets, neighbours, p);
+    let g = load_dm_inv(correction, p);
+    let h = s * g;
+    let (stress, psi) = if pp.model == 1 {
+        let f = Mat3::IDENTITY + h;
+        let eps = f.transpose() * f - Mat3::IDENTITY;
+        let tr = trace(eps);
+        (
+            Mat3::from_diagonal(glam::Vec3::splat(params.lambda * tr)) + eps * (2.0 * params.mu),
+            0.25 * params.mu * ddot(eps, eps) + 0.125 * params.lambda * tr * tr,
+        )
+    } else {
+        elastic_stress_energy(material, h, params.lambda, params.mu)
+    };
+    (stress * g.transpose(), h, pp.volume * psi)
+}
+
+/// Per particle of `stress_list`: `particle_stress` (A), `particle_gradient` (H), `particle_energy`.
+#[allow(clippy::too_many_arguments)]
+pub fn sph_stress(
+    params: &StepParams,
+    pp: &ParticleParams,
+    material: MaterialModel,
+    stress_list: &[u32],
+    rest: &[f32],
+    displacements: &[f32],
+    neighbour_offsets: &[u32],
+    neighbours: &[u32],
+    correction: &[f32],
+    particle_stress: &mut [f32],
+    particle_gradient: &mut [f32],
+    particle_energy: &mut [f32],
+) {
+    use rayon::prelude::*;
+    let results: Vec<(Mat3, Mat3, f32)> = stress_list
+        .par_iter()
+        .map(|&p| {
+            stress_of(
+                params,
+                pp,
+                material,
+                rest,
+                displacements,
+                neighbour_offsets,
+                neighbours,
+                correction,
+                p as usize,
+            )
+        })
+        .collect();
+    for (&p, (a, h, e)) in stress_list.iter().zip(results) {
+        let p = p as usize;
+        particle_stress[9 * p..9 * p + 9].copy_from_slice(&a.to_cols_array());
+        particle_gradient[9 * p..9 * p + 9].copy_from_slice(&h.to_cols_array());
+        particle_energy[p] = e;
+    }
+}
