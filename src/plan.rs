@@ -182,6 +182,12 @@ impl Stage {
                 },
                 Entry {
                     file: "tool_force",
+                    entry: "tool_force_particles",
+                    domain: Domain::Particles,
+                    aliases: &[],
+                },
+                Entry {
+                    file: "tool_force",
                     entry: "tool_force_final",
                     domain: Domain::OneWorkgroup,
                     aliases: &[],

@@ -343,7 +343,7 @@ pub fn run(scene: &Scene, opts: &RunOptions) -> Result<RunSummary> {
         threads: sim.threads,
         tets: model.n_tets(),
         vertices: model.n_vertices(),
-        particles: 0,
+        particles: model.particles.as_ref().map_or(0, |p| p.len()),
         steps: sim.steps_done,
         dt: sim.dt,
         dt_bound: model.bounds.dt_bound,
@@ -358,6 +358,11 @@ pub fn run(scene: &Scene, opts: &RunOptions) -> Result<RunSummary> {
         elastic_energy: sim.last.elastic_energy(),
         static_residual: if until_static { residual } else { None },
         static_tolerance: until_static.then_some(tolerance),
+        active_particles: model
+            .particles
+            .as_ref()
+            .map(|_| sim.last_particles.map_or(0, |p| p.dynamic)),
+        active_particles_max: model.particles.as_ref().map(|_| sim.active_particles_max),
         tool_position: model.tool.as_ref().map(|_| sim.tool_position.to_array()),
         tool_force: model
             .tool

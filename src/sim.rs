@@ -160,6 +160,10 @@ pub struct Simulation {
     pub tool_target: Option<DVec3>,
     /// The tool report of the last batch (scenes with a tool).
     pub last_tool: Option<ToolReport>,
+    /// The particle report of the last batch (scenes with particles).
+    pub last_particles: Option<crate::stepper::ParticleReport>,
+    /// The most dynamic particles any batch ended with.
+    pub active_particles_max: u32,
     /// State, step count, time and tool position at the start of the batch that last
     /// diverged.
     checkpoint: Option<(State, u64, f64, DVec3)>,
@@ -262,6 +266,8 @@ impl Simulation {
                 .map_or(DVec3::ZERO, |t| t.tool.position_at(0.0)),
             tool_target: None,
             last_tool: None,
+            last_particles: None,
+            active_particles_max: 0,
             checkpoint: None,
         })
     }
@@ -317,6 +323,10 @@ impl Simulation {
             }
             if report.tool.is_some() {
                 self.last_tool = report.tool;
+            }
+            if let Some(p) = report.particles {
+                self.active_particles_max = self.active_particles_max.max(p.dynamic);
+                self.last_particles = Some(p);
             }
         }
         Ok(report)

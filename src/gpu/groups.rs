@@ -100,7 +100,7 @@ pub fn tool<'a>(model: &'a Model, tool_params: &'a ToolParams) -> BufferGroup<'a
         };
     };
     let n_surface = t.surface_vertices.len() as u64;
-    let blocks = n_surface.div_ceil(crate::cpu::tool_force::TOOL_WORKGROUP as u64);
+    let blocks = crate::cpu::tool_force::n_partials(tool_params) as u64;
     BufferGroup {
         name: "tool",
         specs: vec![

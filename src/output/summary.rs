@@ -146,6 +146,12 @@ pub struct RunSummary {
     pub static_residual: Option<f64>,
     /// The tolerance `static_residual` was held to (with `--until-static`).
     pub static_tolerance: Option<f64>,
+    /// Dynamic particles at the end (scenes with particles).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub active_particles: Option<u32>,
+    /// The most dynamic particles at any batch end (scenes with particles).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub active_particles_max: Option<u32>,
     /// The tool's centre at the end, m (scenes with a tool).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub tool_position: Option<[f64; 3]>,
