@@ -409,6 +409,11 @@ impl Simulation {
         }
     }
 
+    /// The particles' displacements and velocities (None without particles).
+    pub fn particle_state(&mut self) -> Result<Option<State>> {
+        self.stepper.read_particle_state()
+    }
+
     /// Current displacements and velocities.
     pub fn state(&mut self) -> Result<State> {
         self.stepper.read_state()

@@ -180,6 +180,11 @@ pub trait Stepper: Send {
     fn write_state(&mut self, state: &State) -> Result<()>;
     /// Per stage, how many times it ran in the last batch (the executed step plan).
     fn stage_counts(&self) -> Vec<(crate::plan::Stage, u32)>;
+    /// The particles' displacements and velocities (embedded particles as of their last
+    /// `follow`), or None without particles; waits for the batches in flight.
+    fn read_particle_state(&mut self) -> Result<Option<State>> {
+        Ok(None)
+    }
 
     /// Run `steps` steps with no per-batch input and wait for the stats.
     fn run(&mut self, steps: u32) -> Result<BatchStats> {

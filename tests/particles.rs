@@ -161,3 +161,348 @@ fn neighbour_lists_built_on_the_gpu_equal_the_cpu_twin() {
         p.len()
     );
 }
+
+use glam::DVec3;
+use palpate::cpu::activate::ParticleStatic;
+use palpate::gpu::stepper::Stage;
+use palpate::gpu::GpuStepper;
+use palpate::particles::params::mode;
+use palpate::stepper::{BatchInput, Stepper};
+use std::sync::Arc;
+
+const KERNEL_TOL: f64 = 1e-5;
+
+/// A 20 x 20 x 10 mm block on a fixed bottom, all of it particle zone (1 mm lattice), with a
+/// 3 mm tool pressing its top centre.
+fn pressed_block() -> Scene {
+    let text = "name = \"hybrid block\"\n[mesh]\ngenerator = \"beam\"\nsize = [0.02, 0.02, 0.01]\ncells = [4, 4, 2]\n[material]\nyoungs_modulus = 3.0e4\npoisson_ratio = 0.3\ndensity = 1000.0\n[[fixed]]\nplane = { normal = [0.0, 0.0, 1.0], offset = 0.0 }\n[particles]\nregion = 0\nspacing = 0.001\nactivation_radius = 0.003\n[tool]\nradius = 0.003\nstiffness = 1.0e8\npath = [[0.0, 0.01, 0.01, 0.0135], [0.02, 0.01, 0.01, 0.0120]]\n[solver]\ndamping = 50.0\n";
+    Scene::from_toml(text, "hybrid block", "hybrid_block", None).unwrap()
+}
+
+fn bits_u32(g: &GpuStepper, name: &str) -> Vec<u32> {
+    g.read_f32(name)
+        .unwrap()
+        .iter()
+        .map(|x| x.to_bits())
+        .collect()
+}
+
+fn rel(a: &[f32], b: &[f32]) -> f64 {
+    common::rel_err(a, b)
+}
+
+#[test]
+fn particle_kernels_match_their_cpu_twins() {
+    let scene = pressed_block();
+    let m = Arc::new(Model::from_scene(&scene));
+    let pd = m.particles.as_ref().unwrap();
+    let params = m.step_params(0.5 * m.bounds.dt_bound, 50.0);
+    let pp = m.particle_params(&params).unwrap();
+    let mut g = GpuStepper::new(gpu(), &m, params).unwrap();
+    // Press for 60 steps so that particles are dynamic, stressed and touching.
+    let (a, b) = (
+        DVec3::new(0.01, 0.01, 0.0135),
+        DVec3::new(0.01, 0.01, 0.0118),
+    );
+    g.submit(60, &BatchInput { tool: Some((a, b)) }).unwrap();
+    g.wait().unwrap();
+    let grid = GridParams::over(&pd.rest, pd.support);
+    let lists = cpu::neighbours::build(&grid, &pd.rest);
+    let (noff, nbrs) = (&lists.neighbour_offsets, &lists.neighbours);
+    let st = ParticleStatic {
+        rest: &pd.rest,
+        host: &pd.host,
+        weights: &pd.weights,
+        tets: &m.tets,
+    };
+    let n = pd.len();
+    let tp = {
+        let mut t = m.tool.as_ref().unwrap().params();
+        t.n_particles = n as u32;
+        t
+    };
+    let tool_input = palpate::contact::batch_input(a, b, 60);
+    let tool_state: palpate::contact::ToolState = *bytemuck::from_bytes(bytemuck::cast_slice(
+        &g.read_f32("tool_state").unwrap()[..4],
+    ));
+
+    // activate (mode machine, sets, compaction, tet weights, relump)
+    let u = g.read_f32("displacements").unwrap();
+    let mut v = g.read_f32("velocities").unwrap();
+    let mut pu = g.read_f32("particle_displacements").unwrap();
+    let mut pv = g.read_f32("particle_velocities").unwrap();
+    let mut pmode = bits_u32(&g, "particle_mode");
+    let mut ptimer = g.read_f32("particle_timer").unwrap();
+    let mut poffset = g.read_f32("particle_offset").unwrap();
+    let node_fixed = bits_u32(&g, "node_fixed");
+    g.run_stage(Stage::Activate).unwrap();
+    cpu::activate::activate(
+        &pp,
+        &tp,
+        &tool_state,
+        true,
+        &st,
+        &u,
+        &v,
+        &mut pu,
+        &mut pv,
+        &mut pmode,
+        &mut ptimer,
+        &mut poffset,
+    );
+    cpu::activate::mark_set(n, mode::DYNAMIC, mode::IN_S, noff, nbrs, &mut pmode);
+    cpu::activate::mark_set(n, mode::IN_S, mode::IN_F, noff, nbrs, &mut pmode);
+    let (mut dl, mut sl, mut fl) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut counts, mut dispatch) = ([0u32; 4], [0u32; 9]);
+    cpu::compact::compact(
+        &pmode,
+        &mut dl,
+        &mut sl,
+        &mut fl,
+        &mut counts,
+        &mut dispatch,
+    );
+    let mut tw = vec![0.0f32; m.n_tets()];
+    cpu::activate::tet_weights(&params, &pd.tet_offsets, &pmode, &mut tw);
+    let (mut mass, mut inv_mass) = (vec![0.0f32; m.n_vertices()], vec![0.0f32; m.n_vertices()]);
+    let (mut flags, mut cw) = (vec![0u32; m.n_vertices()], vec![0.0f32; m.n_vertices()]);
+    cpu::activate::relump(
+        &params,
+        &pp,
+        &pd.slot_offsets,
+        &pd.slots,
+        &pd.weights,
+        &pmode,
+        &pv,
+        &pd.core_mass,
+        &node_fixed,
+        &m.incidence_offsets,
+        &m.incidence,
+        &tw,
+        &mut mass,
+        &mut inv_mass,
+        &mut v,
+        &mut flags,
+        &mut cw,
+    );
+    assert_eq!(bits_u32(&g, "particle_mode")[..n], pmode[..], "modes");
+    assert!(
+        counts[0] >= 20 && counts[1] > counts[0] && counts[2] > counts[1],
+        "{counts:?}"
+    );
+    assert_eq!(&bits_u32(&g, "particle_counts")[..4], &counts[..]);
+    assert_eq!(&bits_u32(&g, "particle_dispatch")[..9], &dispatch[..]);
+    assert_eq!(&bits_u32(&g, "dynamic_list")[..dl.len()], &dl[..]);
+    assert_eq!(&bits_u32(&g, "stress_list")[..sl.len()], &sl[..]);
+    assert_eq!(&bits_u32(&g, "force_list")[..fl.len()], &fl[..]);
+    assert_eq!(&bits_u32(&g, "node_flags")[..flags.len()], &flags[..]);
+    for (name, gpu_v, cpu_v) in [
+        (
+            "particle_displacements",
+            g.read_f32("particle_displacements").unwrap(),
+            pu.clone(),
+        ),
+        (
+            "particle_velocities",
+            g.read_f32("particle_velocities").unwrap(),
+            pv.clone(),
+        ),
+        ("tet_weight", g.read_f32("tet_weight").unwrap(), tw.clone()),
+        ("mass", g.read_f32("mass").unwrap(), mass.clone()),
+        (
+            "inv_mass",
+            g.read_f32("inv_mass").unwrap(),
+            inv_mass.clone(),
+        ),
+        ("velocities", g.read_f32("velocities").unwrap(), v.clone()),
+        (
+            "contact_weight",
+            g.read_f32("contact_weight").unwrap(),
+            cw.clone(),
+        ),
+    ] {
+        let e = rel(&gpu_v[..cpu_v.len()], &cpu_v);
+        eprintln!("activate: {name} rel err {e:.2e}");
+        assert!(e <= KERNEL_TOL, "activate: {name} rel err {e:.2e}");
+    }
+    eprintln!(
+        "activate: dynamic {}, stress {}, force {}",
+        counts[0], counts[1], counts[2]
+    );
+
+    // follow
+    g.run_stage(Stage::Follow).unwrap();
+    cpu::follow::follow(&pp, &fl, &pmode, &st, &u, &ptimer, &poffset, &mut pu);
+    let e = rel(
+        &g.read_f32("particle_displacements").unwrap()[..pu.len()],
+        &pu,
+    );
+    assert!(e <= KERNEL_TOL, "follow rel err {e:.2e}");
+
+    // sph_stress (from the GPU's displacements, to test the kernel alone)
+    let pu = g.read_f32("particle_displacements").unwrap();
+    let corr = g.read_f32("particle_correction").unwrap();
+    let mut ccorr = vec![0.0f32; 9 * n];
+    cpu::sph_setup::sph_setup(&pp, &pd.rest, noff, nbrs, &mut ccorr);
+    let e = rel(&corr[..9 * n], &ccorr);
+    eprintln!("sph_setup: rel err {e:.2e}");
+    assert!(e <= KERNEL_TOL, "sph_setup rel err {e:.2e}");
+    g.run_stage(Stage::SphStress).unwrap();
+    let (mut stress, mut grad, mut energy) =
+        (vec![0.0f32; 9 * n], vec![0.0f32; 9 * n], vec![0.0f32; n]);
+    cpu::sph_stress::sph_stress(
+        &params,
+        &pp,
+        m.material.model,
+        &sl,
+        &pd.rest,
+        &pu,
+        noff,
+        nbrs,
+        &corr,
+        &mut stress,
+        &mut grad,
+        &mut energy,
+    );
+    for (name, c) in [
+        ("particle_stress", &stress),
+        ("particle_gradient", &grad),
+        ("particle_energy", &energy),
+    ] {
+        let gv = g.read_f32(name).unwrap();
+        let idx: Vec<usize> = if name == "particle_energy" {
+            sl.iter().map(|&p| p as usize).collect()
+        } else {
+            sl.iter()
+                .flat_map(|&p| (0..9).map(move |k| 9 * p as usize + k))
+                .collect()
+        };
+        let (a, b): (Vec<f32>, Vec<f32>) = idx.iter().map(|&i| (gv[i], c[i])).unzip();
+        let e = rel(&a, &b);
+        eprintln!("sph_stress: {name} rel err {e:.2e}");
+        assert!(e <= KERNEL_TOL, "sph_stress: {name} rel err {e:.2e}");
+    }
+
+    // sph_forces
+    let gstress = g.read_f32("particle_stress").unwrap();
+    let ggrad = g.read_f32("particle_gradient").unwrap();
+    let pv = g.read_f32("particle_velocities").unwrap();
+    g.run_stage(Stage::SphForces).unwrap();
+    let inp = cpu::sph_forces::ForceInputs {
+        params: &params,
+        pp: &pp,
+        tool: Some((&tp, &tool_input, &tool_state)),
+        mode: &pmode,
+        rest: &pd.rest,
+        displacements: &pu,
+        velocities: &pv,
+        neighbour_offsets: noff,
+        neighbours: nbrs,
+        stress: &gstress,
+        gradient: &ggrad,
+        area: &pd.contact_area,
+    };
+    let (mut f, mut fs, mut fc) = (
+        vec![0.0f32; 3 * n],
+        vec![0.0f32; 3 * n],
+        vec![0.0f32; 3 * n],
+    );
+    cpu::sph_forces::sph_forces(&inp, &fl, false, &mut f, &mut fs, &mut fc);
+    let touching = fl
+        .iter()
+        .filter(|&&p| fc[3 * p as usize + 2] != 0.0)
+        .count();
+    assert!(touching > 0, "no particle touches the tool");
+    for (name, c) in [
+        ("particle_forces", &f),
+        ("particle_force_sum", &fs),
+        ("particle_contact", &fc),
+    ] {
+        let gv = g.read_f32(name).unwrap();
+        let idx: Vec<usize> = fl
+            .iter()
+            .flat_map(|&p| (0..3).map(move |k| 3 * p as usize + k))
+            .collect();
+        let (a, b): (Vec<f32>, Vec<f32>) = idx.iter().map(|&i| (gv[i], c[i])).unzip();
+        let e = rel(&a, &b);
+        eprintln!("sph_forces: {name} rel err {e:.2e} ({touching} particles touch the tool)");
+        assert!(e <= KERNEL_TOL, "sph_forces: {name} rel err {e:.2e}");
+    }
+
+    // integrate_particles
+    let gf = g.read_f32("particle_forces").unwrap();
+    let (mut pu2, mut pv2) = (pu.clone(), pv.clone());
+    let mut status = vec![u32::MAX; 4];
+    g.run_stage(Stage::IntegrateParticles).unwrap();
+    cpu::integrate_particles::integrate_particles(
+        &params,
+        &pp,
+        &dl,
+        &gf,
+        &mut pu2,
+        &mut pv2,
+        &mut status,
+    );
+    let e = rel(
+        &g.read_f32("particle_displacements").unwrap()[..pu2.len()],
+        &pu2,
+    )
+    .max(rel(
+        &g.read_f32("particle_velocities").unwrap()[..pv2.len()],
+        &pv2,
+    ));
+    eprintln!("integrate_particles: rel err {e:.2e}");
+    assert!(e <= KERNEL_TOL, "integrate_particles rel err {e:.2e}");
+}
+
+#[test]
+fn hybrid_trajectory_300_steps_gpu_matches_cpu() {
+    let scene = pressed_block();
+    let run = |backend: palpate::sim::Backend| {
+        let mut sim = palpate::sim::Simulation::new(
+            &scene,
+            backend,
+            palpate::sim::SimOptions {
+                gpu: (backend == palpate::sim::Backend::Gpu).then(gpu),
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        let mut out = Vec::new();
+        for _ in 0..3 {
+            assert!(matches!(
+                sim.advance(100).unwrap(),
+                palpate::sim::Advance::Done(_)
+            ));
+            out.push((
+                sim.state().unwrap().displacements,
+                sim.particle_state().unwrap().unwrap().displacements,
+                sim.last_tool.unwrap().force,
+                sim.last_particles.unwrap().dynamic,
+            ));
+        }
+        out
+    };
+    let (c, g) = (
+        run(palpate::sim::Backend::Cpu),
+        run(palpate::sim::Backend::Gpu),
+    );
+    for (k, (cc, gg)) in c.iter().zip(&g).enumerate() {
+        let eu = rel(&gg.0, &cc.0);
+        let ep = rel(&gg.1, &cc.1);
+        let ef = (gg.2 - cc.2).length() / cc.2.length().max(1e-30);
+        eprintln!(
+            "step {}: {} dynamic particles, |F| {:.4e} N; rel err vertices {eu:.2e}, particles {ep:.2e}, tool force {ef:.2e}",
+            100 * (k + 1),
+            cc.3,
+            cc.2.length()
+        );
+        assert_eq!(cc.3, gg.3, "dynamic particle counts");
+        assert!(cc.3 > 0, "no particle became dynamic");
+        assert!(
+            eu <= 1e-4 && ep <= 1e-4 && ef <= 1e-4,
+            "step {}",
+            100 * (k + 1)
+        );
+    }
+}

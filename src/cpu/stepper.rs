@@ -748,4 +748,8 @@ impl Stepper for CpuStepper {
     fn stage_counts(&self) -> Vec<(Stage, u32)> {
         self.counts.clone()
     }
+
+    fn read_particle_state(&mut self) -> Result<Option<State>> {
+        Ok(self.particle_state())
+    }
 }

@@ -289,9 +289,7 @@ impl GpuStepper {
         Ok(())
     }
 
-    /// The particles' displacements and velocities (embedded ones as of their last `follow`),
-    /// or None without particles (waits for the batches in flight).
-    pub fn read_particle_state(&mut self) -> Result<Option<State>> {
+    fn read_particles(&mut self) -> Result<Option<State>> {
         if self.n_particles == 0 {
             return Ok(None);
         }
@@ -758,5 +756,9 @@ impl Stepper for GpuStepper {
 
     fn stage_counts(&self) -> Vec<(Stage, u32)> {
         self.counts.clone()
+    }
+
+    fn read_particle_state(&mut self) -> Result<Option<State>> {
+        self.read_particles()
     }
 }
