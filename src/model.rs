@@ -186,8 +186,20 @@ impl Model {
     pub fn with_particles(
         mut self,
         fixed: &[bool],
-        particles: crate::particles::Particles,
+        mut particles: crate::particles::Particles,
     ) -> Model {
+        // Particles whose host touches the core (a vertex with core mass) or a fixed vertex
+        // stay embedded: they tie the particle zone to the rest of the body.
+        let anchored: Vec<bool> = (0..self.n_vertices())
+            .map(|v| fixed[v] || particles.core_mass[v] > 0.0)
+            .collect();
+        particles.pinned = (0..particles.len())
+            .map(|p| {
+                self.tets[particles.host[p] as usize]
+                    .iter()
+                    .any(|&v| anchored[v as usize])
+            })
+            .collect();
         self.mass = particles.embedded_mass();
         self.inv_mass = self
             .mass

@@ -185,13 +185,26 @@ struct Relaxation {
 }
 
 impl Relaxation {
+    /// The relative residual after a batch, counting dynamic particles with the vertices
+    /// (their residual force, their weight as load, their energy and Σ m|u|² in the
+    /// Rayleigh quotient).
     fn after_batch(&self, sim: &mut Simulation, s: &BatchStats) -> Result<f64> {
-        if self.adaptive {
-            if let Some(omega) = s.displacement_frequency() {
-                sim.set_damping(2.0 * omega)?;
-            }
+        let (mut residual2, mut load2) = (s.residual_norm().powi(2), s.external_norm().powi(2));
+        let (mut elastic, mut mu2) = (
+            s.elastic_energy(),
+            s.stats[crate::params::stat::MASS_DISPLACEMENT_SQ] as f64,
+        );
+        if let (Some(p), Some(pd)) = (sim.last_particles, sim.model.particles.as_ref()) {
+            residual2 += p.residual_norm.powi(2);
+            let g = glam::DVec3::from_array(sim.model.gravity.map(|x| x as f64));
+            load2 += p.dynamic as f64 * (pd.mass as f64 * g.length()).powi(2);
+            elastic += p.elastic_energy;
+            mu2 += p.mass_displacement_sq;
         }
-        Ok(s.residual_norm() / s.external_norm().max(f64::MIN_POSITIVE))
+        if self.adaptive && mu2 > 0.0 {
+            sim.set_damping(2.0 * (2.0 * elastic / mu2).sqrt())?;
+        }
+        Ok(residual2.sqrt() / load2.sqrt().max(f64::MIN_POSITIVE))
     }
 }
 
@@ -354,8 +367,10 @@ pub fn run(scene: &Scene, opts: &RunOptions) -> Result<RunSummary> {
         steps_per_second: sim.steps_done as f64 / wall.max(1e-9),
         realtime_factor: sim.time / wall.max(1e-9),
         max_displacement: max_displacement(&state.displacements),
-        kinetic_energy: sim.last.kinetic_energy(),
-        elastic_energy: sim.last.elastic_energy(),
+        kinetic_energy: sim.last.kinetic_energy()
+            + sim.last_particles.map_or(0.0, |p| p.kinetic_energy),
+        elastic_energy: sim.last.elastic_energy()
+            + sim.last_particles.map_or(0.0, |p| p.elastic_energy),
         static_residual: if until_static { residual } else { None },
         static_tolerance: until_static.then_some(tolerance),
         active_particles: model

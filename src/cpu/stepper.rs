@@ -623,6 +623,28 @@ impl CpuStepper {
         self.particles.as_ref().map(|pa| pa.state.mode.as_slice())
     }
 
+    /// The current vertex masses (re-lumped with the particles', kg) and inverse masses
+    /// (negative: moved kinematically by dynamic particles).
+    pub fn vertex_masses(&self) -> (&[f32], &[f32]) {
+        match &self.particles {
+            Some(pa) => (&pa.state.mass, &pa.state.inv_mass),
+            None => (&self.model.mass, &self.model.inv_mass),
+        }
+    }
+
+    /// The last SPH forces on the particles (None without particles).
+    pub fn particle_forces(&self) -> Option<&[f32]> {
+        self.particles.as_ref().map(|pa| pa.forces.as_slice())
+    }
+
+    /// Overwrite the particles' displacements and velocities.
+    pub fn set_particle_state(&mut self, state: &State) {
+        if let Some(pa) = &mut self.particles {
+            pa.state.displacements.clone_from(&state.displacements);
+            pa.state.velocities.clone_from(&state.velocities);
+        }
+    }
+
     /// The CPU-built neighbour lists (None without particles).
     pub fn neighbour_lists(&self) -> Option<&NeighbourLists> {
         self.particles.as_ref().map(|pa| &pa.lists)

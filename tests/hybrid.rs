@@ -1,0 +1,219 @@
+//! The hybrid model's mechanics: momentum in free flight, rigid motion and the affine patch
+//! test across the tet/particle interface, particle-only against FEM-only deflection,
+//! hourglass control, and the paper's HM1 with a pressing tool.
+
+mod common;
+
+use glam::{DMat3, DVec3, Vec3};
+use palpate::cpu::CpuStepper;
+use palpate::model::Model;
+use palpate::particles::params::mode;
+use palpate::plan::Stage;
+use palpate::stepper::{State, Stepper};
+use palpate::Scene;
+use std::sync::Arc;
+
+/// A 20 x 10 x 10 mm block: its lower half (z < 5 mm) is tet core (region 1), its upper half
+/// the particle zone (region 0, 1 mm lattice) with every unpinned particle dynamic.
+/// `extra` adds TOML (fixed sets, loads).
+fn two_layer_block(extra: &str, particle_keys: &str) -> Scene {
+    layered_block([0.02, 0.01, 0.01], [4, 2, 4], extra, particle_keys)
+}
+
+/// A block of `size` on `cells` whose lower half is core and upper half particle zone.
+fn layered_block(size: [f64; 3], cells: [usize; 3], extra: &str, particle_keys: &str) -> Scene {
+    let text = format!(
+        "[mesh]\ngenerator = \"beam\"\nsize = {size:?}\ncells = {cells:?}\n\n[material]\nyoungs_modulus = 3.0e4\npoisson_ratio = 0.3\ndensity = 1000.0\n\n[particles]\nregion = 0\nspacing = 0.001\nactivation_radius = 0.003\nactivation = \"all\"\nactivation_interval = 1\n{particle_keys}\n{extra}\n"
+    );
+    let mut scene = Scene::from_toml(&text, "layered block", "block", None).unwrap();
+    for e in 0..scene.mesh.n_tets() {
+        let z: f64 = scene.mesh.corners(e).iter().map(|p| p.z).sum::<f64>() / 4.0;
+        scene.mesh.regions[e] = if z < 0.5 * size[2] { 1 } else { 0 };
+    }
+    scene
+}
+
+fn stepper(scene: &Scene, dt_factor: f64) -> (Arc<Model>, CpuStepper) {
+    let m = Arc::new(Model::from_scene(scene));
+    let p = m.step_params(dt_factor * m.bounds.dt_bound, 0.0);
+    let s = CpuStepper::new(m.clone(), p);
+    (m, s)
+}
+
+/// Linear and angular momentum of vertices (current lumped masses) and dynamic particles.
+fn momentum(m: &Model, s: &mut CpuStepper) -> (DVec3, DVec3) {
+    let st = s.read_state().unwrap();
+    let ps = s.particle_state().unwrap();
+    let modes = s.particle_modes().unwrap().to_vec();
+    let (mass, inv) = s.vertex_masses();
+    let (mass, inv) = (mass.to_vec(), inv.to_vec());
+    let pd = m.particles.as_ref().unwrap();
+    let v3 = |a: &[f32], i: usize| DVec3::new(a[3 * i] as f64, a[3 * i + 1] as f64, a[3 * i + 2] as f64);
+    let (mut p, mut l) = (DVec3::ZERO, DVec3::ZERO);
+    for i in 0..m.n_vertices() {
+        if inv[i] < 0.0 {
+            continue; // kinematic: no mass of its own
+        }
+        let x = v3(&m.rest, i) + v3(&st.displacements, i);
+        let mv = v3(&st.velocities, i) * mass[i] as f64;
+        p += mv;
+        l += x.cross(mv);
+    }
+    for k in 0..pd.len() {
+        if modes[k] & mode::DYNAMIC == 0 {
+            continue;
+        }
+        let x = v3(&pd.rest, k) + v3(&ps.displacements, k);
+        let mv = v3(&ps.velocities, k) * pd.mass as f64;
+        p += mv;
+        l += x.cross(mv);
+    }
+    (p, l)
+}
+
+#[test]
+fn free_flight_conserves_linear_and_angular_momentum() {
+    let scene = two_layer_block("", "");
+    let (m, mut s) = stepper(&scene, 0.5);
+    // A translation, a spin about the centre and a random deformation rate.
+    let mut rng = common::Rng(11);
+    let centre = DVec3::new(0.01, 0.005, 0.005);
+    let (vt, w) = (DVec3::new(0.3, -0.2, 0.1), DVec3::new(2.0, -1.0, 3.0));
+    let mut v = vec![0.0f32; 3 * m.n_vertices()];
+    for i in 0..m.n_vertices() {
+        let x = DVec3::new(m.rest[3 * i] as f64, m.rest[3 * i + 1] as f64, m.rest[3 * i + 2] as f64);
+        let vi = vt + w.cross(x - centre) + rng.vec() * 0.02;
+        v[3 * i..3 * i + 3].copy_from_slice(&vi.as_vec3().to_array());
+    }
+    s.write_state(&State {
+        displacements: vec![0.0; 3 * m.n_vertices()],
+        velocities: v,
+    })
+    .unwrap();
+    s.run(1).unwrap();
+    let (p0, l0) = momentum(&m, &mut s);
+    let dynamic = s.particle_modes().unwrap().iter().filter(|&&x| x & mode::DYNAMIC != 0).count();
+    assert!(dynamic > 500, "{dynamic} dynamic particles");
+    for k in 1..=4 {
+        s.run(100).unwrap();
+        let (p, l) = momentum(&m, &mut s);
+        let (ep, el) = ((p - p0).length() / p0.length(), (l - l0).length() / l0.length());
+        eprintln!("{} steps: linear momentum rel change {ep:.2e}, angular {el:.2e}", 1 + 100 * k);
+        assert!(ep <= 1e-6, "linear momentum changed by {ep:.2e}");
+        assert!(el <= 1e-6, "angular momentum changed by {el:.2e}");
+    }
+}
+
+/// Forces of one step's force stages after imposing u = (A − I)(X − c) on the vertices
+/// (particles take the embedded displacement when they become dynamic): the vertex forces,
+/// the particle forces, the boundary vertices and the interior dynamic particles.
+fn forces_under(scene: &Scene, a: DMat3) -> (Arc<Model>, Vec<Vec3>, Vec<Vec3>, Vec<bool>, Vec<bool>) {
+    let (m, mut s) = stepper(scene, 0.5);
+    let c = DVec3::new(0.015, 0.015, 0.015);
+    let u: Vec<f32> = (0..m.n_vertices())
+        .flat_map(|i| {
+            let x = DVec3::new(m.rest[3 * i] as f64, m.rest[3 * i + 1] as f64, m.rest[3 * i + 2] as f64);
+            ((a - DMat3::IDENTITY) * (x - c)).as_vec3().to_array()
+        })
+        .collect();
+    s.write_state(&State {
+        displacements: u,
+        velocities: vec![0.0; 3 * m.n_vertices()],
+    })
+    .unwrap();
+    for stage in [
+        Stage::Activate,
+        Stage::Follow,
+        Stage::SphStress,
+        Stage::SphForces,
+        Stage::FemForces,
+        Stage::GatherCoupled,
+    ] {
+        s.run_stage_pooled(stage);
+    }
+    let vf: Vec<Vec3> = s.forces().chunks(3).map(|f| Vec3::new(f[0], f[1], f[2])).collect();
+    let pf: Vec<Vec3> = s
+        .particle_forces()
+        .unwrap()
+        .chunks(3)
+        .map(|f| Vec3::new(f[0], f[1], f[2]))
+        .collect();
+    let mut boundary = vec![false; m.n_vertices()];
+    for v in scene.mesh.boundary_vertices() {
+        boundary[v as usize] = true;
+    }
+    // Interior particles: dynamic, with a full lattice neighbourhood whose members all have
+    // full neighbourhoods too (two kernel supports from any edge of the lattice).
+    let lists = s.neighbour_lists().unwrap();
+    let count = |p: usize| lists.neighbour_offsets[p + 1] - lists.neighbour_offsets[p];
+    let full = (0..pf.len()).map(count).max().unwrap();
+    let modes = s.particle_modes().unwrap();
+    let interior_particles: Vec<bool> = (0..pf.len())
+        .map(|p| {
+            modes[p] & mode::DYNAMIC != 0
+                && count(p) == full
+                && lists.neighbours[lists.neighbour_offsets[p] as usize..lists.neighbour_offsets[p + 1] as usize]
+                    .iter()
+                    .all(|&b| count(b as usize) == full)
+        })
+        .collect();
+    // Vertices that carry mass (kinematic ones, with none, take no force).
+    let (_, inv) = s.vertex_masses();
+    let live: Vec<bool> = inv.iter().map(|&w| w >= 0.0).collect();
+    let boundary_or_dead: Vec<bool> = (0..m.n_vertices()).map(|i| boundary[i] || !live[i]).collect();
+    (m, vf, pf, boundary_or_dead, interior_particles)
+}
+
+/// Rigid motion: no force on any vertex or particle. Affine stretch: no residual on interior
+/// particles. The vertices at the tet/particle interface DO keep a residual (printed; about
+/// 40 % of a boundary vertex's force here): where the stress-carrying particles end, their
+/// truncated SPH sums act as a free surface whose traction the embedding spreads over the host
+/// vertices differently from the core's own traction. Cancelling it needs an integration
+/// correction (Fernández-Méndez, Bonet & Huerta, Comput. Struct. 83, 2005), not built.
+#[test]
+fn rigid_motion_gives_no_force_and_an_affine_stretch_no_interior_particle_residual() {
+    // 30 mm cube, 10 mm cells: the dynamic particles (z > 20 mm) have an interior two kernel
+    // supports from every edge of the lattice.
+    let scene = layered_block([0.03, 0.03, 0.03], [3, 3, 3], "", "");
+    // The force scale: the largest boundary-vertex force under a 1 % stretch and shear.
+    let stretch = DMat3::from_cols(
+        DVec3::new(1.01, 0.0, 0.002),
+        DVec3::new(0.003, 0.995, 0.0),
+        DVec3::new(0.0, 0.004, 1.008),
+    );
+    let (_, vf, pf, edge, interior) = forces_under(&scene, stretch);
+    let scale = vf
+        .iter()
+        .zip(&edge)
+        .filter(|(_, &b)| b)
+        .map(|(f, _)| f.length())
+        .fold(0.0f32, f32::max);
+    assert!(scale > 0.0);
+    let node_res = vf
+        .iter()
+        .zip(&edge)
+        .filter(|(_, &b)| !b)
+        .map(|(f, _)| f.length())
+        .fold(0.0f32, f32::max);
+    let particle_res = pf
+        .iter()
+        .zip(&interior)
+        .filter(|(_, &i)| i)
+        .map(|(f, _)| f.length())
+        .fold(0.0f32, f32::max);
+    let n_interior = interior.iter().filter(|&&i| i).count();
+    let n_inner_nodes = edge.iter().filter(|&&b| !b).count();
+    eprintln!(
+        "affine stretch: force scale {scale:.3e} N; largest residual at {n_interior} interior particles {particle_res:.3e} N ({:.2e} of the scale); at {n_inner_nodes} interior (interface) vertices {node_res:.3e} N ({:.2e}, not asserted)",
+        particle_res / scale,
+        node_res / scale
+    );
+    assert!(n_interior > 0 && n_inner_nodes > 0);
+    assert!(particle_res <= 1e-4 * scale, "interior particles: {:.2e}", particle_res / scale);
+    // A rigid rotation of 30 degrees: no force anywhere.
+    let rot = DMat3::from_axis_angle(DVec3::new(1.0, 2.0, 3.0).normalize(), 0.5236);
+    let (_, vf, pf, _, _) = forces_under(&scene, rot);
+    let worst = vf.iter().chain(&pf).map(|f| f.length()).fold(0.0f32, f32::max);
+    eprintln!("rigid rotation: largest force {worst:.3e} N ({:.2e} of the stretch's scale)", worst / scale);
+    assert!(worst <= 1e-4 * scale, "rigid rotation gives {:.2e} of the scale", worst / scale);
+}
