@@ -293,7 +293,11 @@ impl Model {
             Some(p) => {
                 let bound =
                     p.dt_bound(&self.material, self.tool.as_ref().map(|t| t.tool.stiffness));
-                (dt / (crate::timestep::DEFAULT_SAFETY * bound))
+                (dt / (std::env::var("PALPATE_PSAFE")
+                    .ok()
+                    .and_then(|v| v.parse::<f64>().ok())
+                    .unwrap_or(crate::timestep::DEFAULT_SAFETY)
+                    * bound))
                     .ceil()
                     .clamp(1.0, 64.0) as u32
             }

@@ -347,6 +347,12 @@ pub fn run(scene: &Scene, opts: &RunOptions) -> Result<RunSummary> {
         &opts.out.join("final.vtu"),
         state_vtu(&model, &state).as_bytes(),
     )?;
+    if let Some(snap) = sim.particle_state()? {
+        write_atomic(
+            &opts.out.join("particles_final.vtu"),
+            crate::output::particles::particles_vtu(&model, &state, &snap).as_bytes(),
+        )?;
+    }
     frames.finish()?;
     let summary = RunSummary {
         scene: scene.name.clone(),

@@ -409,8 +409,8 @@ impl Simulation {
         }
     }
 
-    /// The particles' displacements and velocities (None without particles).
-    pub fn particle_state(&mut self) -> Result<Option<State>> {
+    /// The particles' state (None without particles).
+    pub fn particle_state(&mut self) -> Result<Option<crate::stepper::ParticleSnapshot>> {
         self.stepper.read_particle_state()
     }
 

@@ -21,6 +21,22 @@ pub struct State {
     pub velocities: Vec<f32>,
 }
 
+/// The particles' state as read back: displacements and velocities (embedded particles as of
+/// their last `follow`), modes, and the blend offsets and timers of releasing particles.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ParticleSnapshot {
+    /// Displacements u_p, packed xyz, m.
+    pub displacements: Vec<f32>,
+    /// Velocities, packed xyz, m/s.
+    pub velocities: Vec<f32>,
+    /// Mode bits ([`crate::particles::params::mode`]).
+    pub modes: Vec<u32>,
+    /// Blend offsets, packed xyz, m.
+    pub offsets: Vec<f32>,
+    /// Dwell or blend timers, s.
+    pub timers: Vec<f32>,
+}
+
 /// What a batch reports: the `reduce` stats after its last step and the divergence flag.
 ///
 /// Time levels: kinetic energy, max speed and Σ m|u|² are of the state after the last step;
@@ -180,9 +196,9 @@ pub trait Stepper: Send {
     fn write_state(&mut self, state: &State) -> Result<()>;
     /// Per stage, how many times it ran in the last batch (the executed step plan).
     fn stage_counts(&self) -> Vec<(crate::plan::Stage, u32)>;
-    /// The particles' displacements and velocities (embedded particles as of their last
-    /// `follow`), or None without particles; waits for the batches in flight.
-    fn read_particle_state(&mut self) -> Result<Option<State>> {
+    /// The particles' state (see [`ParticleSnapshot`]), or None without particles; waits
+    /// for the batches in flight.
+    fn read_particle_state(&mut self) -> Result<Option<ParticleSnapshot>> {
         Ok(None)
     }
 

@@ -48,7 +48,8 @@ fn momentum(m: &Model, s: &mut CpuStepper) -> (DVec3, DVec3) {
     let (mass, inv) = s.vertex_masses();
     let (mass, inv) = (mass.to_vec(), inv.to_vec());
     let pd = m.particles.as_ref().unwrap();
-    let v3 = |a: &[f32], i: usize| DVec3::new(a[3 * i] as f64, a[3 * i + 1] as f64, a[3 * i + 2] as f64);
+    let v3 =
+        |a: &[f32], i: usize| DVec3::new(a[3 * i] as f64, a[3 * i + 1] as f64, a[3 * i + 2] as f64);
     let (mut p, mut l) = (DVec3::ZERO, DVec3::ZERO);
     for i in 0..m.n_vertices() {
         if inv[i] < 0.0 {
@@ -81,7 +82,11 @@ fn free_flight_conserves_linear_and_angular_momentum() {
     let (vt, w) = (DVec3::new(0.3, -0.2, 0.1), DVec3::new(2.0, -1.0, 3.0));
     let mut v = vec![0.0f32; 3 * m.n_vertices()];
     for i in 0..m.n_vertices() {
-        let x = DVec3::new(m.rest[3 * i] as f64, m.rest[3 * i + 1] as f64, m.rest[3 * i + 2] as f64);
+        let x = DVec3::new(
+            m.rest[3 * i] as f64,
+            m.rest[3 * i + 1] as f64,
+            m.rest[3 * i + 2] as f64,
+        );
         let vi = vt + w.cross(x - centre) + rng.vec() * 0.02;
         v[3 * i..3 * i + 3].copy_from_slice(&vi.as_vec3().to_array());
     }
@@ -92,13 +97,24 @@ fn free_flight_conserves_linear_and_angular_momentum() {
     .unwrap();
     s.run(1).unwrap();
     let (p0, l0) = momentum(&m, &mut s);
-    let dynamic = s.particle_modes().unwrap().iter().filter(|&&x| x & mode::DYNAMIC != 0).count();
+    let dynamic = s
+        .particle_modes()
+        .unwrap()
+        .iter()
+        .filter(|&&x| x & mode::DYNAMIC != 0)
+        .count();
     assert!(dynamic > 500, "{dynamic} dynamic particles");
     for k in 1..=4 {
         s.run(100).unwrap();
         let (p, l) = momentum(&m, &mut s);
-        let (ep, el) = ((p - p0).length() / p0.length(), (l - l0).length() / l0.length());
-        eprintln!("{} steps: linear momentum rel change {ep:.2e}, angular {el:.2e}", 1 + 100 * k);
+        let (ep, el) = (
+            (p - p0).length() / p0.length(),
+            (l - l0).length() / l0.length(),
+        );
+        eprintln!(
+            "{} steps: linear momentum rel change {ep:.2e}, angular {el:.2e}",
+            1 + 100 * k
+        );
         assert!(ep <= 1e-6, "linear momentum changed by {ep:.2e}");
         assert!(el <= 1e-6, "angular momentum changed by {el:.2e}");
     }
@@ -107,12 +123,19 @@ fn free_flight_conserves_linear_and_angular_momentum() {
 /// Forces of one step's force stages after imposing u = (A − I)(X − c) on the vertices
 /// (particles take the embedded displacement when they become dynamic): the vertex forces,
 /// the particle forces, the boundary vertices and the interior dynamic particles.
-fn forces_under(scene: &Scene, a: DMat3) -> (Arc<Model>, Vec<Vec3>, Vec<Vec3>, Vec<bool>, Vec<bool>) {
+fn forces_under(
+    scene: &Scene,
+    a: DMat3,
+) -> (Arc<Model>, Vec<Vec3>, Vec<Vec3>, Vec<bool>, Vec<bool>) {
     let (m, mut s) = stepper(scene, 0.5);
     let c = DVec3::new(0.015, 0.015, 0.015);
     let u: Vec<f32> = (0..m.n_vertices())
         .flat_map(|i| {
-            let x = DVec3::new(m.rest[3 * i] as f64, m.rest[3 * i + 1] as f64, m.rest[3 * i + 2] as f64);
+            let x = DVec3::new(
+                m.rest[3 * i] as f64,
+                m.rest[3 * i + 1] as f64,
+                m.rest[3 * i + 2] as f64,
+            );
             ((a - DMat3::IDENTITY) * (x - c)).as_vec3().to_array()
         })
         .collect();
@@ -131,7 +154,11 @@ fn forces_under(scene: &Scene, a: DMat3) -> (Arc<Model>, Vec<Vec3>, Vec<Vec3>, V
     ] {
         s.run_stage_pooled(stage);
     }
-    let vf: Vec<Vec3> = s.forces().chunks(3).map(|f| Vec3::new(f[0], f[1], f[2])).collect();
+    let vf: Vec<Vec3> = s
+        .forces()
+        .chunks(3)
+        .map(|f| Vec3::new(f[0], f[1], f[2]))
+        .collect();
     let pf: Vec<Vec3> = s
         .particle_forces()
         .unwrap()
@@ -152,7 +179,8 @@ fn forces_under(scene: &Scene, a: DMat3) -> (Arc<Model>, Vec<Vec3>, Vec<Vec3>, V
         .map(|p| {
             modes[p] & mode::DYNAMIC != 0
                 && count(p) == full
-                && lists.neighbours[lists.neighbour_offsets[p] as usize..lists.neighbour_offsets[p + 1] as usize]
+                && lists.neighbours
+                    [lists.neighbour_offsets[p] as usize..lists.neighbour_offsets[p + 1] as usize]
                     .iter()
                     .all(|&b| count(b as usize) == full)
         })
@@ -160,7 +188,9 @@ fn forces_under(scene: &Scene, a: DMat3) -> (Arc<Model>, Vec<Vec3>, Vec<Vec3>, V
     // Vertices that carry mass (kinematic ones, with none, take no force).
     let (_, inv) = s.vertex_masses();
     let live: Vec<bool> = inv.iter().map(|&w| w >= 0.0).collect();
-    let boundary_or_dead: Vec<bool> = (0..m.n_vertices()).map(|i| boundary[i] || !live[i]).collect();
+    let boundary_or_dead: Vec<bool> = (0..m.n_vertices())
+        .map(|i| boundary[i] || !live[i])
+        .collect();
     (m, vf, pf, boundary_or_dead, interior_particles)
 }
 
@@ -209,11 +239,121 @@ fn rigid_motion_gives_no_force_and_an_affine_stretch_no_interior_particle_residu
         node_res / scale
     );
     assert!(n_interior > 0 && n_inner_nodes > 0);
-    assert!(particle_res <= 1e-4 * scale, "interior particles: {:.2e}", particle_res / scale);
+    assert!(
+        particle_res <= 1e-4 * scale,
+        "interior particles: {:.2e}",
+        particle_res / scale
+    );
     // A rigid rotation of 30 degrees: no force anywhere.
     let rot = DMat3::from_axis_angle(DVec3::new(1.0, 2.0, 3.0).normalize(), 0.5236);
     let (_, vf, pf, _, _) = forces_under(&scene, rot);
-    let worst = vf.iter().chain(&pf).map(|f| f.length()).fold(0.0f32, f32::max);
-    eprintln!("rigid rotation: largest force {worst:.3e} N ({:.2e} of the stretch's scale)", worst / scale);
-    assert!(worst <= 1e-4 * scale, "rigid rotation gives {:.2e} of the scale", worst / scale);
+    let worst = vf
+        .iter()
+        .chain(&pf)
+        .map(|f| f.length())
+        .fold(0.0f32, f32::max);
+    eprintln!(
+        "rigid rotation: largest force {worst:.3e} N ({:.2e} of the stretch's scale)",
+        worst / scale
+    );
+    assert!(
+        worst <= 1e-4 * scale,
+        "rigid rotation gives {:.2e} of the scale",
+        worst / scale
+    );
+}
+
+/// A 30 x 10 x 10 mm bar clamped at x = 0, stretched by its own weight along +x (g = 9.81
+/// m/s² along the bar): u_x(x) = ρ g (L x − x²/2)/E for a slender bar (ν only thins it).
+/// `particles`: the whole bar is particle zone with every unpinned particle dynamic.
+fn hanging_bar(particles: Option<&str>) -> Scene {
+    let mut text = String::from(
+        "[mesh]\ngenerator = \"beam\"\nsize = [0.03, 0.01, 0.01]\ncells = [6, 2, 2]\n\n[material]\nyoungs_modulus = 3.0e4\npoisson_ratio = 0.3\ndensity = 1000.0\n\n[[fixed]]\nplane = { normal = [1.0, 0.0, 0.0], offset = 0.0 }\n\n[loads]\ngravity = [9.81, 0.0, 0.0]\n\n[solver]\nstatic_tolerance = 1e-4\n",
+    );
+    if let Some(model) = particles {
+        text.push_str(&format!(
+            "\n[particles]\nregion = 0\nspacing = 0.001\nactivation_radius = 0.003\nactivation = \"all\"\nmodel = \"{model}\"\n"
+        ));
+    }
+    Scene::from_toml(&text, "hanging bar", "bar", None).unwrap()
+}
+
+/// Mean u_x of the particles (or, FEM-only, of the FEM field at the particles' places) in the
+/// last 1 mm of the bar, after relaxing to a static state.
+fn tip_displacement(scene: &Scene, sample: &Scene) -> (f64, u64) {
+    try_tip_displacement(scene, sample).unwrap_or_else(|status| panic!("{status}"))
+}
+
+/// [`tip_displacement`], or the run's status when it did not reach a static state.
+fn try_tip_displacement(scene: &Scene, sample: &Scene) -> Result<(f64, u64), String> {
+    let out = std::env::temp_dir().join(format!(
+        "palpate-bar-{}-{}",
+        std::process::id(),
+        scene.particles.as_ref().map_or("fem", |p| p.model.name())
+    ));
+    let s = palpate::run::run(
+        scene,
+        &palpate::run::RunOptions {
+            backend: palpate::sim::Backend::Cpu,
+            length: palpate::run::RunLength::UntilStatic { max_steps: 400_000 },
+            out: out.clone(),
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    if s.status != "ok" {
+        return Err(s.status.to_string());
+    }
+    let m = Model::from_scene(sample);
+    let pd = m.particles.as_ref().unwrap();
+    let tip: Vec<usize> = (0..pd.len()).filter(|&p| pd.rest[3 * p] > 0.029).collect();
+    let text = std::fs::read_to_string(out.join(if scene.particles.is_some() {
+        "particles_final.vtu"
+    } else {
+        "final.vtu"
+    }))
+    .unwrap();
+    let u = common::vtu_point_vectors(&text, "displacement");
+    let ux = if scene.particles.is_some() {
+        tip.iter().map(|&p| u[3 * p] as f64).sum::<f64>() / tip.len() as f64
+    } else {
+        // The FEM field at the particles' places: Σ w u over their host tets.
+        tip.iter()
+            .map(|&p| {
+                let t = sample.mesh.tets[pd.host[p] as usize];
+                (0..4)
+                    .map(|c| pd.weights[4 * p + c] as f64 * u[3 * t[c] as usize] as f64)
+                    .sum::<f64>()
+            })
+            .sum::<f64>()
+            / tip.len() as f64
+    };
+    Ok((ux, s.steps))
+}
+
+#[test]
+fn particle_only_and_fem_only_bars_agree_on_their_static_stretch() {
+    let (l, e, rho, g) = (0.03, 3.0e4, 1000.0, 9.81);
+    let x = 0.0295;
+    let exact = rho * g * (l * x - 0.5 * x * x) / e;
+    let sample = hanging_bar(Some("tlsph"));
+    let (fem, fem_steps) = tip_displacement(&hanging_bar(None), &sample);
+    let (tlsph, tlsph_steps) = tip_displacement(&sample, &sample);
+    let paper = match try_tip_displacement(&hanging_bar(Some("paper")), &sample) {
+        Ok((u, _)) => format!("{u:.4e} m ({:+.1} % from FEM)", 100.0 * (u - fem) / fem),
+        Err(status) => format!("no static state: {status}"),
+    };
+    eprintln!(
+        "tip u_x: 1-D bar theory {exact:.4e} m; FEM-only {fem:.4e} m ({fem_steps} steps); tlsph particles {tlsph:.4e} m ({tlsph_steps} steps, {:+.1} % from FEM); paper model {paper}",
+        100.0 * (tlsph - fem) / fem
+    );
+    assert!(
+        fem > 0.8 * exact && fem < 1.2 * exact,
+        "FEM {fem} vs theory {exact}"
+    );
+    assert!(
+        (tlsph - fem).abs() <= 0.1 * fem,
+        "tlsph {tlsph:.4e} vs FEM {fem:.4e}: {:+.1} %",
+        100.0 * (tlsph - fem) / fem
+    );
 }

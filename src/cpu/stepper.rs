@@ -19,7 +19,8 @@ use crate::params::{stat, StepParams};
 use crate::particles::params::{mode, GridParams, ParticleParams};
 use crate::plan::{Stage, StepPlan};
 use crate::stepper::{
-    BatchInput, BatchReport, BatchStats, ParticleReport, State, Stepper, ToolReport, RING,
+    BatchInput, BatchReport, BatchStats, ParticleReport, ParticleSnapshot, State, Stepper,
+    ToolReport, RING,
 };
 use std::collections::VecDeque;
 use std::sync::Arc;
@@ -609,12 +610,15 @@ impl CpuStepper {
         &self.forces
     }
 
-    /// The particles' displacements and velocities (embedded ones as of their last
-    /// `follow`; see [`crate::particles`]), or None without particles.
-    pub fn particle_state(&self) -> Option<State> {
-        self.particles.as_ref().map(|pa| State {
+    /// The particles' state (embedded ones as of their last `follow`), or None without
+    /// particles.
+    pub fn particle_state(&self) -> Option<ParticleSnapshot> {
+        self.particles.as_ref().map(|pa| ParticleSnapshot {
             displacements: pa.state.displacements.clone(),
             velocities: pa.state.velocities.clone(),
+            modes: pa.state.mode.clone(),
+            offsets: pa.state.offset.clone(),
+            timers: pa.state.timer.clone(),
         })
     }
 
@@ -639,6 +643,7 @@ impl CpuStepper {
 
     /// Overwrite the particles' displacements and velocities.
     pub fn set_particle_state(&mut self, state: &State) {
+        // (modes, offsets and timers keep their values)
         if let Some(pa) = &mut self.particles {
             pa.state.displacements.clone_from(&state.displacements);
             pa.state.velocities.clone_from(&state.velocities);
@@ -771,7 +776,7 @@ impl Stepper for CpuStepper {
         self.counts.clone()
     }
 
-    fn read_particle_state(&mut self) -> Result<Option<State>> {
+    fn read_particle_state(&mut self) -> Result<Option<ParticleSnapshot>> {
         Ok(self.particle_state())
     }
 }

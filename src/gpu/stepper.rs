@@ -289,14 +289,21 @@ impl GpuStepper {
         Ok(())
     }
 
-    fn read_particles(&mut self) -> Result<Option<State>> {
+    fn read_particles(&mut self) -> Result<Option<crate::stepper::ParticleSnapshot>> {
         if self.n_particles == 0 {
             return Ok(None);
         }
         self.drain()?;
-        Ok(Some(State {
-            displacements: self.read_f32("particle_displacements")?,
-            velocities: self.read_f32("particle_velocities")?,
+        let n = self.n_particles as usize;
+        Ok(Some(crate::stepper::ParticleSnapshot {
+            displacements: self.read_f32("particle_displacements")?[..3 * n].to_vec(),
+            velocities: self.read_f32("particle_velocities")?[..3 * n].to_vec(),
+            modes: self.read_f32("particle_mode")?[..n]
+                .iter()
+                .map(|x| x.to_bits())
+                .collect(),
+            offsets: self.read_f32("particle_offset")?[..3 * n].to_vec(),
+            timers: self.read_f32("particle_timer")?[..n].to_vec(),
         }))
     }
 
@@ -758,7 +765,7 @@ impl Stepper for GpuStepper {
         self.counts.clone()
     }
 
-    fn read_particle_state(&mut self) -> Result<Option<State>> {
+    fn read_particle_state(&mut self) -> Result<Option<crate::stepper::ParticleSnapshot>> {
         self.read_particles()
     }
 }

@@ -3,6 +3,7 @@
 //! Every file is written to a temporary name and renamed into place, so a failed run never
 //! leaves a half-written file under the final name.
 
+pub mod particles;
 pub mod png;
 pub mod series;
 pub mod state;

@@ -58,12 +58,33 @@ pub fn vtu(
     point_data: &[DataArray],
     cell_data: &[DataArray],
 ) -> String {
+    let conn: Vec<i64> = tets.iter().flatten().map(|&i| i as i64).collect();
+    let offsets: Vec<i64> = (1..=tets.len() as i64).map(|k| 4 * k).collect();
+    document(points, &conn, &offsets, 10, point_data, cell_data)
+}
+
+/// A `.vtu` document of a point cloud: one VTK_VERTEX cell (type 1) per point.
+pub fn vtu_points(points: &[f32], point_data: &[DataArray]) -> String {
+    let n = points.len() as i64 / 3;
+    let conn: Vec<i64> = (0..n).collect();
+    let offsets: Vec<i64> = (1..=n).collect();
+    document(points, &conn, &offsets, 1, point_data, &[])
+}
+
+fn document(
+    points: &[f32],
+    conn: &[i64],
+    offsets: &[i64],
+    cell_type: u8,
+    point_data: &[DataArray],
+    cell_data: &[DataArray],
+) -> String {
     let n = points.len() / 3;
+    let cells = offsets.len();
     let mut s = String::new();
     s.push_str("<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"1.0\" byte_order=\"LittleEndian\" header_type=\"UInt64\">\n  <UnstructuredGrid>\n");
     s.push_str(&format!(
-        "    <Piece NumberOfPoints=\"{n}\" NumberOfCells=\"{}\">\n",
-        tets.len()
+        "    <Piece NumberOfPoints=\"{n}\" NumberOfCells=\"{cells}\">\n"
     ));
     s.push_str("      <PointData>\n");
     for a in point_data {
@@ -79,16 +100,14 @@ pub fn vtu(
         encode(bytemuck::cast_slice(points))
     ));
     s.push_str("      </Points>\n      <Cells>\n");
-    let conn: Vec<i64> = tets.iter().flatten().map(|&i| i as i64).collect();
-    let offsets: Vec<i64> = (1..=tets.len() as i64).map(|k| 4 * k).collect();
-    let types = vec![10u8; tets.len()];
+    let types = vec![cell_type; cells];
     s.push_str(&format!(
         "        <DataArray type=\"Int64\" Name=\"connectivity\" format=\"binary\">{}</DataArray>\n",
-        encode(bytemuck::cast_slice(&conn))
+        encode(bytemuck::cast_slice(conn))
     ));
     s.push_str(&format!(
         "        <DataArray type=\"Int64\" Name=\"offsets\" format=\"binary\">{}</DataArray>\n",
-        encode(bytemuck::cast_slice(&offsets))
+        encode(bytemuck::cast_slice(offsets))
     ));
     s.push_str(&format!(
         "        <DataArray type=\"UInt8\" Name=\"types\" format=\"binary\">{}</DataArray>\n",

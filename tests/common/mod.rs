@@ -79,3 +79,34 @@ pub fn gpu() -> Arc<palpate::gpu::GpuContext> {
         ),
     }
 }
+
+/// The values of a binary (base64, UInt64 header) point-data array `name` of a `.vtu` file
+/// palpate wrote, as f32.
+pub fn vtu_point_vectors(text: &str, name: &str) -> Vec<f32> {
+    let tag = format!("Name=\"{name}\"");
+    let start = text.find(&tag).unwrap_or_else(|| panic!("no array {name}"));
+    let body_start = start + text[start..].find('>').unwrap() + 1;
+    let body_end = body_start + text[body_start..].find('<').unwrap();
+    let bytes = base64_decode(text[body_start..body_end].trim());
+    bytes[8..]
+        .chunks(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect()
+}
+
+fn base64_decode(s: &str) -> Vec<u8> {
+    const B64: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let val = |c: u8| B64.iter().position(|&b| b == c).map(|v| v as u32);
+    let mut out = Vec::new();
+    for chunk in s.as_bytes().chunks(4) {
+        let v: Vec<u32> = chunk.iter().filter_map(|&c| val(c)).collect();
+        let n = v
+            .iter()
+            .enumerate()
+            .fold(0u32, |a, (i, x)| a | x << (18 - 6 * i));
+        for k in 0..v.len().saturating_sub(1) {
+            out.push((n >> (16 - 8 * k)) as u8);
+        }
+    }
+    out
+}
