@@ -595,3 +595,62 @@ fn bad_tool_sections_are_one_line_errors_naming_the_key() {
         );
     }
 }
+
+#[test]
+fn bad_particle_sections_are_one_line_errors_naming_the_key() {
+    let d = tmp("badparticles");
+    let with =
+        |body: &str| BEAM.replacen("[solver]", &format!("[particles]\n{body}\n\n[solver]"), 1);
+    let cases: &[(&str, &[&str])] = &[
+        (
+            "region = 7\nspacing = 0.002\nactivation_radius = 0.004",
+            &["particles.region", "no tet has region 7"],
+        ),
+        (
+            "region = 0\nspacing = -0.002\nactivation_radius = 0.004",
+            &["particles.spacing", "> 0"],
+        ),
+        (
+            "region = 0\nspacing = 0.5\nactivation_radius = 0.004",
+            &["particles.spacing", "too coarse"],
+        ),
+        (
+            "region = 0\nspacing = 1e-6\nactivation_radius = 0.004",
+            &["particles.spacing", "particles"],
+        ),
+        (
+            "region = 0\nspacing = 0.002\nactivation_radius = 0.0",
+            &["particles.activation_radius", "> 0"],
+        ),
+        (
+            "region = 0\nspacing = 0.002\nactivation_radius = 0.004\nmodel = \"mpm\"",
+            &["particles.model", "mpm"],
+        ),
+        (
+            "region = 0\nspacing = 0.002\nactivation_radius = 0.004\nactivation = \"some\"",
+            &["particles.activation"],
+        ),
+        (
+            "region = 0\nspacing = 0.002\nactivation_radius = 0.004\nkernel_radius = 9.0",
+            &["particles.kernel_radius"],
+        ),
+    ];
+    for (i, (body, want)) in cases.iter().enumerate() {
+        let path = scene_file(&d, &format!("p{i}.toml"), &with(body));
+        let mut must: Vec<&str> = want.to_vec();
+        must.push(&path);
+        assert_one_line_error(
+            &[
+                "run",
+                &path,
+                "--steps",
+                "1",
+                "--backend",
+                "cpu",
+                "--out",
+                d.to_str().unwrap(),
+            ],
+            &must,
+        );
+    }
+}

@@ -357,3 +357,65 @@ fn particle_only_and_fem_only_bars_agree_on_their_static_stretch() {
         100.0 * (tlsph - fem) / fem
     );
 }
+
+/// Particle displacements as the outputs place them (embedded ones on their host).
+fn placed(m: &Model, s: &mut CpuStepper) -> (Vec<f32>, Vec<u32>) {
+    let nodes = s.read_state().unwrap();
+    let snap = s.particle_state().unwrap();
+    (
+        palpate::output::particles::particle_displacements(m, &nodes, &snap),
+        snap.modes,
+    )
+}
+
+#[test]
+fn hm1_activates_a_few_hundred_particles_under_the_tool_and_releases_them_without_pops() {
+    let scene = Scene::load("hm1").unwrap();
+    let spacing = scene.particles.as_ref().unwrap().spacing as f32;
+    let m = Arc::new(Model::from_scene(&scene));
+    let n = m.particles.as_ref().unwrap().len();
+    assert!((27_000..29_000).contains(&n), "{n} particles (the paper has 27,988)");
+    let dt = scene.solver.dt.unwrap();
+    let mut s = CpuStepper::new(m.clone(), m.step_params(dt, scene.solver.damping));
+    let tool = scene.tool.clone().unwrap();
+    let interval = scene.particles.as_ref().unwrap().activation_interval;
+    let (mut max_dynamic, mut max_force, mut switched) = (0u32, 0.0f64, 0usize);
+    let mut worst_jump = 0.0f32;
+    let mut t = 0.0;
+    // 10 time units (1430 steps at the paper's dt), batches of one activation interval.
+    while t < 10.0 {
+        let (a, b) = (tool.position_at(t), tool.position_at(t + interval as f64 * dt));
+        s.submit(interval, &palpate::stepper::BatchInput { tool: Some((a, b)) })
+            .unwrap();
+        let r = s.wait().unwrap();
+        assert!(r.stats.non_finite_vertex.is_none(), "hm1 diverged at t = {t}");
+        t += interval as f64 * dt;
+        max_dynamic = max_dynamic.max(r.particles.unwrap().dynamic);
+        max_force = max_force.max(r.tool.unwrap().force.length());
+        // The switch itself: an activation update with no time step in between.
+        let (before, modes_before) = placed(&m, &mut s);
+        s.run_stage_pooled(Stage::Activate);
+        let (after, modes_after) = placed(&m, &mut s);
+        for k in 0..n {
+            if (modes_before[k] ^ modes_after[k]) & mode::DYNAMIC != 0 {
+                switched += 1;
+                let d = Vec3::from_slice(&after[3 * k..]) - Vec3::from_slice(&before[3 * k..]);
+                worst_jump = worst_jump.max(d.length());
+            }
+        }
+    }
+    let modes = s.particle_modes().unwrap();
+    let left = modes.iter().filter(|&&x| x & (mode::DYNAMIC | mode::BLENDING) != 0).count();
+    eprintln!(
+        "hm1: {n} particles; at most {max_dynamic} dynamic; largest tool force {max_force:.3}; {switched} switches, largest jump at a switch {worst_jump:.2e} ({:.1e} of the spacing); after the tool left {left} still dynamic or blending",
+        worst_jump / spacing
+    );
+    assert!((50..=600).contains(&max_dynamic), "{max_dynamic} dynamic particles");
+    assert!(max_force > 0.0, "the tool never touched");
+    assert!(switched > 100, "only {switched} switches");
+    assert_eq!(left, 0, "particles still dynamic after the tool left");
+    assert!(
+        worst_jump <= 1e-3 * spacing,
+        "a particle jumped {worst_jump} (> 0.1 % of the spacing) when it switched"
+    );
+}
