@@ -7,7 +7,8 @@
 //          delta_ab = (F_a X_ab - x_ab).x_ab/|x_ab| (zero for affine motion);
 //   paper: eq. (13) as printed, one-sided: f_c = V^2 sum_b A_b grad W(X_b - X_c).
 // Dynamic particles also get m g and the tool's contact on surface particles (area Δx^2),
-// kept in particle_contact for the tool's report. particle_force_sum collects f/substeps
+// taken at x_p + F_p o_p (o_p the rest offset to the true surface, which the lattice's outer
+// layer lies inside of), kept in particle_contact for the tool's report. particle_force_sum collects f/substeps
 // over the sub-steps of a core step (ACCUMULATE is false on the first): embedded particles
 // pass it to their host vertices in gather_coupled, so the vertices receive the impulse
 // the particles received. CPU twin: src/cpu/sph_forces.rs.
@@ -36,6 +37,7 @@
 @group(0) @binding(16) var<storage, read_write> particle_forces: array<f32>;
 @group(0) @binding(17) var<storage, read_write> particle_force_sum: array<f32>;
 @group(0) @binding(18) var<storage, read_write> particle_contact: array<f32>;
+@group(0) @binding(19) var<storage, read> particle_contact_offset: array<f32>;
 
 // Pipeline constants: add to particle_force_sum (not the first sub-step); the scene has a tool.
 override ACCUMULATE: bool = false;
@@ -152,7 +154,8 @@ fn sph_forces(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgr
         if TOOL && area > 0.0 {
             let vc = (tool_input.end - tool_input.start) / (f32(max(tool_input.steps, 1u)) * params.dt);
             let v = vec3<f32>(particle_velocities[3u * c], particle_velocities[3u * c + 1u], particle_velocities[3u * c + 2u]);
-            contact = contact_force(tool_params, x0c + uc, v, tool_state.position, vc, area).force;
+            let o = vec3<f32>(particle_contact_offset[3u * c], particle_contact_offset[3u * c + 1u], particle_contact_offset[3u * c + 2u]);
+            contact = contact_force(tool_params, x0c + uc + f_c * o, v, tool_state.position, vc, area).force;
             f += contact;
         }
     }

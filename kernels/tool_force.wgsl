@@ -25,6 +25,8 @@
 @group(0) @binding(13) var<storage, read> particle_displacements: array<f32>;
 @group(0) @binding(14) var<storage, read> particle_velocities: array<f32>;
 @group(0) @binding(15) var<storage, read> particle_area: array<f32>;
+@group(0) @binding(16) var<storage, read> particle_gradient: array<f32>;
+@group(0) @binding(17) var<storage, read> particle_contact_offset: array<f32>;
 
 // Pipeline constant: the scene has particles (vertex contacts are weighted as in contact.wgsl;
 // tool_force_particles adds the dynamic particles' contacts in blocks after the vertices').
@@ -144,8 +146,16 @@ fn tool_force_particles(
         lane[k] = 0.0;
     }
     if p < tool_params.n_particles && (particle_mode[p] & MODE_DYNAMIC) != 0u && particle_area[p] > 0.0 {
+        let g = 9u * p;
+        let f = mat3x3<f32>(
+            vec3<f32>(1.0 + particle_gradient[g], particle_gradient[g + 1u], particle_gradient[g + 2u]),
+            vec3<f32>(particle_gradient[g + 3u], 1.0 + particle_gradient[g + 4u], particle_gradient[g + 5u]),
+            vec3<f32>(particle_gradient[g + 6u], particle_gradient[g + 7u], 1.0 + particle_gradient[g + 8u]),
+        );
+        let o = vec3<f32>(particle_contact_offset[3u * p], particle_contact_offset[3u * p + 1u], particle_contact_offset[3u * p + 2u]);
         let x = vec3<f32>(particle_rest[3u * p], particle_rest[3u * p + 1u], particle_rest[3u * p + 2u])
-            + vec3<f32>(particle_displacements[3u * p], particle_displacements[3u * p + 1u], particle_displacements[3u * p + 2u]);
+            + vec3<f32>(particle_displacements[3u * p], particle_displacements[3u * p + 1u], particle_displacements[3u * p + 2u])
+            + f * o;
         let v = vec3<f32>(particle_velocities[3u * p], particle_velocities[3u * p + 1u], particle_velocities[3u * p + 2u]);
         lane = contact_lane(x, v, particle_area[p]);
     }

@@ -188,16 +188,20 @@ impl Model {
         fixed: &[bool],
         mut particles: crate::particles::Particles,
     ) -> Model {
-        // Particles whose host touches the core (a vertex with core mass) or a fixed vertex
-        // stay embedded: they tie the particle zone to the rest of the body.
+        // Particles on the core side of their host — at least half their barycentric weight on
+        // vertices that carry core mass or are fixed — stay embedded: they tie the particle
+        // zone to the rest of the body (and keep those vertices' masses).
         let anchored: Vec<bool> = (0..self.n_vertices())
             .map(|v| fixed[v] || particles.core_mass[v] > 0.0)
             .collect();
         particles.pinned = (0..particles.len())
             .map(|p| {
-                self.tets[particles.host[p] as usize]
-                    .iter()
-                    .any(|&v| anchored[v as usize])
+                let t = self.tets[particles.host[p] as usize];
+                let w: f32 = (0..4)
+                    .filter(|&c| anchored[t[c] as usize])
+                    .map(|c| particles.weights[4 * p + c])
+                    .sum();
+                w >= 0.5
             })
             .collect();
         self.mass = particles.embedded_mass();

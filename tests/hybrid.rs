@@ -374,7 +374,10 @@ fn hm1_activates_a_few_hundred_particles_under_the_tool_and_releases_them_withou
     let spacing = scene.particles.as_ref().unwrap().spacing as f32;
     let m = Arc::new(Model::from_scene(&scene));
     let n = m.particles.as_ref().unwrap().len();
-    assert!((27_000..29_000).contains(&n), "{n} particles (the paper has 27,988)");
+    assert!(
+        (27_000..29_000).contains(&n),
+        "{n} particles (the paper has 27,988)"
+    );
     let dt = scene.solver.dt.unwrap();
     let mut s = CpuStepper::new(m.clone(), m.step_params(dt, scene.solver.damping));
     let tool = scene.tool.clone().unwrap();
@@ -384,11 +387,20 @@ fn hm1_activates_a_few_hundred_particles_under_the_tool_and_releases_them_withou
     let mut t = 0.0;
     // 10 time units (1430 steps at the paper's dt), batches of one activation interval.
     while t < 10.0 {
-        let (a, b) = (tool.position_at(t), tool.position_at(t + interval as f64 * dt));
-        s.submit(interval, &palpate::stepper::BatchInput { tool: Some((a, b)) })
-            .unwrap();
+        let (a, b) = (
+            tool.position_at(t),
+            tool.position_at(t + interval as f64 * dt),
+        );
+        s.submit(
+            interval,
+            &palpate::stepper::BatchInput { tool: Some((a, b)) },
+        )
+        .unwrap();
         let r = s.wait().unwrap();
-        assert!(r.stats.non_finite_vertex.is_none(), "hm1 diverged at t = {t}");
+        assert!(
+            r.stats.non_finite_vertex.is_none(),
+            "hm1 diverged at t = {t}"
+        );
         t += interval as f64 * dt;
         max_dynamic = max_dynamic.max(r.particles.unwrap().dynamic);
         max_force = max_force.max(r.tool.unwrap().force.length());
@@ -405,12 +417,18 @@ fn hm1_activates_a_few_hundred_particles_under_the_tool_and_releases_them_withou
         }
     }
     let modes = s.particle_modes().unwrap();
-    let left = modes.iter().filter(|&&x| x & (mode::DYNAMIC | mode::BLENDING) != 0).count();
+    let left = modes
+        .iter()
+        .filter(|&&x| x & (mode::DYNAMIC | mode::BLENDING) != 0)
+        .count();
     eprintln!(
         "hm1: {n} particles; at most {max_dynamic} dynamic; largest tool force {max_force:.3}; {switched} switches, largest jump at a switch {worst_jump:.2e} ({:.1e} of the spacing); after the tool left {left} still dynamic or blending",
         worst_jump / spacing
     );
-    assert!((50..=600).contains(&max_dynamic), "{max_dynamic} dynamic particles");
+    assert!(
+        (50..=600).contains(&max_dynamic),
+        "{max_dynamic} dynamic particles"
+    );
     assert!(max_force > 0.0, "the tool never touched");
     assert!(switched > 100, "only {switched} switches");
     assert_eq!(left, 0, "particles still dynamic after the tool left");

@@ -401,6 +401,7 @@ fn particle_kernels_match_their_cpu_twins() {
         stress: &gstress,
         gradient: &ggrad,
         area: &pd.contact_area,
+        contact_offset: &pd.contact_offset,
     };
     let (mut f, mut fs, mut fc) = (
         vec![0.0f32; 3 * n],

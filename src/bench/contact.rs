@@ -38,6 +38,18 @@ pub struct HertzCase {
     pub block: f64,
     /// Contact penalty k, Pa/m.
     pub penalty: f64,
+    /// A particle layer: the top `layers` tet layers become the particle zone with lattice
+    /// spacing `spacing` (in contact radii); None: tets only.
+    pub particles: Option<ParticleLayer>,
+}
+
+/// The particle zone of a hybrid Hertz block.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ParticleLayer {
+    /// Lattice spacing, in contact radii.
+    pub spacing: f64,
+    /// Tet layers (from the top) in the zone.
+    pub layers: usize,
 }
 
 impl Default for HertzCase {
@@ -51,6 +63,7 @@ impl Default for HertzCase {
             growth: 1.4,
             block: 8.0,
             penalty: 1e9,
+            particles: None,
         }
     }
 }
@@ -76,7 +89,16 @@ impl HertzCase {
         let mut xs: Vec<f64> = half.iter().rev().map(|x| -x).collect();
         xs.extend_from_slice(&half[1..]);
         let zs: Vec<f64> = half.iter().rev().map(|z| -z).collect();
-        generators::graded_box(&xs, &xs, &zs)
+        let mut mesh = generators::graded_box(&xs, &xs, &zs);
+        if let Some(layer) = self.particles {
+            // Region 1: the top `layers` layers of cells (the particle zone); region 0: core.
+            let top = zs[zs.len() - 1 - layer.layers.min(zs.len() - 1)];
+            for e in 0..mesh.n_tets() {
+                let z: f64 = mesh.corners(e).iter().map(|p| p.z).sum::<f64>() / 4.0;
+                mesh.regions[e] = (z > top) as u32;
+            }
+        }
+        mesh
     }
 
     /// The scene: the block with its bottom held, the sphere moved from just above the
@@ -123,7 +145,19 @@ impl HertzCase {
                 ],
                 home: DVec3::new(0.0, 0.0, r),
             }),
-            particles: None,
+            particles: self.particles.map(|layer| crate::scene::ParticleSettings {
+                region: 1,
+                spacing: layer.spacing * self.contact_radius(),
+                model: crate::scene::ParticleModel::Tlsph,
+                activation_radius: 2.0 * self.contact_radius(),
+                kernel_radius: 2.4,
+                hourglass: 0.1,
+                hysteresis: 1.5,
+                dwell: 0.01,
+                blend: 0.01,
+                activation_interval: 10,
+                all_active: false,
+            }),
         })
     }
 }

@@ -38,6 +38,8 @@ pub struct ForceInputs<'a> {
     pub gradient: &'a [f32],
     /// Contact area per particle.
     pub area: &'a [f32],
+    /// Rest offset to the true surface per particle (xyz).
+    pub contact_offset: &'a [f32],
 }
 
 /// The force on particle c and its tool contact (twin of one `sph_forces` thread).
@@ -102,9 +104,10 @@ pub fn force_on(inp: &ForceInputs, c: usize) -> (Vec3, Vec3) {
         if let Some((tp, ti, ts)) = inp.tool {
             if area > 0.0 {
                 let vc = super::contact::tool_velocity(inp.params, ti);
+                let o = load3(inp.contact_offset, c);
                 contact = contact_force(
                     tp,
-                    x0c + uc,
+                    x0c + uc + f_c * o,
                     load3(inp.velocities, c),
                     Vec3::from_array(ts.position),
                     vc,

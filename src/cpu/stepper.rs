@@ -327,6 +327,8 @@ impl CpuStepper {
                         &pa.state.displacements,
                         &pa.state.velocities,
                         &pd.contact_area,
+                        &pa.gradient,
+                        &pd.contact_offset,
                         &mut t.partials,
                     );
                 }
@@ -549,6 +551,7 @@ impl CpuStepper {
                     stress: &pa.stress,
                     gradient: &pa.gradient,
                     area: &pd.contact_area,
+                    contact_offset: &pd.contact_offset,
                 };
                 super::sph_forces::sph_forces(
                     &inp,

@@ -117,6 +117,8 @@ pub fn tool_force_particles(
     particle_displacements: &[f32],
     particle_velocities: &[f32],
     particle_area: &[f32],
+    particle_gradient: &[f32],
+    particle_contact_offset: &[f32],
     tool_partials: &mut [f32],
 ) {
     let vc = tool_velocity(params, tool_input);
@@ -134,7 +136,11 @@ pub fn tool_force_particles(
                     && particle_mode[p] & crate::particles::params::mode::DYNAMIC != 0
                     && particle_area[p] > 0.0
                 {
-                    let x = load3(particle_rest, p) + load3(particle_displacements, p);
+                    let f =
+                        glam::Mat3::IDENTITY + super::fem_forces::load_dm_inv(particle_gradient, p);
+                    let x = load3(particle_rest, p)
+                        + load3(particle_displacements, p)
+                        + f * load3(particle_contact_offset, p);
                     *slot = lane(
                         tool_params,
                         x,

@@ -256,6 +256,8 @@ pub fn particle_stubs() -> BufferGroup<'static> {
         "particle_displacements",
         "particle_velocities",
         "particle_area",
+        "particle_gradient",
+        "particle_contact_offset",
     ];
     BufferGroup {
         name: "particle stand-ins",
@@ -325,6 +327,7 @@ pub fn particles<'a>(
             BufferSpec::data("particle_host", Usage::Storage, &p.host),
             BufferSpec::data("particle_weights", Usage::Storage, &p.weights),
             BufferSpec::data("particle_area", Usage::Storage, &p.contact_area),
+            BufferSpec::data("particle_contact_offset", Usage::Storage, &p.contact_offset),
             BufferSpec::data("particle_tet_offsets", Usage::Storage, &p.tet_offsets),
             BufferSpec::data("particle_slot_offsets", Usage::Storage, &p.slot_offsets),
             BufferSpec::data("particle_slots", Usage::Storage, &p.slots),

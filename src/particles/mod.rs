@@ -53,12 +53,17 @@ pub struct Particles {
     pub slots: Vec<u32>,
     /// Contact area of each particle, m² (Δx² on the lattice's surface, 0 inside).
     pub contact_area: Vec<f32>,
+    /// Per surface particle, the rest offset o_p from the particle to the nearest point of the
+    /// body's boundary, packed xyz, m (zero inside): the lattice's outer layer lies up to a
+    /// spacing inside the true surface, and contact is taken at x_p + F_p o_p.
+    pub contact_offset: Vec<f32>,
     /// Kernel support radius R = kernel_radius·Δx, m.
     pub support: f32,
     /// Per vertex: the lumped mass of the tets that are not particle-holding zone tets, kg.
     pub core_mass: Vec<f32>,
-    /// Per particle: its host touches the core (a vertex with core mass) or a fixed vertex,
-    /// so it always stays embedded and ties the particles to the rest of the body.
+    /// Per particle: it lies on the core side of its host (at least half its barycentric
+    /// weight on vertices with core mass or fixed), so it always stays embedded and ties the
+    /// particles to the rest of the body.
     pub pinned: Vec<bool>,
 }
 

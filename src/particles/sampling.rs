@@ -102,7 +102,7 @@ pub fn sample(
     // Surface particles: a lattice neighbour along an axis is missing.
     let present: HashMap<(i64, i64, i64), usize> =
         index.iter().enumerate().map(|(p, &ijk)| (ijk, p)).collect();
-    let contact_area = index
+    let contact_area: Vec<f32> = index
         .iter()
         .map(|&(i, j, k)| {
             let missing = [
@@ -122,6 +122,7 @@ pub fn sample(
             }
         })
         .collect();
+    let contact_offset = surface_offsets(mesh, &rest, &host, &contact_area, dx);
     // CSR over tets (particles are already grouped by host, in tet order).
     let mut tet_offsets = vec![0u32; mesh.n_tets() + 1];
     for &e in &host {
@@ -171,8 +172,84 @@ pub fn sample(
         slot_offsets,
         slots,
         contact_area,
+        contact_offset,
         support: (settings.kernel_radius * dx) as f32,
         pinned: vec![false; n],
         core_mass: core_mass.into_iter().map(|m| m as f32).collect(),
     })
+}
+
+/// The closest point of triangle (a, b, c) to p (Ericson, *Real-Time Collision Detection*,
+/// §5.1.5).
+fn closest_on_triangle(p: DVec3, a: DVec3, b: DVec3, c: DVec3) -> DVec3 {
+    let (ab, ac, ap) = (b - a, c - a, p - a);
+    let (d1, d2) = (ab.dot(ap), ac.dot(ap));
+    if d1 <= 0.0 && d2 <= 0.0 {
+        return a;
+    }
+    let bp = p - b;
+    let (d3, d4) = (ab.dot(bp), ac.dot(bp));
+    if d3 >= 0.0 && d4 <= d3 {
+        return b;
+    }
+    let vc = d1 * d4 - d3 * d2;
+    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+        return a + ab * (d1 / (d1 - d3));
+    }
+    let cp = p - c;
+    let (d5, d6) = (ab.dot(cp), ac.dot(cp));
+    if d6 >= 0.0 && d5 <= d6 {
+        return c;
+    }
+    let vb = d5 * d2 - d1 * d6;
+    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+        return a + ac * (d2 / (d2 - d6));
+    }
+    let va = d3 * d6 - d5 * d4;
+    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
+        return b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
+    }
+    let denom = 1.0 / (va + vb + vc);
+    a + ab * (vb * denom) + ac * (vc * denom)
+}
+
+/// For each surface particle (contact area > 0), the offset to the nearest point of a
+/// boundary face that shares a vertex with its host tet (zero when none is within 1.5 Δx:
+/// a lattice hole next to the core, not the body's surface).
+fn surface_offsets(mesh: &TetMesh, rest: &[f32], host: &[u32], area: &[f32], dx: f64) -> Vec<f32> {
+    let faces = mesh.boundary_faces();
+    let mut faces_of_vertex: Vec<Vec<u32>> = vec![Vec::new(); mesh.n_vertices()];
+    for (k, f) in faces.iter().enumerate() {
+        for &v in f {
+            faces_of_vertex[v as usize].push(k as u32);
+        }
+    }
+    let mut out = vec![0.0f32; rest.len()];
+    for p in 0..host.len() {
+        if area[p] <= 0.0 {
+            continue;
+        }
+        let x = DVec3::new(
+            rest[3 * p] as f64,
+            rest[3 * p + 1] as f64,
+            rest[3 * p + 2] as f64,
+        );
+        let mut best: Option<(f64, DVec3)> = None;
+        for &v in &mesh.tets[host[p] as usize] {
+            for &k in &faces_of_vertex[v as usize] {
+                let [a, b, c] = faces[k as usize].map(|i| mesh.positions[i as usize]);
+                let q = closest_on_triangle(x, a, b, c);
+                let d = (q - x).length();
+                if best.is_none_or(|(bd, _)| d < bd) {
+                    best = Some((d, q - x));
+                }
+            }
+        }
+        if let Some((d, o)) = best {
+            if d <= 1.5 * dx {
+                out[3 * p..3 * p + 3].copy_from_slice(&o.as_vec3().to_array());
+            }
+        }
+    }
+    out
 }
