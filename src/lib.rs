@@ -9,6 +9,7 @@ pub mod bench;
 pub mod cpu;
 pub mod error;
 pub mod gpu;
+pub mod haptics;
 pub mod material;
 pub mod mesh;
 pub mod model;
