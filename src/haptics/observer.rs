@@ -17,10 +17,24 @@
 //! coupling is designed for. It uses the actual Δt of each tick, so a late tick (a longer
 //! hold, a larger leak) earns less credit.
 //!
-//! **Controller.** When E(n) < 0 and the device moves, the controller adds a damping force
-//! −α·v, v = (x_n − x_{n−1})/Δt, with α = −E(n)/(|v|²·Δt) (dissipate the deficit in one
-//! tick if the motion goes on) capped at the device's `max_damping`. It acts only on a
-//! deficit, so a loop that is passive by design never feels it.
+//! **Controller.** Before the force F of tick n is sent, the controller predicts the
+//! observer's energy at the end of the tick for a device moving at v over a tick of the
+//! last tick's length Δt:
+//!
+//! Ê = E(n) + (−F·v + b|v|²)·Δt
+//!
+//! taking the worse (smaller Ê) of two extrapolations of the motion, constant velocity
+//! v₁ = (x_n − x_{n−1})/Δt and constant acceleration v₂ = 2v₁ − v₀ (v₀ the tick before): with
+//! v₁ alone the hand's acceleration leaves an unseen F·a·Δt² per tick. When Ê < 0 and the
+//! device moves, it adds a damping force −α·v with α = −Ê/(|v|²·Δt), so the predicted
+//! energy is zero. α is capped at α_gen + `max_damping`, where
+//! α_gen = max(0, F·v − b|v|²)/|v|² just cancels the energy F would give the hand this tick:
+//! the controller may always refuse to push a hand that is being pushed out with energy the
+//! loop does not have, while paying back an existing deficit with at most the device's
+//! recommended damping. It acts only on a (predicted) deficit, so a loop that is passive by
+//! design never feels it; what it catches is the energy that time-varying gains (start-up
+//! ramp, fade-in) and late models (contact appearing after the tool is already deep) would
+//! inject.
 //!
 //! [`DeviceSpec::physical_damping`]: super::device::DeviceSpec::physical_damping
 
@@ -34,6 +48,7 @@ pub struct PassivityObserver {
     min_energy: f64,
     last: Option<(f64, DVec3)>,
     velocity: DVec3,
+    previous_velocity: DVec3,
     dt: f64,
     force: DVec3,
 }
@@ -47,6 +62,7 @@ impl PassivityObserver {
             min_energy: 0.0,
             last: None,
             velocity: DVec3::ZERO,
+            previous_velocity: DVec3::ZERO,
             dt: 0.0,
             force: DVec3::ZERO,
         }
@@ -61,6 +77,7 @@ impl PassivityObserver {
             self.energy -= self.force.dot(dx);
             if dt > 0.0 {
                 self.energy += self.damping * dx.length_squared() / dt;
+                self.previous_velocity = self.velocity;
                 self.velocity = dx / dt;
                 self.dt = dt;
             }
@@ -90,6 +107,12 @@ impl PassivityObserver {
         (self.velocity, self.dt)
     }
 
+    /// The velocities the controller extrapolates with: constant velocity v₁ and constant
+    /// acceleration 2v₁ − v₀, m/s.
+    pub fn predicted_velocities(&self) -> [DVec3; 2] {
+        [self.velocity, 2.0 * self.velocity - self.previous_velocity]
+    }
+
     /// The damping b it credits, N·s/m.
     pub fn damping(&self) -> f64 {
         self.damping
@@ -99,15 +122,37 @@ impl PassivityObserver {
 /// Below this speed (m/s) the controller does not act (there is no motion to damp).
 pub const PC_MIN_SPEED: f64 = 1.0e-4;
 
-/// The passivity controller's damping force for energy `energy` (J), device velocity `v`
-/// (m/s) over the last tick of length `dt` (s), capped at `max_damping` (N·s/m); returns
-/// the force (N) and α (N·s/m).
-pub fn passivity_control(energy: f64, v: DVec3, dt: f64, max_damping: f64) -> (DVec3, f64) {
-    let v2 = v.length_squared();
-    if energy >= 0.0 || dt <= 0.0 || v2 < PC_MIN_SPEED * PC_MIN_SPEED {
+/// The passivity controller's damping force for observer energy `energy` (J), the force
+/// about to be sent `force` (N), the predicted device velocities `velocities` (m/s, see
+/// [`PassivityObserver::predicted_velocities`]) over a tick of `dt` (s), physical damping `b`
+/// and damping cap `max_damping` (N·s/m); returns the force to add (N) and α (N·s/m).
+pub fn passivity_control(
+    energy: f64,
+    force: DVec3,
+    velocities: [DVec3; 2],
+    dt: f64,
+    b: f64,
+    max_damping: f64,
+) -> (DVec3, f64) {
+    if dt <= 0.0 {
         return (DVec3::ZERO, 0.0);
     }
-    let alpha = (-energy / (v2 * dt)).min(max_damping);
+    let flow = |v: DVec3| (-force.dot(v) + b * v.length_squared()) * dt;
+    let v = if flow(velocities[1]) < flow(velocities[0]) {
+        velocities[1]
+    } else {
+        velocities[0]
+    };
+    let v2 = v.length_squared();
+    if v2 < PC_MIN_SPEED * PC_MIN_SPEED {
+        return (DVec3::ZERO, 0.0);
+    }
+    let predicted = energy + flow(v);
+    if predicted >= 0.0 {
+        return (DVec3::ZERO, 0.0);
+    }
+    let alpha_gen = (-flow(v)).max(0.0) / (v2 * dt);
+    let alpha = (-predicted / (v2 * dt)).min(alpha_gen + max_damping);
     (-alpha * v, alpha)
 }
 

@@ -305,8 +305,15 @@ impl ServoCore {
         };
 
         if cfg.passivity_control && cfg.mode == RenderMode::Coupled && reading.fresh {
-            let (v, dt_v) = self.observer.last_velocity();
-            let (f_pc, alpha) = passivity_control(energy, v, dt_v, cfg.spec.max_damping);
+            let (_, dt_v) = self.observer.last_velocity();
+            let (f_pc, alpha) = passivity_control(
+                energy,
+                force,
+                self.observer.predicted_velocities(),
+                dt_v,
+                cfg.physical_damping,
+                cfg.spec.max_damping,
+            );
             if alpha > 0.0 {
                 let (f, clamped) = clamp_magnitude(force + f_pc, cfg.shaping.max_force);
                 force = f;
