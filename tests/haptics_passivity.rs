@@ -22,6 +22,9 @@ use palpate::haptics::coupling::CouplingParams;
 use palpate::haptics::{DeviceSpec, RenderMode, ServoConfig};
 
 const EPS: f64 = 1.0e-4;
+
+/// Keyframes (t s, z m).
+type Frames = Vec<(f64, f64)>;
 const FREQUENCIES: [f64; 5] = [0.5, 2.0, 5.0, 10.0, 20.0];
 const WALL: f64 = 5000.0;
 
@@ -92,7 +95,7 @@ fn contact_make_and_break_and_holding_still_are_passive() {
         (4.7, -0.004),
         (5.2, 0.002),
     ];
-    let cases: [(&str, Vec<(f64, f64)>, f64); 2] = [("taps", taps, taps_end), ("hold", hold, 5.6)];
+    let cases: [(&str, Frames, f64); 2] = [("taps", taps, taps_end), ("hold", hold, 5.6)];
     for spec in DeviceSpec::ALL {
         for pc in [false, true] {
             let mut config = ServoConfig::new(spec);

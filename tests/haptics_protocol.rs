@@ -20,8 +20,15 @@ fn example(name: &str) -> Vec<u8> {
     let mut bytes = Vec::new();
     for (i, line) in block[open..close].lines().enumerate() {
         let (offset, hex) = line.split_once(':').expect("OFFSET: bytes");
-        assert_eq!(offset.trim().parse::<usize>().unwrap(), 16 * i, "offset column");
-        bytes.extend(hex.split_whitespace().map(|h| u8::from_str_radix(h, 16).unwrap()));
+        assert_eq!(
+            offset.trim().parse::<usize>().unwrap(),
+            16 * i,
+            "offset column"
+        );
+        bytes.extend(
+            hex.split_whitespace()
+                .map(|h| u8::from_str_radix(h, 16).unwrap()),
+        );
     }
     bytes
 }

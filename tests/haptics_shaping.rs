@@ -179,7 +179,7 @@ fn servo_fades_stale_diverged_and_not_fresh() {
         let mut forces = Vec::new();
         for n in 0..2500 {
             let t = n as f64 * T;
-            let fault_on = t >= 1.5 && t < 2.0;
+            let fault_on = (1.5..2.0).contains(&t);
             let z = if t < 0.1 { 0.002 } else { -0.003 };
             let reading = DeviceReading {
                 position: DVec3::new(0.0, 0.0, z),

@@ -119,7 +119,7 @@ impl ServoConfig {
             return bad(format!("rate {} Hz is not in (0, 100000]", self.rate_hz));
         }
         if let Some(d) = self.duration {
-            if !(d.is_finite() && d >= 0.0 && d <= 1.0e6) {
+            if !(0.0..=1.0e6).contains(&d) {
                 return bad(format!("duration {d} s is not in [0, 1e6]"));
             }
         }
@@ -254,8 +254,10 @@ impl ServoCore {
         }
         // A diverged model fades out from the last good one rather than dropping at once.
         let render = if usable { Some(*model) } else { self.last_good };
+        // (NaN ages compare false: stale.)
+        let fresh_model = has_model && age <= cfg.shaping.stale_after;
         let cause = FadeCause {
-            stale: !has_model || !(age <= cfg.shaping.stale_after),
+            stale: !fresh_model,
             diverged: has_model && !usable,
             device_stale: !reading.fresh,
         };
@@ -609,9 +611,14 @@ pub fn run_servo(
         deadline += period;
         let after = Instant::now();
         if after > deadline {
-            let behind = ((after - deadline).as_nanos() / period.as_nanos()) as u32 + 1;
-            missed += u64::from(behind);
-            deadline += period * behind;
+            // Skip to the next deadline still ahead; count the skipped ones inside the run.
+            let behind = ((after - deadline).as_nanos() / period.as_nanos()) as u64 + 1;
+            let in_run = end.map_or(behind, |e| {
+                let left = e.saturating_duration_since(deadline).as_nanos();
+                behind.min(left.div_ceil(period.as_nanos()) as u64)
+            });
+            missed += in_run;
+            deadline += period * behind as u32;
         }
     }
     let wall = (last_done - start).as_secs_f64();
