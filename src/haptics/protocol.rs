@@ -162,7 +162,7 @@ pub struct PosePacket {
 /// | 32 | `f64` | palpate's time stamp (loop clock), s |
 /// | 40 | `3 × f64` | force to apply to the hand, N |
 /// | 64 | `3 × f64` | f0: the position-dependent part of the force, N |
-/// | 88 | `9 × f64` | K: stiffness, N/m, row-major (K[row][col]) |
+/// | 88 | `9 × f64` | K: stiffness, N/m, row-major (K₀₀ K₀₁ K₀₂ K₁₀ …) |
 /// | 160 | `3 × f64` | x0: the device position f0 and K were computed at, m |
 /// | 184 | `f64` | age of the physics model, s (+∞ before the first) |
 /// | 192 | `u32` | flags ([`crate::haptics::model::flags`]) |
