@@ -10,6 +10,7 @@ pub mod contact;
 pub mod cpu;
 pub mod error;
 pub mod gpu;
+pub mod haptics;
 pub mod material;
 pub mod mesh;
 pub mod model;

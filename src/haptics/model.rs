@@ -1,0 +1,189 @@
+//! What the two threads hand each other: the local model (physics → servo) and the tool
+//! command (servo → physics).
+//!
+//! Frame: every position here is in metres in the device frame, relative to the tool's home
+//! position; the physics side adds the scene's home (`world = home + x`). Times are seconds
+//! on the shared [`LoopClock`].
+
+use glam::{DMat3, DVec3};
+use std::time::{Duration, Instant};
+
+/// The clock both threads stamp with: seconds since a common origin (monotonic).
+#[derive(Clone, Copy, Debug)]
+pub struct LoopClock {
+    origin: Instant,
+}
+
+impl LoopClock {
+    /// A clock whose zero is now.
+    pub fn new() -> Self {
+        LoopClock {
+            origin: Instant::now(),
+        }
+    }
+
+    /// Seconds since the origin.
+    pub fn now(&self) -> f64 {
+        self.seconds_at(Instant::now())
+    }
+
+    /// The clock reading of `instant` (negative before the origin).
+    pub fn seconds_at(&self, instant: Instant) -> f64 {
+        match instant.checked_duration_since(self.origin) {
+            Some(d) => d.as_secs_f64(),
+            None => -(self.origin - instant).as_secs_f64(),
+        }
+    }
+
+    /// The instant at `seconds` on this clock (clamped at the origin).
+    pub fn instant_at(&self, seconds: f64) -> Instant {
+        self.origin + Duration::from_secs_f64(seconds.max(0.0))
+    }
+}
+
+impl Default for LoopClock {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// The linearised contact the physics thread publishes after each batch, so the servo can
+/// evaluate the tool force between updates (VRPN's force field, SOFA's local solve):
+///
+/// F(x) = f0 + K·(x − x0)
+///
+/// with f0 = [`force`](Self::force), K = [`stiffness`](Self::stiffness),
+/// x0 = [`proxy`](Self::proxy). The default value is "no contact, never published".
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LocalModel {
+    /// f0, N: the force the tissue exerts on the tool at `proxy`.
+    pub force: DVec3,
+    /// K = ∂F/∂x, N/m: how the tool force changes with the tool position; negative along the
+    /// contact normal for a tissue that pushes back harder the deeper the tool goes.
+    pub stiffness: DMat3,
+    /// x0, m: the tool (proxy) position the model was computed at (device frame, relative to
+    /// the tool home).
+    pub proxy: DVec3,
+    /// s on the loop clock: the time the model refers to, i.e. the `stamp` of the
+    /// [`ToolCommand`] it was computed from, so that `now − stamp` (the model's age) counts
+    /// the whole round trip servo → physics → servo.
+    pub stamp: f64,
+    /// s: the simulated time at the end of the batch that produced the model.
+    pub sim_time: f64,
+    /// The simulation diverged: the servo fades the force to zero.
+    pub diverged: bool,
+    /// The tool touches the tissue. Out of contact the model is ignored (zero force).
+    pub in_contact: bool,
+    /// m: deepest penetration of the tool into the tissue (logged).
+    pub penetration: f64,
+    /// Particles of the mesh-free layer active around the tool (logged).
+    pub active_particles: u32,
+}
+
+impl Default for LocalModel {
+    fn default() -> Self {
+        LocalModel {
+            force: DVec3::ZERO,
+            stiffness: DMat3::ZERO,
+            proxy: DVec3::ZERO,
+            stamp: 0.0,
+            sim_time: 0.0,
+            diverged: false,
+            in_contact: false,
+            penetration: 0.0,
+            active_particles: 0,
+        }
+    }
+}
+
+impl LocalModel {
+    /// F(x) = f0 + K·(x − x0), N, without any shaping.
+    pub fn force_at(&self, x: DVec3) -> DVec3 {
+        self.force + self.stiffness * (x - self.proxy)
+    }
+
+    /// All numbers finite (a non-finite model is treated as diverged).
+    pub fn is_finite(&self) -> bool {
+        self.force.is_finite()
+            && self.stiffness.is_finite()
+            && self.proxy.is_finite()
+            && self.stamp.is_finite()
+    }
+}
+
+/// What the servo hands the physics thread each tick: where the simulated tool must be.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ToolCommand {
+    /// m: the proxy (simulated tool) position the virtual coupling computed; the physics side
+    /// places its tool at `home + position`.
+    pub position: DVec3,
+    /// m/s: the device velocity (estimated from its position history where the device gives
+    /// none); the proxy follows the device, so this is also the proxy's mean velocity.
+    pub velocity: DVec3,
+    /// m: the device position this tick (for logging on the physics side).
+    pub device_position: DVec3,
+    /// s on the loop clock: when the servo read the device; copy it into
+    /// [`LocalModel::stamp`] of the model computed from this command.
+    pub stamp: f64,
+    /// Device buttons, bit i = button i.
+    pub buttons: u32,
+    /// Servo tick number.
+    pub tick: u64,
+}
+
+/// The force the servo sends to a device, with the hand-side local model so a device (or a
+/// network driver) can extrapolate between packets:
+///
+/// F(x) = model_force + stiffness·(x − at), clamped to the device's force, zero where it
+/// would reverse `model_force`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ForceCommand {
+    /// N: the force the device applies to the hand.
+    pub force: DVec3,
+    /// N: the position-dependent part of `force` (without the passivity controller's
+    /// damping): the f0 of the hand-side model F(x) = f0 + K·(x − at).
+    pub model_force: DVec3,
+    /// N/m: ∂force/∂(device position) at `at`, shaping gains included (the stiffness the hand
+    /// feels through the virtual coupling).
+    pub stiffness: DMat3,
+    /// m: the device position the force was computed for.
+    pub at: DVec3,
+    /// s: age of the physics model the force comes from (infinite before the first one).
+    pub model_age: f64,
+    /// [`flags`] bits.
+    pub flags: u32,
+}
+
+impl Default for ForceCommand {
+    fn default() -> Self {
+        ForceCommand {
+            force: DVec3::ZERO,
+            model_force: DVec3::ZERO,
+            stiffness: DMat3::ZERO,
+            at: DVec3::ZERO,
+            model_age: f64::INFINITY,
+            flags: 0,
+        }
+    }
+}
+
+/// Bits of [`ForceCommand::flags`] (and of the UDP force packet's flags).
+pub mod flags {
+    /// The physics model reports contact.
+    pub const IN_CONTACT: u32 = 1 << 0;
+    /// The simulation diverged (or the model is not finite).
+    pub const DIVERGED: u32 = 1 << 1;
+    /// The force is fading out or in (gain below 1 because of staleness, divergence or the
+    /// device's keep-alive).
+    pub const FADING: u32 = 1 << 2;
+    /// The force magnitude was clamped to the device's limit this tick.
+    pub const CLAMPED: u32 = 1 << 3;
+    /// The model is older than the staleness threshold (or there is none yet).
+    pub const STALE: u32 = 1 << 4;
+    /// The start-up ramp is not finished.
+    pub const RAMPING: u32 = 1 << 5;
+    /// The device input is not fresh (keep-alive expired).
+    pub const DEVICE_STALE: u32 = 1 << 6;
+    /// The passivity controller added damping this tick.
+    pub const PASSIVITY_CONTROL: u32 = 1 << 7;
+}
