@@ -6,10 +6,15 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod fem_forces;
+pub mod fem_forces_split;
+pub mod follower_pressure;
+pub mod follower_pressure_gather;
 pub mod gather;
 pub mod integrate;
+pub mod nodal_pressure;
 pub mod reduce;
 pub mod stepper;
+pub mod tet_volume_change;
 
 pub use fem_forces::fem_forces;
 pub use gather::gather;
