@@ -43,10 +43,10 @@
 //!   at rest); P̄ = μ (F̄ − cof F̄).
 //! * `corotational_split`: Ψ̄ = μ |F̄ − R|², R the rotation of F (= of F̄); P̄ = 2μ (F̄ − R).
 //! * `guccione` (Guccione, Costa & McCulloch 1995, *J. Biomech.* 28:1167): with the fibre f
-//!   of the tet, sheet s and sheet-normal n, Ē in that frame,
-//!   Ψ̄ = C/2 (e^Q − 1), Q = b_f Ē_ff² + b_t (Ē_ss² + Ē_nn² + Ē_sn² + Ē_ns²)
-//!   + b_fs (Ē_fs² + Ē_sf² + Ē_fn² + Ē_nf²). The law is transversely isotropic about f, so Q
-//!   needs no sheet direction: with e_f = Ē f, Ē_ff = f·Ē f,
+//!   of the tet, sheet s and sheet-normal n, Ē in that frame, Ψ̄ = C/2 (e^Q − 1) with
+//!   Q = b_f Ē_ff² + b_t (Ē_ss² + Ē_nn² + Ē_sn² + Ē_ns²) + b_fs (Ē_fs² + Ē_sf² + Ē_fn² + Ē_nf²).
+//!   The law is transversely isotropic about f, so Q needs no sheet direction: with
+//!   e_f = Ē f, Ē_ff = f·Ē f,
 //!   Q = b_f Ē_ff² + b_t (Ē:Ē − 2|e_f|² + Ē_ff²) + 2 b_fs (|e_f|² − Ē_ff²) ([`guccione_q`];
 //!   [`guccione_q_in_frame`] evaluates the component form in [`fibre_frame`]'s frame, and a
 //!   test checks both agree). Second Piola–Kirchhoff S̄ = ∂Ψ̄/∂Ē =

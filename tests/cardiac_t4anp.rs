@@ -18,6 +18,7 @@ use palpate::cpu::{gather, load3};
 use palpate::material::{
     GuccioneParams, HyperelasticParams, MaterialConstants, MaterialModel, VolumetricLaw,
 };
+use palpate::mesh::TetMesh;
 use palpate::model::Model;
 use std::sync::Arc;
 
@@ -369,5 +370,283 @@ fn cost_of_the_nodal_average_per_step_on_the_cpu_twins() {
             times[1] * 1e3,
             times[1] / times[0]
         );
+    }
+}
+
+/// Lower-banded symmetric matrix (row i holds columns i − b ..= i) and its Cholesky solve.
+struct Banded {
+    n: usize,
+    b: usize,
+    rows: Vec<f64>,
+}
+
+impl Banded {
+    fn new(n: usize, b: usize) -> Banded {
+        Banded {
+            n,
+            b,
+            rows: vec![0.0; n * (b + 1)],
+        }
+    }
+
+    fn at(&mut self, i: usize, j: usize) -> &mut f64 {
+        assert!(
+            j <= i && i - j <= self.b,
+            "({i}, {j}) outside the band {}",
+            self.b
+        );
+        &mut self.rows[i * (self.b + 1) + (self.b - (i - j))]
+    }
+
+    fn get(&self, i: usize, j: usize) -> f64 {
+        self.rows[i * (self.b + 1) + (self.b - (i - j))]
+    }
+
+    /// Solve K x = f by banded Cholesky (K symmetric positive definite).
+    fn solve(mut self, f: &[f64]) -> Vec<f64> {
+        let (n, b) = (self.n, self.b);
+        for j in 0..n {
+            for k in j.saturating_sub(b)..=j {
+                let mut s = self.get(j, k);
+                for m in j.saturating_sub(b)..k {
+                    s -= self.get(j, m) * self.get(k, m);
+                }
+                if k == j {
+                    assert!(s > 0.0, "stiffness not positive definite at {j}");
+                    *self.at(j, j) = s.sqrt();
+                } else {
+                    *self.at(j, k) = s / self.get(k, k);
+                }
+            }
+        }
+        let mut y = f.to_vec();
+        for i in 0..n {
+            for m in i.saturating_sub(b)..i {
+                y[i] -= self.get(i, m) * y[m];
+            }
+            y[i] /= self.get(i, i);
+        }
+        for i in (0..n).rev() {
+            for m in i + 1..(i + b + 1).min(n) {
+                y[i] -= self.get(m, i) * y[m];
+            }
+            y[i] /= self.get(i, i);
+        }
+        y
+    }
+}
+
+/// The small-strain stiffness of the split laws (Ψ ≈ μ dev ε:dev ε + κ/2 (tr ε)², the
+/// linearisation of every split law at rest with μ_eff = μ), in f64, as triplets
+/// (3·vertex + component, …, value) over all vertices: the volume term per element,
+/// κ V_e (div)ᵀ(div), or by the nodal average, Σ_a κ V_a g_a g_aᵀ with
+/// θ_a = g_a·u = Σ_e V_e div u_e / Σ_e V_e, V_a = Σ_e V_e / 4.
+fn split_stiffness(mesh: &TetMesh, mu: f64, kappa: f64, nodal: bool) -> Vec<(usize, usize, f64)> {
+    let mut out = Vec::new();
+    let grads: Vec<([DVec3; 4], f64)> = (0..mesh.n_tets())
+        .map(|e| {
+            let x = mesh.corners(e);
+            let dm = DMat3::from_cols(x[1] - x[0], x[2] - x[0], x[3] - x[0]);
+            let inv = dm.inverse();
+            let mut g = [DVec3::ZERO; 4];
+            for i in 1..4 {
+                g[i] = inv.row(i - 1);
+            }
+            g[0] = -(g[1] + g[2] + g[3]);
+            (g, dm.determinant() / 6.0)
+        })
+        .collect();
+    for (e, tet) in mesh.tets.iter().enumerate() {
+        let (g, v) = grads[e];
+        for i in 0..4 {
+            for j in 0..4 {
+                for a in 0..3 {
+                    for b in 0..3 {
+                        // 2μ dev ε(u) : ε(w) and, per element, κ div u div w.
+                        let mut k = mu * g[i][b] * g[j][a] - 2.0 * mu / 3.0 * g[i][a] * g[j][b];
+                        if a == b {
+                            k += mu * g[i].dot(g[j]);
+                        }
+                        if !nodal {
+                            k += kappa * g[i][a] * g[j][b];
+                        }
+                        out.push((3 * tet[i] as usize + a, 3 * tet[j] as usize + b, v * k));
+                    }
+                }
+            }
+        }
+    }
+    if nodal {
+        let mut around: Vec<Vec<usize>> = vec![Vec::new(); mesh.n_vertices()];
+        for (e, tet) in mesh.tets.iter().enumerate() {
+            for &i in tet {
+                around[i as usize].push(e);
+            }
+        }
+        for tets in &around {
+            let w: f64 = tets.iter().map(|&e| grads[e].1).sum();
+            let mut g: std::collections::BTreeMap<usize, f64> = Default::default();
+            for &e in tets {
+                let (gr, v) = grads[e];
+                for c in 0..4 {
+                    for comp in 0..3 {
+                        *g.entry(3 * mesh.tets[e][c] as usize + comp).or_default() +=
+                            v * gr[c][comp] / w;
+                    }
+                }
+            }
+            for (&i, &gi) in &g {
+                for (&j, &gj) in &g {
+                    out.push((i, j, kappa * w / 4.0 * gi * gj));
+                }
+            }
+        }
+    }
+    out
+}
+
+/// The split-law material of the cantilever study: tissue μ, κ from ν, quadratic U.
+fn cantilever_split(model: Arc<Model>, poisson: f64, nodal: bool) -> Split {
+    let mu = tissue().mu;
+    let mut h = HyperelasticParams::new(HyperelasticParams::bulk_modulus_from_poisson(mu, poisson));
+    h.volumetric = VolumetricLaw::Quadratic;
+    Split::new(
+        model,
+        h,
+        SplitVariant {
+            model: MaterialModel::StableNeohookeanSplit,
+            viscous: false,
+            volumetric: VolumetricLaw::Quadratic,
+            nodal_pressure: nodal,
+        },
+    )
+}
+
+const BEAM: (f64, f64) = (0.1, 0.01);
+
+fn cantilever_mesh(n: usize) -> (TetMesh, Vec<bool>) {
+    let mesh = palpate::mesh::generators::beam([BEAM.0, BEAM.1, BEAM.1], [10 * n, n, n]);
+    let fixed = mesh.positions.iter().map(|p| p.x == 0.0).collect();
+    (mesh, fixed)
+}
+
+#[test]
+fn the_small_strain_stiffness_is_the_tangent_of_the_twins_at_rest() {
+    // Links the f64 stiffness of the locking study to the kernels: K v against central
+    // differences −(f(εv) − f(−εv)) / 2ε of the CPU twins' forces, both volume terms.
+    let (mesh, fixed) = cantilever_mesh(2);
+    let model = Arc::new(Model::new(&mesh, &fixed, tissue(), [0.0; 3]));
+    let mut rng = Rng(17);
+    let v: Vec<f64> = (0..3 * mesh.n_vertices()).map(|_| rng.sym()).collect();
+    for poisson in [0.3, 0.499] {
+        for nodal in [false, true] {
+            let split = cantilever_split(model.clone(), poisson, nodal);
+            let k = split_stiffness(
+                &mesh,
+                tissue().mu,
+                split.constants.bulk_modulus as f64,
+                nodal,
+            );
+            let mut kv = vec![0.0; v.len()];
+            for &(i, j, x) in &k {
+                kv[i] += x * v[j];
+            }
+            let eps = 1e-7;
+            let up: Vec<f32> = v.iter().map(|x| (eps * x) as f32).collect();
+            let dn: Vec<f32> = up.iter().map(|x| -x).collect();
+            let (fp, fm) = (split.eval(&up).forces, split.eval(&dn).forces);
+            let scale = kv.iter().map(|x| x.abs()).fold(0.0, f64::max);
+            let worst = (0..v.len())
+                .map(|i| (kv[i] + (fp[i] as f64 - fm[i] as f64) / (2.0 * eps)).abs() / scale)
+                .fold(0.0, f64::max);
+            eprintln!("ν = {poisson}, nodal {nodal}: |K v − tangent of the twins| / max|K v| = {worst:.1e}");
+            assert!(worst < 1e-4, "{worst}");
+        }
+    }
+}
+
+/// Tip deflection (mean −u_z of the end face) of the cantilever, L = 0.1 m, 10 mm square,
+/// clamped at x = 0, unit shear traction −z on x = L (consistent loads A/3 per face
+/// corner), small strain; and the Timoshenko deflection P L³/(3 E I) + P L/(k G A),
+/// E = 2μ(1 + ν), G = μ, k = 5/6.
+fn cantilever_tip_deflection(n: usize, nodal: bool, poisson: f64) -> (f64, f64) {
+    let (length, width) = BEAM;
+    let (mesh, fixed) = cantilever_mesh(n);
+    let mu = tissue().mu;
+    let kappa = HyperelasticParams::bulk_modulus_from_poisson(mu, poisson);
+    // Free vertices ordered by x slice: the stiffness is banded (the nodal average couples
+    // vertices two slices apart, through a shared vertex).
+    let dx = length / (10 * n) as f64;
+    let slice = |i: usize| (mesh.positions[i].x / dx).round() as usize;
+    let mut order: Vec<usize> = (0..mesh.n_vertices()).filter(|&i| !fixed[i]).collect();
+    order.sort_by_key(|&i| (slice(i), i));
+    let mut dof_of = vec![usize::MAX; mesh.n_vertices()];
+    for (k, &i) in order.iter().enumerate() {
+        dof_of[i] = k;
+    }
+    let map = |g: usize| (!fixed[g / 3]).then(|| 3 * dof_of[g / 3] + g % 3);
+    let mut k = Banded::new(3 * order.len(), 3 * (n + 1) * (n + 1) * 3);
+    for (i, j, x) in split_stiffness(&mesh, mu, kappa, nodal) {
+        if let (Some(r), Some(c)) = (map(i), map(j)) {
+            if r >= c {
+                *k.at(r, c) += x;
+            }
+        }
+    }
+    let mut f = vec![0.0; 3 * order.len()];
+    let tip: Vec<usize> = (0..mesh.n_vertices())
+        .filter(|&i| slice(i) == 10 * n)
+        .collect();
+    for face in mesh.boundary_faces() {
+        if face.iter().all(|&v| slice(v as usize) == 10 * n) {
+            let [a, b, c] = face.map(|v| mesh.positions[v as usize]);
+            let area = 0.5 * (b - a).cross(c - a).length();
+            for &v in &face {
+                f[3 * dof_of[v as usize] + 2] -= area / 3.0;
+            }
+        }
+    }
+    let u = k.solve(&f);
+    let deflection = -tip.iter().map(|&i| u[3 * dof_of[i] + 2]).sum::<f64>() / tip.len() as f64;
+    let (area, inertia) = (width * width, width.powi(4) / 12.0);
+    let e = 2.0 * mu * (1.0 + poisson);
+    let reference = area * length.powi(3) / (3.0 * e * inertia) + length / (5.0 / 6.0 * mu);
+    (deflection, reference)
+}
+
+#[test]
+fn nodal_average_removes_volumetric_locking_in_a_bending_cantilever() {
+    for poisson in [0.3, 0.499] {
+        let mut series = [Vec::new(), Vec::new()];
+        for n in 1..=5 {
+            for (k, nodal) in [false, true].into_iter().enumerate() {
+                let (d, reference) = cantilever_tip_deflection(n, nodal, poisson);
+                series[k].push(d / reference);
+            }
+            eprintln!(
+                "ν = {poisson}, {}×{n}×{n} cells ({} tets): tip deflection / Timoshenko = {:.3} per element, {:.3} nodal average",
+                10 * n,
+                60 * n * n * n,
+                series[0][n - 1],
+                series[1][n - 1]
+            );
+        }
+        // Both converge from below (stiff linear tets); the nodal average monotonically.
+        assert!(series[1].windows(2).all(|w| w[1] > w[0]));
+        assert!(
+            series[1][4] > 0.85 && series[1][4] < 1.02,
+            "nodal: {:?}",
+            series[1]
+        );
+        if poisson > 0.49 {
+            // Per element the volume constraint locks: an order of magnitude too stiff.
+            assert!(series[0][4] < 0.15, "per element: {:?}", series[0]);
+        } else {
+            assert!(
+                series[0][4] > 0.8,
+                "per element at ν = {poisson}: {:?}",
+                series[0]
+            );
+        }
     }
 }
