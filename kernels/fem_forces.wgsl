@@ -5,6 +5,7 @@
 // the particles in shared/material.wgsl, formulas in src/material.rs), plus the viscous F S_v, S_v = phi tr(Edot) I + 2 psi Edot,
 // Edot = (Fdot^T F + F^T Fdot)/2, Fdot = Dv Dm^-1 (eq. 3-4);
 // corner forces [f1 f2 f3] = -V P Dm^-T, f0 = -(f1 + f2 + f3); energy V Psi.
+// The volume/shape split laws (MATERIAL 3-6) run in fem_forces_split.wgsl instead.
 // CPU twin: src/cpu/fem_forces.rs.
 #import params
 #import index

@@ -33,18 +33,39 @@ pub fn tet_forces(
     volume: f32,
     variant: FemVariant,
 ) -> ([Vec3; 4], f32) {
-    let du = Mat3::from_cols(u[1] - u[0], u[2] - u[0], u[3] - u[0]);
-    let h = du * dmi;
-    let f = Mat3::IDENTITY + h;
+    let h = displacement_gradient(u, dmi);
     let (mut p, psi_density) = elastic_stress_energy(variant.model, h, params.lambda, params.mu);
     if variant.viscous {
-        let dv = Mat3::from_cols(v[1] - v[0], v[2] - v[0], v[3] - v[0]);
-        let rate = green_strain_rate(f, dv * dmi);
-        p += f * stvk_second_piola(Mat3::ZERO, rate, 0.0, 0.0, params.phi, params.psi);
+        p += viscous_first_piola(params, h, v, dmi);
     }
+    (
+        corner_forces_of_stress(p, dmi, volume),
+        volume * psi_density,
+    )
+}
+
+/// H = Du·Dm⁻¹ from the corner displacements.
+#[inline]
+pub fn displacement_gradient(u: [Vec3; 4], dmi: Mat3) -> Mat3 {
+    Mat3::from_cols(u[1] - u[0], u[2] - u[0], u[3] - u[0]) * dmi
+}
+
+/// The viscous stress of paper eq. (3–4) as a first Piola–Kirchhoff stress: F·S_v with
+/// S_v = φ tr(Ė) I + 2ψ Ė, Ė = ½(ḞᵀF + FᵀḞ), Ḟ = Dv·Dm⁻¹.
+#[inline]
+pub fn viscous_first_piola(params: &StepParams, h: Mat3, v: [Vec3; 4], dmi: Mat3) -> Mat3 {
+    let f = Mat3::IDENTITY + h;
+    let dv = Mat3::from_cols(v[1] - v[0], v[2] - v[0], v[3] - v[0]);
+    let rate = green_strain_rate(f, dv * dmi);
+    f * stvk_second_piola(Mat3::ZERO, rate, 0.0, 0.0, params.phi, params.psi)
+}
+
+/// Corner forces of a tet with stress P: [f₁ f₂ f₃] = −V P Dm⁻ᵀ, f₀ = −(f₁ + f₂ + f₃).
+#[inline]
+pub fn corner_forces_of_stress(p: Mat3, dmi: Mat3, volume: f32) -> [Vec3; 4] {
     let g = p * dmi.transpose() * (-volume);
     let (f1, f2, f3) = (g.x_axis, g.y_axis, g.z_axis);
-    ([-(f1 + f2 + f3), f1, f2, f3], volume * psi_density)
+    [-(f1 + f2 + f3), f1, f2, f3]
 }
 
 /// Per tet e (in parallel, one index per tet as on the GPU): write corner force c to

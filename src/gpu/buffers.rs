@@ -204,6 +204,16 @@ impl GpuBuffers {
         ctx.check_errors()
     }
 
+    /// Buffers made elsewhere, by name (tests and tools that drive one kernel by hand).
+    pub fn from_existing(buffers: Vec<(&'static str, wgpu::Buffer)>) -> GpuBuffers {
+        GpuBuffers {
+            buffers: buffers
+                .into_iter()
+                .map(|(n, b)| (n, Usage::Storage, b))
+                .collect(),
+        }
+    }
+
     /// The buffer named `name`, if any.
     pub fn get(&self, name: &str) -> Option<&wgpu::Buffer> {
         self.buffers
