@@ -9,9 +9,15 @@
 //! cargo run --release --example udp_device -- 127.0.0.1:4242 --csv path.csv --rate 1000
 //! ```
 //!
-//! The built-in press starts at the tool's home, goes `--depth` (default 8 mm) down along
-//! −z over 1 s, holds 0.5 s, comes back over 1 s and rests 0.3 s: set `--depth` so that the
-//! press reaches a few millimetres into the tissue of the scene.
+//! The built-in press starts at the tool's home, goes `--depth` (default 8 mm) along
+//! `--direction` (default −z) over 1 s, holds 0.5 s, comes back over 1 s and rests 0.3 s:
+//! set them so that the press reaches a few millimetres into the tissue of the scene (the
+//! default haptic scene `lv_touch` is pressed along −x: `--direction -1,0,0 --depth 0.004`).
+//!
+//! `--faults N` exercises palpate's packet checks: after every N-th pose it also sends a
+//! short datagram, one with a bad magic, one with a wrong version, a duplicate of the pose
+//! and a stale pose (an older sequence number); palpate counts each by its reason in
+//! `summary.json` (`haptic.device_stats.dropped`) and goes on.
 
 use clap::Parser;
 use glam::DVec3;
@@ -38,9 +44,15 @@ struct Args {
     /// Seconds to run (default: the trajectory's length + 0.2 s).
     #[arg(long)]
     duration: Option<f64>,
-    /// Depth of the built-in press below the tool home, m.
+    /// Depth of the built-in press from the tool home, m.
     #[arg(long, default_value_t = 0.008)]
     depth: f64,
+    /// Direction of the built-in press, `x,y,z` (normalised).
+    #[arg(long, default_value = "0,0,-1", allow_hyphen_values = true)]
+    direction: String,
+    /// After every N-th pose, also send five faulty datagrams (0: none).
+    #[arg(long, default_value_t = 0)]
+    faults: u64,
 }
 
 /// The driver's keep-alive: with no force packet for this long, it outputs zero force.
@@ -73,11 +85,11 @@ fn run(args: Args) -> Result<()> {
     let trajectory = match &args.csv {
         Some(path) => Trajectory::from_file(path)?,
         None => {
-            let d = -args.depth.abs();
+            let d = parse_direction(&args.direction)? * args.depth.abs();
             Trajectory::new(&[
                 (0.0, DVec3::ZERO),
-                (1.0, DVec3::new(0.0, 0.0, d)),
-                (1.5, DVec3::new(0.0, 0.0, d)),
+                (1.0, d),
+                (1.5, d),
                 (2.5, DVec3::ZERO),
                 (2.8, DVec3::ZERO),
             ])?
@@ -109,6 +121,7 @@ fn run(args: Args) -> Result<()> {
     let mut deadline = start;
     let mut buf = [0u8; 512];
     let (mut sent, mut send_errors, mut received, mut bad) = (0u64, 0u64, 0u64, 0u64);
+    let mut faulty = 0u64;
     let (mut max_force, mut clamped, mut fading) = (0.0f64, 0u64, 0u64);
     let mut newest: Option<(ForcePacket, f64)> = None;
     let mut round_trips: Vec<f64> = Vec::new();
@@ -131,8 +144,32 @@ fn run(args: Args) -> Result<()> {
             buttons: 0,
             flags: POSE_VELOCITY_VALID,
         };
-        if socket.send_to(&pose.encode(), target).is_err() {
+        let bytes = pose.encode();
+        if socket.send_to(&bytes, target).is_err() {
             send_errors += 1;
+        }
+        if args.faults > 0 && sent % args.faults == 0 {
+            let mut bad_magic = bytes;
+            bad_magic[0] ^= 0xff;
+            let mut wrong_version = bytes;
+            wrong_version[4] = wrong_version[4].wrapping_add(1);
+            let stale = PosePacket {
+                sequence: sent.saturating_sub(1).max(1) - 1,
+                ..pose
+            }
+            .encode();
+            for datagram in [
+                &bytes[..7],
+                &bad_magic[..],
+                &wrong_version[..],
+                &bytes[..],
+                &stale[..],
+            ] {
+                if socket.send_to(datagram, target).is_err() {
+                    send_errors += 1;
+                }
+            }
+            faulty += 5;
         }
         // Drain the answers; keep the newest.
         loop {
@@ -163,7 +200,9 @@ fn run(args: Args) -> Result<()> {
         };
         if now >= next_print {
             println!(
-                "t = {now:5.2} s  z = {:+7.2} mm  force = ({:+.2}, {:+.2}, {:+.2}) N",
+                "t = {now:5.2} s  x = ({:+6.2}, {:+6.2}, {:+6.2}) mm  force = ({:+.2}, {:+.2}, {:+.2}) N",
+                x.x * 1e3,
+                x.y * 1e3,
                 x.z * 1e3,
                 applied.x,
                 applied.y,
@@ -187,7 +226,7 @@ fn run(args: Args) -> Result<()> {
             .map_or(f64::NAN, |s| s * 1e3)
     };
     println!(
-        "sent {sent} pose packets ({send_errors} send errors), received {received} force packets ({bad} undecodable)"
+        "sent {sent} pose packets and {faulty} faulty datagrams ({send_errors} send errors), received {received} force packets ({bad} undecodable)"
     );
     println!(
         "max |force| {max_force:.3} N, clamped in {clamped}, fading in {fading}; round trip p50 {:.2} ms, p99 {:.2} ms",
@@ -201,4 +240,27 @@ fn run(args: Args) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// `x,y,z` → a unit vector.
+fn parse_direction(text: &str) -> Result<DVec3> {
+    let parts: Vec<f64> = text
+        .split(',')
+        .map(|p| p.trim().parse::<f64>())
+        .collect::<std::result::Result<_, _>>()
+        .map_err(|_| usage(format!("--direction {text}: expected three numbers x,y,z")))?;
+    let d = match parts[..] {
+        [x, y, z] => DVec3::new(x, y, z),
+        _ => {
+            return Err(usage(format!(
+                "--direction {text}: expected three numbers x,y,z"
+            )))
+        }
+    };
+    if !(d.is_finite() && d.length() > 0.0) {
+        return Err(usage(format!(
+            "--direction {text}: must be a non-zero vector"
+        )));
+    }
+    Ok(d.normalize())
 }

@@ -6,10 +6,12 @@
 //! [`cpu`]; see `ARCHITECTURE.md`.
 
 pub mod bench;
+pub mod compliance;
 pub mod contact;
 pub mod cpu;
 pub mod error;
 pub mod gpu;
+pub mod haptic_run;
 pub mod haptics;
 pub mod material;
 pub mod mesh;

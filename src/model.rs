@@ -45,6 +45,9 @@ pub struct Model {
     pub fibres: Vec<f32>,
     /// Stability bounds of this mesh and material (and the tool's contact, if any).
     pub bounds: TimeStepBounds,
+    /// The scene's safety factor (`[solver] safety`): particle sub-steps are at most this
+    /// fraction of the particles' stable step, as the core step is of its own.
+    pub safety: f64,
     /// The tool and the surface it touches (None: no contact stages).
     pub tool: Option<crate::contact::ToolModel>,
     /// The particle layer (None: no particle stages).
@@ -145,6 +148,7 @@ impl Model {
                 .flat_map(|f| f.to_array().map(|c| c as f32))
                 .collect(),
             bounds,
+            safety: crate::timestep::DEFAULT_SAFETY,
             tool: None,
             particles: None,
         }
@@ -159,18 +163,24 @@ impl Model {
     /// Build from a validated scene; sampling the particle zone can fail (a spacing too
     /// coarse for the zone), with an error naming the key.
     pub fn try_from_scene(scene: &Scene) -> crate::error::Result<Model> {
+        // Mass scaling s: inertia s·ρ, gravity g/s (the weight ρ·g is unchanged).
+        let s = scene.solver.mass_scaling;
+        let mut material = scene.material;
+        material.density *= s;
+        let gravity = scene.gravity.map(|g| g / s);
         let mut model = Model::with_loads(
             &scene.mesh,
             &scene.fixed,
-            scene.material,
-            scene.gravity,
+            material,
+            gravity,
             &scene.external_forces,
         );
+        model.safety = scene.solver.safety;
         if let Some(settings) = &scene.particles {
             let p = crate::particles::Particles::sample(
                 &scene.mesh,
                 settings,
-                scene.material.density,
+                material.density,
                 &scene.origin,
             )?;
             model = model.with_particles(&scene.fixed, p);
@@ -290,20 +300,14 @@ impl Model {
     }
 
     /// Particle sub-steps per core step of `dt`: ⌈dt / (safety·particle bound)⌉ with the
-    /// scene's safety factor 0.5 (1 without particles).
+    /// scene's safety factor (1 without particles; at most 64).
     pub fn particle_substeps(&self, dt: f64) -> u32 {
         match &self.particles {
             None => 1,
             Some(p) => {
                 let bound =
                     p.dt_bound(&self.material, self.tool.as_ref().map(|t| t.tool.stiffness));
-                (dt / (std::env::var("PALPATE_PSAFE")
-                    .ok()
-                    .and_then(|v| v.parse::<f64>().ok())
-                    .unwrap_or(crate::timestep::DEFAULT_SAFETY)
-                    * bound))
-                    .ceil()
-                    .clamp(1.0, 64.0) as u32
+                (dt / (self.safety * bound)).ceil().clamp(1.0, 64.0) as u32
             }
         }
     }

@@ -354,7 +354,30 @@ pub fn run(scene: &Scene, opts: &RunOptions) -> Result<RunSummary> {
         )?;
     }
     frames.finish()?;
-    let summary = RunSummary {
+    let summary = summarize(
+        scene,
+        &sim,
+        &state,
+        wall,
+        status,
+        until_static.then_some((residual, tolerance)),
+    );
+    summary.write(&opts.out)?;
+    Ok(summary)
+}
+
+/// The summary of a finished run of `sim` (its final `state`, `wall` seconds); `statics` is
+/// (residual, tolerance) for `--until-static`.
+pub fn summarize(
+    scene: &Scene,
+    sim: &Simulation,
+    state: &crate::stepper::State,
+    wall: f64,
+    status: RunStatus,
+    statics: Option<(Option<f64>, f64)>,
+) -> RunSummary {
+    let model = &sim.model;
+    RunSummary {
         scene: scene.name.clone(),
         backend: sim.backend,
         backend_reason: sim.backend_reason.clone(),
@@ -368,6 +391,7 @@ pub fn run(scene: &Scene, opts: &RunOptions) -> Result<RunSummary> {
         dt_bound: model.bounds.dt_bound,
         dt_paper_eq14: model.bounds.dt_paper_eq14,
         dt_halvings: sim.halvings,
+        mass_scaling: scene.solver.mass_scaling,
         sim_seconds: sim.time,
         wall_seconds: wall,
         steps_per_second: sim.steps_done as f64 / wall.max(1e-9),
@@ -377,8 +401,8 @@ pub fn run(scene: &Scene, opts: &RunOptions) -> Result<RunSummary> {
             + sim.last_particles.map_or(0.0, |p| p.kinetic_energy),
         elastic_energy: sim.last.elastic_energy()
             + sim.last_particles.map_or(0.0, |p| p.elastic_energy),
-        static_residual: if until_static { residual } else { None },
-        static_tolerance: until_static.then_some(tolerance),
+        static_residual: statics.and_then(|(r, _)| r),
+        static_tolerance: statics.map(|(_, t)| t),
         active_particles: model
             .particles
             .as_ref()
@@ -390,12 +414,10 @@ pub fn run(scene: &Scene, opts: &RunOptions) -> Result<RunSummary> {
             .as_ref()
             .map(|_| sim.last_tool.map_or([0.0; 3], |t| t.force.to_array())),
         status,
-    };
-    summary.write(&opts.out)?;
-    Ok(summary)
+    }
 }
 
-fn diverged_status(sim: &Simulation, step: u64, vertex: u32, dt: f64) -> RunStatus {
+pub(crate) fn diverged_status(sim: &Simulation, step: u64, vertex: u32, dt: f64) -> RunStatus {
     let m = &sim.model;
     RunStatus::Diverged {
         step,

@@ -13,12 +13,27 @@ use crate::params::{stat, StepParams};
 pub const RING: usize = 3;
 
 /// Displacements and velocities, packed xyz, f32.
-#[derive(Clone, Debug, Default, PartialEq)]
+#[derive(Debug, Default, PartialEq)]
 pub struct State {
     /// Displacements u = x − X from the rest positions, m.
     pub displacements: Vec<f32>,
     /// Velocities, m/s.
     pub velocities: Vec<f32>,
+}
+
+impl Clone for State {
+    fn clone(&self) -> Self {
+        State {
+            displacements: self.displacements.clone(),
+            velocities: self.velocities.clone(),
+        }
+    }
+
+    /// Copies into the existing buffers (no allocation when the sizes match).
+    fn clone_from(&mut self, source: &Self) {
+        self.displacements.clone_from(&source.displacements);
+        self.velocities.clone_from(&source.velocities);
+    }
 }
 
 /// The particles' state as read back: displacements and velocities (embedded particles as of

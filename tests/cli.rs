@@ -654,3 +654,114 @@ fn bad_particle_sections_are_one_line_errors_naming_the_key() {
         );
     }
 }
+
+#[test]
+fn bad_haptic_arguments_are_one_line_errors() {
+    let d = tmp("badhaptic");
+    let out = d.to_str().unwrap();
+    let touch = BEAM.replacen(
+        "[solver]",
+        "[tool]\nradius = 0.01\nstiffness = 2e7\nhome = [0.08, 0.01, 0.032]\n\n[solver]",
+        1,
+    );
+    let scene = scene_file(&d, "touch.toml", &touch);
+    let no_tool = scene_file(&d, "beam.toml", BEAM);
+    let malformed = d.join("bad.csv");
+    std::fs::write(&malformed, "t,x,y,z\n0,0,0,0\n0.5,0,zero,0\n").unwrap();
+    let backwards = d.join("backwards.csv");
+    std::fs::write(&backwards, "t,x,y,z\n0,0,0,0\n0.5,0,0,0\n0.4,0,0,0\n").unwrap();
+    let missing = d.join("missing.csv");
+    let scripted = |p: &Path| format!("scripted:{}", p.display());
+    let taken = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    let taken_port = format!("udp:{}", taken.local_addr().unwrap().port());
+    let cases: Vec<(Vec<String>, Vec<String>)> = vec![
+        (
+            vec![no_tool.clone(), "--device".into(), "null".into()],
+            vec![no_tool.clone(), "[tool]".into()],
+        ),
+        (
+            vec![scene.clone(), "--device".into(), scripted(&malformed)],
+            vec![malformed.display().to_string(), "line 3".into()],
+        ),
+        (
+            vec![scene.clone(), "--device".into(), scripted(&backwards)],
+            vec![backwards.display().to_string(), "line 4".into()],
+        ),
+        (
+            vec![scene.clone(), "--device".into(), scripted(&missing)],
+            vec![missing.display().to_string()],
+        ),
+        (
+            vec![scene.clone(), "--device".into(), taken_port.clone()],
+            vec![taken_port.trim_start_matches("udp:").to_string()],
+        ),
+        (
+            vec![scene.clone(), "--device".into(), "usb:3".into()],
+            vec!["--device usb:3".into()],
+        ),
+        (
+            vec![
+                scene.clone(),
+                "--device".into(),
+                "null".into(),
+                "--device-spec".into(),
+                "phantom-x".into(),
+            ],
+            vec!["--device-spec phantom-x".into(), "touch".into()],
+        ),
+        (
+            vec![
+                scene.clone(),
+                "--device".into(),
+                "null".into(),
+                "--seconds".into(),
+                "-1".into(),
+            ],
+            vec!["--seconds".into()],
+        ),
+    ];
+    for (args, want) in &cases {
+        let mut full: Vec<&str> = vec!["haptic"];
+        full.extend(args.iter().map(String::as_str));
+        full.extend(["--backend", "cpu", "--out", out]);
+        let want: Vec<&str> = want.iter().map(String::as_str).collect();
+        assert_one_line_error(&full, &want);
+    }
+    drop(taken);
+}
+
+#[test]
+fn a_haptic_session_runs_on_the_gpu_backend_too() {
+    let d = tmp("hapticgpu");
+    let touch = BEAM
+        .replacen(
+            "[solver]",
+            "[tool]\nradius = 0.01\nstiffness = 2e7\ndamping = 1e3\nhome = [0.08, 0.01, 0.032]\n\n[solver]",
+            1,
+        )
+        .replace("gravity = [0.0, 0.0, -9.81]", "gravity = [0.0, 0.0, 0.0]");
+    let scene = scene_file(&d, "touch.toml", &touch);
+    let press = d.join("press.csv");
+    std::fs::write(&press, "t,x,y,z\n0,0,0,0\n0.4,0,0,-0.006\n1.0,0,0,-0.006\n").unwrap();
+    let (ok, stdout, err) = palpate(&[
+        "haptic",
+        &scene,
+        "--device",
+        &format!("scripted:{}", press.display()),
+        "--backend",
+        "gpu",
+        "--out",
+        d.to_str().unwrap(),
+    ]);
+    assert!(
+        ok,
+        "palpate haptic --backend gpu failed (a GPU test needs an adapter: install mesa-vulkan-drivers for a software one): {stdout}\n{err}"
+    );
+    let s = summary(&d);
+    assert_eq!(s["backend"], "gpu");
+    assert_eq!(s["status"], "ok");
+    let fz = s["tool_force"][2].as_f64().unwrap();
+    assert!(fz > 0.0, "no push-back on the gpu backend: {fz}");
+    assert!(s["haptic"]["servo"]["ticks"].as_u64().unwrap() > 800);
+    assert!(d.join("haptic.csv").exists() && d.join("final.vtu").exists());
+}

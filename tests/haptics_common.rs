@@ -60,6 +60,7 @@ impl Wall {
         LocalModel {
             force: DVec3::new(0.0, 0.0, f),
             stiffness: DMat3::from_diagonal(DVec3::new(0.0, 0.0, -k)),
+            contact_stiffness: DMat3::ZERO,
             proxy: x,
             stamp,
             sim_time: stamp,

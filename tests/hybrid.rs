@@ -60,8 +60,8 @@ fn momentum(m: &Model, s: &mut CpuStepper) -> (DVec3, DVec3) {
         p += mv;
         l += x.cross(mv);
     }
-    for k in 0..pd.len() {
-        if modes[k] & mode::DYNAMIC == 0 {
+    for (k, &md) in modes.iter().enumerate().take(pd.len()) {
+        if md & mode::DYNAMIC == 0 {
             continue;
         }
         let x = v3(&pd.rest, k) + v3(&ps.displacements, k);
@@ -123,10 +123,9 @@ fn free_flight_conserves_linear_and_angular_momentum() {
 /// Forces of one step's force stages after imposing u = (A − I)(X − c) on the vertices
 /// (particles take the embedded displacement when they become dynamic): the vertex forces,
 /// the particle forces, the boundary vertices and the interior dynamic particles.
-fn forces_under(
-    scene: &Scene,
-    a: DMat3,
-) -> (Arc<Model>, Vec<Vec3>, Vec<Vec3>, Vec<bool>, Vec<bool>) {
+type ForcesUnder = (Arc<Model>, Vec<Vec3>, Vec<Vec3>, Vec<bool>, Vec<bool>);
+
+fn forces_under(scene: &Scene, a: DMat3) -> ForcesUnder {
     let (m, mut s) = stepper(scene, 0.5);
     let c = DVec3::new(0.015, 0.015, 0.015);
     let u: Vec<f32> = (0..m.n_vertices())
@@ -245,7 +244,10 @@ fn rigid_motion_gives_no_force_and_an_affine_stretch_no_interior_particle_residu
         particle_res / scale
     );
     // A rigid rotation of 30 degrees: no force anywhere.
-    let rot = DMat3::from_axis_angle(DVec3::new(1.0, 2.0, 3.0).normalize(), 0.5236);
+    let rot = DMat3::from_axis_angle(
+        DVec3::new(1.0, 2.0, 3.0).normalize(),
+        std::f64::consts::FRAC_PI_6,
+    );
     let (_, vf, pf, _, _) = forces_under(&scene, rot);
     let worst = vf
         .iter()

@@ -348,21 +348,32 @@ fn particle_kernels_match_their_cpu_twins() {
     eprintln!("sph_setup: rel err {e:.2e}");
     assert!(e <= KERNEL_TOL, "sph_setup rel err {e:.2e}");
     g.run_stage(Stage::SphStress).unwrap();
-    let (mut stress, mut grad, mut energy) =
-        (vec![0.0f32; 9 * n], vec![0.0f32; 9 * n], vec![0.0f32; n]);
-    cpu::sph_stress::sph_stress(
-        &params,
-        &pp,
-        m.material.model,
-        &sl,
-        &pd.rest,
-        &pu,
-        noff,
-        nbrs,
-        &corr,
-        &mut stress,
-        &mut grad,
-        &mut energy,
+    // The CPU path caches rest-state pair quantities; the cache must not change a bit.
+    let pairs = cpu::sph::PairTable::new(&pp, &pd.rest, noff, nbrs);
+    let stress_with = |pairs: Option<&cpu::sph::PairTable>| {
+        let (mut stress, mut grad, mut energy) =
+            (vec![0.0f32; 9 * n], vec![0.0f32; 9 * n], vec![0.0f32; n]);
+        cpu::sph_stress::sph_stress(
+            &params,
+            &pp,
+            m.material.model,
+            &sl,
+            &pd.rest,
+            &pu,
+            noff,
+            nbrs,
+            &corr,
+            pairs,
+            &mut stress,
+            &mut grad,
+            &mut energy,
+        );
+        (stress, grad, energy)
+    };
+    let (stress, grad, energy) = stress_with(Some(&pairs));
+    assert!(
+        stress_with(None) == (stress.clone(), grad.clone(), energy.clone()),
+        "sph_stress with the pair cache differs from without it"
     );
     for (name, c) in [
         ("particle_stress", &stress),
@@ -402,13 +413,23 @@ fn particle_kernels_match_their_cpu_twins() {
         gradient: &ggrad,
         area: &pd.contact_area,
         contact_offset: &pd.contact_offset,
+        pairs: Some(&pairs),
     };
-    let (mut f, mut fs, mut fc) = (
-        vec![0.0f32; 3 * n],
-        vec![0.0f32; 3 * n],
-        vec![0.0f32; 3 * n],
+    let forces_of = |inp: &cpu::sph_forces::ForceInputs| {
+        let (mut f, mut fs, mut fc) = (
+            vec![0.0f32; 3 * n],
+            vec![0.0f32; 3 * n],
+            vec![0.0f32; 3 * n],
+        );
+        cpu::sph_forces::sph_forces(inp, &fl, false, &mut f, &mut fs, &mut fc);
+        (f, fs, fc)
+    };
+    let (f, fs, fc) = forces_of(&inp);
+    let uncached = cpu::sph_forces::ForceInputs { pairs: None, ..inp };
+    assert!(
+        forces_of(&uncached) == (f.clone(), fs.clone(), fc.clone()),
+        "sph_forces with the pair cache differs from without it"
     );
-    cpu::sph_forces::sph_forces(&inp, &fl, false, &mut f, &mut fs, &mut fc);
     let touching = fl
         .iter()
         .filter(|&&p| fc[3 * p as usize + 2] != 0.0)

@@ -134,6 +134,7 @@ impl HertzCase {
                 damping: 0.0,
                 static_tolerance: 1e-3,
                 duration: None,
+                mass_scaling: 1.0,
             },
             tool: Some(Tool {
                 radius: r,

@@ -60,6 +60,32 @@ enum Command {
         #[arg(long, default_value = "out")]
         out: PathBuf,
     },
+    /// Touch a scene through a haptic device: the simulation and the 1 kHz servo loop
+    /// together; writes haptic.csv, final.vtu and summary.json (with the loop statistics).
+    Haptic {
+        /// Built-in scene name or path to a scene TOML file with a [tool].
+        #[arg(default_value = palpate::haptic_run::DEFAULT_HAPTIC_SCENE)]
+        scene: String,
+        /// The device: null, scripted:FILE (CSV t,x,y,z in s and m, offsets from the tool's
+        /// home) or udp:ADDR (see docs/haptic-protocol.md).
+        #[arg(long)]
+        device: String,
+        /// Device specification: touch, omni, desktop, omega3 or falcon.
+        #[arg(long)]
+        device_spec: Option<String>,
+        /// Run length, s (default: the scripted trajectory's length, else 10 s).
+        #[arg(long, allow_hyphen_values = true)]
+        seconds: Option<f64>,
+        /// Backend that steps the model (auto: a hardware GPU, else the CPU).
+        #[arg(long, value_enum, default_value = "auto")]
+        backend: Backend,
+        /// CPU backend threads (default: one fewer than the cores, at least one).
+        #[arg(long)]
+        threads: Option<usize>,
+        /// Output directory.
+        #[arg(long, default_value = "out")]
+        out: PathBuf,
+    },
     /// Mesh statistics and quality of a scene; optionally export the mesh (.vtu).
     Mesh {
         /// Built-in scene name or path to a scene TOML file.
@@ -216,6 +242,60 @@ fn execute(cli: Cli) -> Result<()> {
                 return Err(PalpateError::Usage(format!(
                     "run did not finish cleanly: {}",
                     s.status
+                )));
+            }
+            Ok(())
+        }
+        Command::Haptic {
+            scene,
+            device,
+            device_spec,
+            seconds,
+            backend,
+            threads,
+            out,
+        } => {
+            let scene = Scene::load(&scene)?;
+            let opts = palpate::haptic_run::HapticOptions {
+                backend,
+                threads,
+                device,
+                device_spec,
+                seconds,
+                out: out.clone(),
+                announce: true,
+                ..Default::default()
+            };
+            let s = palpate::haptic_run::run_haptic(&scene, &opts)?;
+            let h = &s.haptic;
+            let l = &h.servo.lateness_us;
+            let a = &h.servo.model_age_ms;
+            println!(
+                "servo: {} ticks at {:.1} Hz; lateness p50 {:.1} / p99 {:.1} / p99.9 {:.1} / max {:.1} us; {} missed deadlines",
+                h.servo.ticks, h.servo.rate_hz, l.p50, l.p99, l.p99_9, l.max, h.servo.missed_deadlines
+            );
+            println!(
+                "model age p50 {:.2} / p99 {:.2} / max {:.2} ms; {} force clamps; passivity observer min {:.2e} J; max force {:.3} N",
+                a.p50, a.p99, a.max, h.servo.force_clamps, h.servo.passivity_min_energy_j, h.servo.max_force_n
+            );
+            println!(
+                "physics: {} steps ({:.3} s simulated) in {:.2} s = {:.0} steps/s, realtime factor {:.3}; stiffness {}",
+                s.run.steps,
+                s.run.sim_seconds,
+                s.run.wall_seconds,
+                s.run.steps_per_second,
+                s.run.realtime_factor,
+                h.physics.stiffness_model
+            );
+            println!(
+                "wrote {0}/haptic.csv, {0}/final.vtu, {0}/summary.json; status: {1}",
+                out.display(),
+                s.run.status
+            );
+            if !s.run.status.is_ok() {
+                return Err(PalpateError::Usage(format!(
+                    "haptic session did not finish cleanly: {}",
+                    s.run.status
                 )));
             }
             Ok(())

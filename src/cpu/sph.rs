@@ -48,3 +48,51 @@ pub fn kernel_gradient(model: u32, d: Vec3, spacing: f32, support: f32) -> Vec3 
         wendland_gradient(d, support)
     }
 }
+
+/// Rest-state quantities of every neighbour pair, computed once (the CPU path's cache; the
+/// WGSL kernels compute them on the fly with the same arithmetic, so results are equal):
+/// for slot k of particle c's neighbour list (neighbour b), ∇W(X_b − X_c), r0 = |X_c − X_b|
+/// and the hourglass weight h·W(r0)/r0² (h = ½ α E V²).
+#[derive(Clone, Debug, Default)]
+pub struct PairTable {
+    /// ∇W(X_b − X_c) per slot.
+    pub gradient: Vec<Vec3>,
+    /// r0 per slot.
+    pub rest_distance: Vec<f32>,
+    /// h·W(r0)/r0² per slot (0 where r0 = 0).
+    pub hourglass: Vec<f32>,
+}
+
+impl PairTable {
+    /// The table over neighbour lists `neighbour_offsets`/`neighbours` of `rest`.
+    pub fn new(
+        pp: &crate::particles::params::ParticleParams,
+        rest: &[f32],
+        neighbour_offsets: &[u32],
+        neighbours: &[u32],
+    ) -> PairTable {
+        let n_slots = neighbours.len();
+        let mut t = PairTable {
+            gradient: Vec::with_capacity(n_slots),
+            rest_distance: Vec::with_capacity(n_slots),
+            hourglass: Vec::with_capacity(n_slots),
+        };
+        let hg = 0.5 * pp.hourglass * pp.youngs * (pp.volume * pp.volume);
+        for c in 0..neighbour_offsets.len().saturating_sub(1) {
+            let x0c = super::load3(rest, c);
+            for k in neighbour_offsets[c]..neighbour_offsets[c + 1] {
+                let x0b = super::load3(rest, neighbours[k as usize] as usize);
+                t.gradient
+                    .push(kernel_gradient(pp.model, x0b - x0c, pp.spacing, pp.support));
+                let r0 = (x0c - x0b).length();
+                t.rest_distance.push(r0);
+                t.hourglass.push(if r0 > 0.0 {
+                    hg * wendland(r0, pp.support) / (r0 * r0)
+                } else {
+                    0.0
+                });
+            }
+        }
+        t
+    }
+}

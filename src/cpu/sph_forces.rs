@@ -40,66 +40,103 @@ pub struct ForceInputs<'a> {
     pub area: &'a [f32],
     /// Rest offset to the true surface per particle (xyz).
     pub contact_offset: &'a [f32],
+    /// Rest-state pair quantities (None: computed on the fly, as the WGSL kernel does).
+    pub pairs: Option<&'a super::sph::PairTable>,
 }
 
-/// The force on particle c and its tool contact (twin of one `sph_forces` thread).
-pub fn force_on(inp: &ForceInputs, c: usize) -> (Vec3, Vec3) {
+/// What particle c's side of the pair (c, b) computes: the stress term V²(A_c + A_b)∇W
+/// (tlsph; V² A_b ∇W for the paper model) and, for tlsph with hourglass control, the
+/// hourglass term (None where it does not apply). `None` overall when neither is in S.
+#[inline]
+fn pair_terms(inp: &ForceInputs, k: usize, side: &Side) -> Option<(Vec3, Option<Vec3>)> {
     let pp = inp.pp;
-    let mode_c = inp.mode[c];
-    let in_s_c = mode_c & mode::IN_S != 0;
-    let x0c = load3(inp.rest, c);
-    let uc = load3(inp.displacements, c);
-    let (a_c, f_c) = if in_s_c {
-        (
-            load_dm_inv(inp.stress, c),
-            Mat3::IDENTITY + load_dm_inv(inp.gradient, c),
-        )
+    let b = inp.neighbours[k] as usize;
+    let in_s_b = inp.mode[b] & mode::IN_S != 0;
+    if !side.in_s && !in_s_b {
+        return None;
+    }
+    let x0b = load3(inp.rest, b);
+    let w = match inp.pairs {
+        Some(t) => t.gradient[k],
+        None => kernel_gradient(pp.model, x0b - side.x0, pp.spacing, pp.support),
+    };
+    let a_b = if in_s_b {
+        load_dm_inv(inp.stress, b)
     } else {
-        (Mat3::ZERO, Mat3::IDENTITY)
+        Mat3::ZERO
     };
     let v2 = pp.volume * pp.volume;
-    let hg = 0.5 * pp.hourglass * pp.youngs * v2;
-    let mut f = Vec3::ZERO;
-    for k in inp.neighbour_offsets[c]..inp.neighbour_offsets[c + 1] {
-        let b = inp.neighbours[k as usize] as usize;
-        let in_s_b = inp.mode[b] & mode::IN_S != 0;
-        if !in_s_c && !in_s_b {
-            continue;
-        }
-        let x0b = load3(inp.rest, b);
-        let w = kernel_gradient(pp.model, x0b - x0c, pp.spacing, pp.support);
-        let a_b = if in_s_b {
-            load_dm_inv(inp.stress, b)
-        } else {
-            Mat3::ZERO
+    if pp.model == 1 {
+        return Some(((a_b * w) * v2, None));
+    }
+    let stress = ((side.a + a_b) * w) * v2;
+    let mut hourglass = None;
+    if pp.hourglass > 0.0 {
+        let x0cb = side.x0 - x0b;
+        let xcb = x0cb + side.u - load3(inp.displacements, b);
+        let r = xcb.length();
+        let r0 = match inp.pairs {
+            Some(t) => t.rest_distance[k],
+            None => x0cb.length(),
         };
-        if pp.model == 1 {
-            f += (a_b * w) * v2;
-        } else {
-            f += ((a_c + a_b) * w) * v2;
-            if pp.hourglass > 0.0 {
-                let x0cb = x0c - x0b;
-                let xcb = x0cb + uc - load3(inp.displacements, b);
-                let r = xcb.length();
-                let r0 = x0cb.length();
-                if r > 0.0 && r0 > 0.0 {
-                    let mut delta = 0.0;
-                    if in_s_c {
-                        delta += (f_c * x0cb - xcb).dot(xcb) / r;
-                    }
-                    if in_s_b {
-                        delta += ((Mat3::IDENTITY + load_dm_inv(inp.gradient, b)) * x0cb - xcb)
-                            .dot(xcb)
-                            / r;
-                    }
-                    f += xcb * (hg * wendland(r0, pp.support) / (r0 * r0) * delta / r);
-                }
+        if r > 0.0 && r0 > 0.0 {
+            let mut delta = 0.0;
+            if side.in_s {
+                delta += (side.f * x0cb - xcb).dot(xcb) / r;
             }
+            if in_s_b {
+                delta +=
+                    ((Mat3::IDENTITY + load_dm_inv(inp.gradient, b)) * x0cb - xcb).dot(xcb) / r;
+            }
+            let weight = match inp.pairs {
+                Some(t) => t.hourglass[k],
+                None => {
+                    let hg = 0.5 * pp.hourglass * pp.youngs * v2;
+                    hg * wendland(r0, pp.support) / (r0 * r0)
+                }
+            };
+            hourglass = Some(xcb * (weight * delta / r));
         }
     }
+    Some((stress, hourglass))
+}
+
+/// Particle c's own quantities for [`pair_terms`].
+struct Side {
+    in_s: bool,
+    x0: Vec3,
+    u: Vec3,
+    a: Mat3,
+    f: Mat3,
+}
+
+impl Side {
+    fn of(inp: &ForceInputs, c: usize) -> Side {
+        let in_s = inp.mode[c] & mode::IN_S != 0;
+        let (a, f) = if in_s {
+            (
+                load_dm_inv(inp.stress, c),
+                Mat3::IDENTITY + load_dm_inv(inp.gradient, c),
+            )
+        } else {
+            (Mat3::ZERO, Mat3::IDENTITY)
+        };
+        Side {
+            in_s,
+            x0: load3(inp.rest, c),
+            u: load3(inp.displacements, c),
+            a,
+            f,
+        }
+    }
+}
+
+/// Add gravity and the tool's contact to f when particle c is dynamic (in that order, as
+/// the kernel does); returns the contact force.
+fn add_external(inp: &ForceInputs, c: usize, side: &Side, f: &mut Vec3) -> Vec3 {
     let mut contact = Vec3::ZERO;
-    if mode_c & mode::DYNAMIC != 0 {
-        f += Vec3::from_array(inp.params.gravity) * pp.mass;
+    if inp.mode[c] & mode::DYNAMIC != 0 {
+        *f += Vec3::from_array(inp.params.gravity) * inp.pp.mass;
         let area = inp.area[c];
         if let Some((tp, ti, ts)) = inp.tool {
             if area > 0.0 {
@@ -107,18 +144,56 @@ pub fn force_on(inp: &ForceInputs, c: usize) -> (Vec3, Vec3) {
                 let o = load3(inp.contact_offset, c);
                 contact = contact_force(
                     tp,
-                    x0c + uc + f_c * o,
+                    side.x0 + side.u + side.f * o,
                     load3(inp.velocities, c),
                     Vec3::from_array(ts.position),
                     vc,
                     area,
                 )
                 .force;
-                f += contact;
+                *f += contact;
             }
         }
     }
+    contact
+}
+
+/// The force on particle c and its tool contact (twin of one `sph_forces` thread).
+pub fn force_on(inp: &ForceInputs, c: usize) -> (Vec3, Vec3) {
+    let side = Side::of(inp, c);
+    let mut f = Vec3::ZERO;
+    for k in inp.neighbour_offsets[c]..inp.neighbour_offsets[c + 1] {
+        if let Some((stress, hourglass)) = pair_terms(inp, k as usize, &side) {
+            f += stress;
+            if let Some(h) = hourglass {
+                f += h;
+            }
+        }
+    }
+    let contact = add_external(inp, c, &side, &mut f);
     (f, contact)
+}
+
+fn store_forces(
+    inp: &ForceInputs,
+    force_list: &[u32],
+    results: Vec<(Vec3, Vec3)>,
+    accumulate: bool,
+    particle_forces: &mut [f32],
+    particle_force_sum: &mut [f32],
+    particle_contact: &mut [f32],
+) {
+    let s = inp.pp.substeps.max(1) as f32;
+    for (&c, (f, contact)) in force_list.iter().zip(results) {
+        let c = c as usize;
+        super::store3(particle_forces, c, f);
+        super::store3(particle_contact, c, contact);
+        let mut sum = f / s;
+        if accumulate {
+            sum += load3(particle_force_sum, c);
+        }
+        super::store3(particle_force_sum, c, sum);
+    }
 }
 
 /// Per particle of `force_list`: `particle_forces`, `particle_contact` and the sub-step sum
@@ -136,15 +211,13 @@ pub fn sph_forces(
         .par_iter()
         .map(|&c| force_on(inp, c as usize))
         .collect();
-    let s = inp.pp.substeps.max(1) as f32;
-    for (&c, (f, contact)) in force_list.iter().zip(results) {
-        let c = c as usize;
-        super::store3(particle_forces, c, f);
-        super::store3(particle_contact, c, contact);
-        let mut sum = f / s;
-        if accumulate {
-            sum += load3(particle_force_sum, c);
-        }
-        super::store3(particle_force_sum, c, sum);
-    }
+    store_forces(
+        inp,
+        force_list,
+        results,
+        accumulate,
+        particle_forces,
+        particle_force_sum,
+        particle_contact,
+    );
 }

@@ -48,13 +48,15 @@ pub fn sph_setup(
     });
 }
 
-/// Σ_b V (a_b − a_p) ⊗ ∇W(X_b − X_p) (the bracket of F_p; a = displacements or positions).
+/// Σ_b V (a_b − a_p) ⊗ ∇W(X_b − X_p) (the bracket of F_p; a = displacements or positions),
+/// with the kernel gradients from `pairs` when given.
 pub fn gradient_sum(
     pp: &ParticleParams,
     rest: &[f32],
     a: &[f32],
     neighbour_offsets: &[u32],
     neighbours: &[u32],
+    pairs: Option<&super::sph::PairTable>,
     p: usize,
 ) -> Mat3 {
     let x = load3(rest, p);
@@ -62,7 +64,10 @@ pub fn gradient_sum(
     let mut s = Mat3::ZERO;
     for k in neighbour_offsets[p]..neighbour_offsets[p + 1] {
         let b = neighbours[k as usize] as usize;
-        let w = kernel_gradient(pp.model, load3(rest, b) - x, pp.spacing, pp.support) * pp.volume;
+        let w = match pairs {
+            Some(t) => t.gradient[k as usize],
+            None => kernel_gradient(pp.model, load3(rest, b) - x, pp.spacing, pp.support),
+        } * pp.volume;
         let du: Vec3 = load3(a, b) - ap;
         s += Mat3::from_cols(du * w.x, du * w.y, du * w.z);
     }

@@ -19,9 +19,18 @@ pub fn stress_of(
     neighbour_offsets: &[u32],
     neighbours: &[u32],
     correction: &[f32],
+    pairs: Option<&super::sph::PairTable>,
     p: usize,
 ) -> (Mat3, Mat3, f32) {
-    let s = gradient_sum(pp, rest, displacements, neighbour_offsets, neighbours, p);
+    let s = gradient_sum(
+        pp,
+        rest,
+        displacements,
+        neighbour_offsets,
+        neighbours,
+        pairs,
+        p,
+    );
     let g = load_dm_inv(correction, p);
     let h = s * g;
     let (stress, psi) = if pp.model == 1 {
@@ -38,7 +47,8 @@ pub fn stress_of(
     (stress * g.transpose(), h, pp.volume * psi)
 }
 
-/// Per particle of `stress_list`: `particle_stress` (A), `particle_gradient` (H), `particle_energy`.
+/// Per particle of `stress_list`: `particle_stress` (A), `particle_gradient` (H),
+/// `particle_energy` (kernel gradients from `pairs` when given).
 #[allow(clippy::too_many_arguments)]
 pub fn sph_stress(
     params: &StepParams,
@@ -50,6 +60,7 @@ pub fn sph_stress(
     neighbour_offsets: &[u32],
     neighbours: &[u32],
     correction: &[f32],
+    pairs: Option<&super::sph::PairTable>,
     particle_stress: &mut [f32],
     particle_gradient: &mut [f32],
     particle_energy: &mut [f32],
@@ -67,6 +78,7 @@ pub fn sph_stress(
                 neighbour_offsets,
                 neighbours,
                 correction,
+                pairs,
                 p as usize,
             )
         })

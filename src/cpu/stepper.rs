@@ -68,7 +68,6 @@ struct ToolArrays {
 }
 
 /// The particles' state (checkpointed with the vertices').
-#[derive(Clone)]
 struct ParticleState {
     displacements: Vec<f32>,
     velocities: Vec<f32>,
@@ -79,10 +78,38 @@ struct ParticleState {
     inv_mass: Vec<f32>,
 }
 
+impl Clone for ParticleState {
+    fn clone(&self) -> Self {
+        let mut c = ParticleState {
+            displacements: Vec::new(),
+            velocities: Vec::new(),
+            mode: Vec::new(),
+            timer: Vec::new(),
+            offset: Vec::new(),
+            mass: Vec::new(),
+            inv_mass: Vec::new(),
+        };
+        c.clone_from(self);
+        c
+    }
+
+    /// Copies into the existing buffers (a checkpoint every batch allocates nothing).
+    fn clone_from(&mut self, s: &Self) {
+        self.displacements.clone_from(&s.displacements);
+        self.velocities.clone_from(&s.velocities);
+        self.mode.clone_from(&s.mode);
+        self.timer.clone_from(&s.timer);
+        self.offset.clone_from(&s.offset);
+        self.mass.clone_from(&s.mass);
+        self.inv_mass.clone_from(&s.inv_mass);
+    }
+}
+
 /// The particles' arrays.
 struct ParticleArrays {
     params: ParticleParams,
     lists: NeighbourLists,
+    pairs: super::sph::PairTable,
     correction: Vec<f32>,
     state: ParticleState,
     stress: Vec<f32>,
@@ -124,9 +151,12 @@ impl ParticleArrays {
             .iter()
             .map(|&pin| if pin { mode::PINNED } else { 0 })
             .collect();
+        let pairs =
+            super::sph::PairTable::new(&pp, &p.rest, &lists.neighbour_offsets, &lists.neighbours);
         Some(ParticleArrays {
             params: pp,
             lists,
+            pairs,
             correction,
             state: ParticleState {
                 displacements: vec![0.0; 3 * n],
@@ -370,8 +400,15 @@ impl CpuStepper {
                 &mut self.forces,
             ),
             Stage::GatherCoupled => {
-                let empty: (&[u32], &[u32], &[u32], &[f32], &[u32], &[f32]) =
-                    (&[], &[], &[], &[], &[], &[]);
+                type CouplingSlices<'a> = (
+                    &'a [u32],
+                    &'a [u32],
+                    &'a [u32],
+                    &'a [f32],
+                    &'a [u32],
+                    &'a [f32],
+                );
+                let empty: CouplingSlices = (&[], &[], &[], &[], &[], &[]);
                 let (node_flags, slot_offsets, slots, weights, pmode, force_sum) =
                     match (&self.particles, pdata) {
                         (Some(pa), Some(pd)) => (
@@ -529,6 +566,7 @@ impl CpuStepper {
                 noff,
                 nbrs,
                 &pa.correction,
+                Some(&pa.pairs),
                 &mut pa.stress,
                 &mut pa.gradient,
                 &mut pa.energy,
@@ -552,6 +590,7 @@ impl CpuStepper {
                     gradient: &pa.gradient,
                     area: &pd.contact_area,
                     contact_offset: &pd.contact_offset,
+                    pairs: Some(&pa.pairs),
                 };
                 super::sph_forces::sph_forces(
                     &inp,
@@ -595,6 +634,38 @@ impl CpuStepper {
     pub fn step(&mut self, reduce: bool) {
         let pool = self.pool.clone();
         pool.install(|| self.step_in_batch(0, if reduce { 1 } else { 2 }));
+    }
+
+    /// Step `steps` steps (one batch, the tool held where it is) timing every stage: mean
+    /// wall ns per step spent in each stage of the plan, in plan order (stages that run
+    /// every k steps are averaged over all steps).
+    pub fn profile_stages(&mut self, steps: u32) -> crate::gpu::stepper::StageTimes {
+        let pool = self.pool.clone();
+        let steps = steps.max(1);
+        let mut totals = vec![0.0f64; self.plan.stages.len()];
+        pool.install(|| {
+            for s in 0..steps {
+                for (k, total) in totals.iter_mut().enumerate() {
+                    let planned = self.plan.stages[k];
+                    if planned.runs_at(self.steps_done, s, steps) {
+                        let t = std::time::Instant::now();
+                        self.run_stage(planned.stage);
+                        *total += t.elapsed().as_nanos() as f64;
+                        self.counts[k].1 += 1;
+                    }
+                }
+                self.steps_done += 1;
+            }
+        });
+        let mut per_stage: Vec<(Stage, f64)> = Vec::new();
+        for (k, total) in totals.iter().enumerate() {
+            let stage = self.plan.stages[k].stage;
+            match per_stage.iter_mut().find(|(st, _)| *st == stage) {
+                Some((_, t)) => *t += total / steps as f64,
+                None => per_stage.push((stage, total / steps as f64)),
+            }
+        }
+        crate::gpu::stepper::StageTimes { per_stage }
     }
 
     fn step_in_batch(&mut self, s: u32, len: u32) {
@@ -739,10 +810,22 @@ impl Stepper for CpuStepper {
     }
 
     fn checkpoint(&mut self) -> Result<()> {
-        self.checkpoint = Some((
-            self.state.clone(),
-            self.particles.as_ref().map(|pa| pa.state.clone()),
-        ));
+        // Reuse the last checkpoint's buffers (a haptic session checkpoints every batch).
+        match &mut self.checkpoint {
+            Some((state, particles)) => {
+                state.clone_from(&self.state);
+                match (particles, &self.particles) {
+                    (Some(saved), Some(pa)) => saved.clone_from(&pa.state),
+                    (saved, pa) => *saved = pa.as_ref().map(|pa| pa.state.clone()),
+                }
+            }
+            None => {
+                self.checkpoint = Some((
+                    self.state.clone(),
+                    self.particles.as_ref().map(|pa| pa.state.clone()),
+                ))
+            }
+        }
         Ok(())
     }
 

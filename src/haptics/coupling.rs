@@ -2,7 +2,8 @@
 //! spring k_c and a damper b_c (Colgate, Stanley & Brown 1995; Adams & Hannaford 1999).
 //!
 //! Each tick the proxy is where the coupling spring balances the tissue's local model
-//! F_t(x) = f0 + K·(x − x0) (made unilateral, see [`super::shaping::unilateral`]):
+//! F_t(x) = f0 + K·(x − x0) (made unilateral, see [`super::shaping::unilateral`]; K is the
+//! model's [`LocalModel::solve_stiffness`], the contact's immediate stiffness):
 //!
 //! k_c·(x_d − x_p) + F_t(x_p) = 0  ⇒  x_p = (k_c I − K)⁻¹ (k_c x_d + f0 − K x0)
 //!
@@ -21,7 +22,15 @@
 //! from the simulation. The passivity observer of [`super::observer`] checks it:
 //! Σ[−F_k·Δx_k + b|Δx_k|²/T] telescopes to V(x_n) + Σ(b/T − k/2)|Δx_k|² ≥ 0 for a spring k.
 //!
-//! K is not capped to make this work (a capped K in the proxy solve would make the fixed
+//! The servo and the physics thread iterate a fixed point: the physics places its tool at
+//! the proxy and answers with a new f0; an error e in the proxy comes back as
+//! e·(K_true − K)/(k_c − K), K_true the physics' response over one batch. That factor is
+//! below one in magnitude only when K is close to K_true, which over a millisecond is the
+//! contact springs' stiffness with the tissue held (the tissue has not moved yet), not the
+//! settled static stiffness: with the static one (softer) in the solve, a contact spring
+//! stiffer than about 2k_c makes the proxy and the tissue ring (measured: a cantilever at
+//! 47 N/m static, 500 N/m contact, k_c = 360 N/m bounced in and out of contact at ≈ 10 Hz).
+//! K is not capped for the same reason (a capped K in the proxy solve would make the fixed
 //! point between servo and physics diverge for tissue stiffer than k_c + 2·cap); it is only
 //! symmetrised and its positive eigenvalues (an active, "negative stiffness" tissue) are
 //! clipped to zero, see [`sanitize_stiffness`].
@@ -170,7 +179,7 @@ impl VirtualCoupling {
             tissue_stiffness: 0.0,
         };
         if let Some(m) = model.filter(|m| m.in_contact && k_c > 0.0) {
-            let (lambda, v) = sanitize_stiffness(m.stiffness);
+            let (lambda, v) = sanitize_stiffness(m.solve_stiffness());
             let k = compose(v, lambda);
             out.tissue_stiffness = -lambda.min_element();
             let inv_a = compose(v, DVec3::ONE / (DVec3::splat(k_c) - lambda));

@@ -58,9 +58,16 @@ impl Default for LoopClock {
 pub struct LocalModel {
     /// f0, N: the force the tissue exerts on the tool at `proxy`.
     pub force: DVec3,
-    /// K = ∂F/∂x, N/m: how the tool force changes with the tool position; negative along the
-    /// contact normal for a tissue that pushes back harder the deeper the tool goes.
+    /// K = ∂F/∂x, N/m: how the tool force changes with the tool position once the tissue
+    /// has settled (the static stiffness); negative along the contact normal for a tissue
+    /// that pushes back harder the deeper the tool goes.
     pub stiffness: DMat3,
+    /// K_c, N/m: how the tool force changes within one physics batch, before the tissue has
+    /// moved (the contact springs with the tissue held). The coupling's proxy solve uses it
+    /// (zero: it uses `stiffness`): the servo ↔ physics fixed point converges only when the
+    /// solve's stiffness is at least the physics' immediate response (see
+    /// [`super::coupling`]), and a contact spring is stiffer than the settled tissue.
+    pub contact_stiffness: DMat3,
     /// x0, m: the tool (proxy) position the model was computed at (device frame, relative to
     /// the tool home).
     pub proxy: DVec3,
@@ -85,6 +92,7 @@ impl Default for LocalModel {
         LocalModel {
             force: DVec3::ZERO,
             stiffness: DMat3::ZERO,
+            contact_stiffness: DMat3::ZERO,
             proxy: DVec3::ZERO,
             stamp: 0.0,
             sim_time: 0.0,
@@ -102,10 +110,21 @@ impl LocalModel {
         self.force + self.stiffness * (x - self.proxy)
     }
 
+    /// The stiffness the coupling's proxy solve uses: `contact_stiffness`, or `stiffness`
+    /// when that is zero.
+    pub fn solve_stiffness(&self) -> DMat3 {
+        if self.contact_stiffness == DMat3::ZERO {
+            self.stiffness
+        } else {
+            self.contact_stiffness
+        }
+    }
+
     /// All numbers finite (a non-finite model is treated as diverged).
     pub fn is_finite(&self) -> bool {
         self.force.is_finite()
             && self.stiffness.is_finite()
+            && self.contact_stiffness.is_finite()
             && self.proxy.is_finite()
             && self.stamp.is_finite()
     }

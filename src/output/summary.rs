@@ -128,6 +128,8 @@ pub struct RunSummary {
     pub dt_paper_eq14: f64,
     /// How many times dt was halved after a divergence.
     pub dt_halvings: u32,
+    /// Mass scaling of the scene's `[solver]` (1: none).
+    pub mass_scaling: f64,
     /// Simulated time, s.
     pub sim_seconds: f64,
     /// Wall-clock time of the stepping, s.

@@ -34,6 +34,7 @@ pub const BUILTIN: &[(&str, &str)] = &[
     ("lv", include_str!("../../scenes/lv.toml")),
     ("hm1", include_str!("../../scenes/hm1.toml")),
     ("hm2", include_str!("../../scenes/hm2.toml")),
+    ("lv_touch", include_str!("../../scenes/lv_touch.toml")),
 ];
 
 /// The scene `palpate run` uses when none is named.
@@ -115,6 +116,11 @@ fn line_of(text: &str, offset: usize) -> usize {
 }
 
 impl Scene {
+    /// The TOML text of a built-in scene (a starting point for variants).
+    pub fn builtin_text(name: &str) -> Option<&'static str> {
+        BUILTIN.iter().find(|(n, _)| *n == name).map(|(_, t)| *t)
+    }
+
     /// Load a built-in scene by name, or a scene file by path.
     pub fn load(name_or_path: &str) -> Result<Scene> {
         if let Some((name, text)) = BUILTIN.iter().find(|(n, _)| *n == name_or_path) {

@@ -28,6 +28,11 @@ pub struct SolverSpec {
     pub static_tolerance: Option<f64>,
     /// Simulated time `palpate run` uses when no length is given, s.
     pub duration: Option<f64>,
+    /// Mass scaling s ≥ 1 (default 1): the inertia of every vertex and particle is s times
+    /// the material's (gravity is divided by s, so the weight is unchanged). Explicit
+    /// dynamics' standard way to a larger stable step (dt grows as √s): statics are exact,
+    /// natural frequencies drop by √s.
+    pub mass_scaling: Option<f64>,
 }
 
 /// Solver settings after validation.
@@ -43,6 +48,8 @@ pub struct SolverSettings {
     pub static_tolerance: f64,
     /// Default run length, s.
     pub duration: Option<f64>,
+    /// Mass scaling s ≥ 1 (see [`SolverSpec::mass_scaling`]).
+    pub mass_scaling: f64,
 }
 
 pub(super) fn resolve_solver(s: &SolverSpec, bad: &Bad) -> Result<SolverSettings> {
@@ -77,7 +84,15 @@ pub(super) fn resolve_solver(s: &SolverSpec, bad: &Bad) -> Result<SolverSettings
         Some(d) => Some(positive(bad, "solver.duration", d, "s")?),
         None => None,
     };
+    let mass_scaling = s.mass_scaling.unwrap_or(1.0);
+    if !(mass_scaling.is_finite() && (1.0..=1.0e6).contains(&mass_scaling)) {
+        return Err(bad(
+            "solver.mass_scaling",
+            format!("must be in [1, 1e6], got {mass_scaling}"),
+        ));
+    }
     Ok(SolverSettings {
+        mass_scaling,
         dt,
         safety,
         damping,

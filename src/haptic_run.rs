@@ -1,0 +1,408 @@
+//! The `palpate haptic` job: the simulation on the calling (physics) thread and the 1 kHz
+//! servo loop on its own, joined by the latest-value slots of [`crate::haptics::link`]
+//! (DESIGN §7).
+//!
+//! Each pass of the physics loop takes the newest tool command, places the simulated tool
+//! at `home + proxy` (clamped to the device's workspace), runs a batch of about
+//! [`HapticOptions::batch_seconds`] of simulated time (the tool moves linearly to the new
+//! place over it), and publishes the local model: the tool force f0 from `tool_force`, the
+//! static stiffness K of [`crate::compliance`] (refreshed every
+//! [`HapticOptions::stiffness_period`] while in contact; the frozen stiffness when the body
+//! has no static stiffness), the proxy it was computed at and the command's time stamp. The
+//! simulation never runs ahead of the loop clock; when it cannot keep up, the realtime
+//! factor in `summary.json` says so. A divergence rolls back and halves dt (the servo fades
+//! the force while the model says `diverged`); when dt cannot be halved again the run ends
+//! with the last finite state written.
+
+use crate::compliance::{contact_points, ContactCompliance};
+use crate::error::{PalpateError, Result};
+use crate::haptics::{
+    self, DeviceSpec, DeviceStats, LocalModel, LoopClock, ServoConfig, ServoReport, ServoStats,
+};
+use crate::output::state::state_vtu;
+use crate::output::summary::RunSummary;
+use crate::output::write_atomic;
+use crate::run::{diverged_status, summarize, RunStatus};
+use crate::scene::Scene;
+use crate::sim::{Backend, DivergencePolicy, Guarded, SimOptions, Simulation};
+use glam::{DMat3, DVec3};
+use serde::Serialize;
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+/// The built-in scene `palpate haptic` runs when none is named.
+pub const DEFAULT_HAPTIC_SCENE: &str = "lv_touch";
+
+/// Run length when the device has none of its own (null, udp), s.
+pub const DEFAULT_SECONDS: f64 = 10.0;
+
+/// Options of a haptic session.
+#[derive(Clone, Debug)]
+pub struct HapticOptions {
+    /// Backend (`auto` picks a hardware GPU, else the CPU).
+    pub backend: Backend,
+    /// CPU backend threads (None: one fewer than the cores, at least one).
+    pub threads: Option<usize>,
+    /// `--device`: `null`, `scripted:FILE` or `udp:ADDR`.
+    pub device: String,
+    /// `--device-spec` (None: [`DeviceSpec::DEFAULT_NAME`]).
+    pub device_spec: Option<String>,
+    /// Run length, s (None: the scripted trajectory's length, else [`DEFAULT_SECONDS`]).
+    pub seconds: Option<f64>,
+    /// Output directory.
+    pub out: PathBuf,
+    /// Simulated time per batch, s (the model is published after each batch).
+    pub batch_seconds: f64,
+    /// Wall time between refreshes of the static stiffness while in contact, s.
+    pub stiffness_period: f64,
+    /// Print a first line naming the scene, device and backend.
+    pub announce: bool,
+}
+
+impl Default for HapticOptions {
+    fn default() -> Self {
+        HapticOptions {
+            backend: Backend::Auto,
+            threads: None,
+            device: "null".into(),
+            device_spec: None,
+            seconds: None,
+            out: PathBuf::from("out"),
+            batch_seconds: 1.0e-3,
+            stiffness_period: 0.01,
+            announce: false,
+        }
+    }
+}
+
+/// Percentiles of a physics-side quantity.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct Spread {
+    /// Median.
+    pub p50: f64,
+    /// 99th percentile.
+    pub p99: f64,
+    /// Largest.
+    pub max: f64,
+}
+
+impl Spread {
+    fn of(values: &mut [f64]) -> Spread {
+        if values.is_empty() {
+            return Spread::default();
+        }
+        values.sort_by(f64::total_cmp);
+        let at = |q: f64| values[((values.len() - 1) as f64 * q).round() as usize];
+        Spread {
+            p50: at(0.5),
+            p99: at(0.99),
+            max: values[values.len() - 1],
+        }
+    }
+}
+
+/// What the physics thread did during a haptic session.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct PhysicsStats {
+    /// Batches run (= local models published).
+    pub batches: u64,
+    /// Steps per batch (at the initial dt).
+    pub steps_per_batch: u32,
+    /// Wall time per batch, ms.
+    pub batch_wall_ms: Spread,
+    /// Fraction of the session's wall time spent running batches (the rest the physics
+    /// thread waited for the loop clock): above about 0.9 it can barely keep up.
+    pub busy_fraction: f64,
+    /// Simulated seconds per wall second of batch work: the realtime factor the physics
+    /// could reach if it never waited (≥ 1 keeps up with the hand).
+    pub realtime_capacity: f64,
+    /// Where the published stiffness comes from: `static` (linear compliance, see
+    /// `palpate::compliance`) or `frozen: <why not static>`.
+    pub stiffness_model: String,
+    /// Static-stiffness refreshes.
+    pub stiffness_refreshes: u64,
+    /// Wall time per refresh, ms.
+    pub stiffness_refresh_ms: Spread,
+    /// Batches whose tool target was pulled back into the device's workspace.
+    pub workspace_clamps: u64,
+    /// Batches that diverged and were rolled back (dt halved).
+    pub divergences: u64,
+    /// The last published stiffness K = ∂F/∂x, N/m, by rows.
+    pub tool_stiffness: [[f64; 3]; 3],
+}
+
+/// The `haptic` section of `summary.json`.
+#[derive(Clone, Debug, Serialize)]
+pub struct HapticStats {
+    /// The device (`HapticDevice::describe`).
+    pub device: String,
+    /// Its specification.
+    pub device_spec: DeviceSpec,
+    /// The servo loop's statistics (rate, lateness, missed deadlines, model age, clamps,
+    /// passivity observer).
+    pub servo: ServoStats,
+    /// The device's packet counters.
+    pub device_stats: DeviceStats,
+    /// The physics thread's counters.
+    pub physics: PhysicsStats,
+}
+
+/// `summary.json` of a haptic session: the run summary plus the `haptic` section.
+#[derive(Clone, Debug, Serialize)]
+pub struct HapticSummary {
+    /// The fields every run reports.
+    #[serde(flatten)]
+    pub run: RunSummary,
+    /// Loop and device statistics.
+    pub haptic: HapticStats,
+}
+
+impl HapticSummary {
+    /// Write `summary.json` into `dir`.
+    pub fn write(&self, dir: &std::path::Path) -> Result<()> {
+        let json = serde_json::to_string_pretty(self)
+            .map_err(|e| PalpateError::Usage(format!("summary.json: {e}")))?;
+        write_atomic(&dir.join("summary.json"), json.as_bytes())
+    }
+}
+
+/// Where the published stiffness comes from.
+enum StiffnessSource {
+    Static(Box<ContactCompliance>),
+    Frozen(String),
+}
+
+/// Run a haptic session of `scene` (which must have a `[tool]`) and write `haptic.csv`,
+/// `final.vtu` (and `particles_final.vtu`) and `summary.json` into `opts.out`.
+pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> {
+    if scene.tool.is_none() {
+        return Err(PalpateError::Usage(format!(
+            "{}: a haptic session needs a [tool] (radius, stiffness, home)",
+            scene.origin
+        )));
+    }
+    for (name, v) in [
+        ("batch_seconds", opts.batch_seconds),
+        ("stiffness_period", opts.stiffness_period),
+    ] {
+        if !(v.is_finite() && v > 0.0) {
+            return Err(PalpateError::Usage(format!(
+                "haptic: {name} = {v} must be a positive number of seconds"
+            )));
+        }
+    }
+    let spec = DeviceSpec::by_name(
+        opts.device_spec
+            .as_deref()
+            .unwrap_or(DeviceSpec::DEFAULT_NAME),
+    )?;
+    let device = haptics::DeviceArg::parse(&opts.device)?.open(spec)?;
+    let seconds = match opts.seconds {
+        Some(s) if !(s.is_finite() && s > 0.0) => {
+            return Err(PalpateError::Usage(format!(
+                "--seconds {s}: must be a positive number of seconds"
+            )))
+        }
+        Some(s) => s,
+        None => device.duration().unwrap_or(DEFAULT_SECONDS),
+    };
+    std::fs::create_dir_all(&opts.out).map_err(|source| PalpateError::OutputIo {
+        path: opts.out.clone(),
+        source,
+    })?;
+    let threads = opts.threads.or_else(|| {
+        (opts.backend != Backend::Gpu).then(|| {
+            crate::cpu::stepper::available_cores()
+                .saturating_sub(1)
+                .max(1)
+        })
+    });
+    let mut sim = Simulation::new(
+        scene,
+        opts.backend,
+        SimOptions {
+            threads,
+            ..Default::default()
+        },
+    )?;
+    let model = sim.model.clone();
+    let home = model.tool.as_ref().map_or(DVec3::ZERO, |t| t.tool.home);
+    sim.tool_position = home;
+    sim.tool_target = Some(home);
+    let mut stiffness = match ContactCompliance::new(&model) {
+        Ok(c) => StiffnessSource::Static(Box::new(c)),
+        Err(why) => StiffnessSource::Frozen(why.to_string()),
+    };
+    let config = ServoConfig::new(spec).with_duration(seconds);
+    if opts.announce {
+        println!(
+            "{}: {} tets, {} vertices{}; device {} ({}); backend {} on {} ({}); {seconds} s",
+            scene.name,
+            model.n_tets(),
+            model.n_vertices(),
+            model
+                .particles
+                .as_ref()
+                .map(|p| format!(", {} particles", p.len()))
+                .unwrap_or_default(),
+            device.describe(),
+            spec.name,
+            if sim.backend == Backend::Gpu {
+                "gpu"
+            } else {
+                "cpu"
+            },
+            sim.backend_name(),
+            sim.backend_reason,
+        );
+    }
+
+    let steps_per_batch = ((opts.batch_seconds / sim.dt).round() as u32).max(1);
+    let clock = LoopClock::new();
+    let (servo_end, mut physics) = haptics::link(clock);
+    let servo = haptics::spawn_servo(device, servo_end, config)?;
+    let mut stats = PhysicsStats {
+        steps_per_batch,
+        stiffness_model: match &stiffness {
+            StiffnessSource::Static(c) => format!(
+                "static (linear compliance, {} degrees of freedom)",
+                c.dofs()
+            ),
+            StiffnessSource::Frozen(why) => format!("frozen: no static stiffness, {why}"),
+        },
+        ..Default::default()
+    };
+    let mut batch_ms = Vec::new();
+    let mut refresh_ms = Vec::new();
+    let mut status = RunStatus::Ok;
+    let mut published_k = DMat3::ZERO;
+    let mut last_refresh: Option<Instant> = None;
+    let start = Instant::now();
+    let sim_start = clock.now();
+    let outcome = (|| -> Result<()> {
+        while !servo.is_finished() {
+            let (command, _) = physics.tool();
+            let mut offset = command.position;
+            if offset.length() > spec.workspace_radius {
+                offset *= spec.workspace_radius / offset.length();
+                stats.workspace_clamps += 1;
+            }
+            sim.tool_target = Some(home + offset);
+            // Never run ahead of the loop clock.
+            let ahead = sim.time - (clock.now() - sim_start);
+            if ahead > 0.0 {
+                std::thread::sleep(Duration::from_secs_f64(ahead));
+            }
+            let steps = ((opts.batch_seconds / sim.dt).round() as u32).max(1);
+            let t0 = Instant::now();
+            let result = sim.advance_with(steps, DivergencePolicy::HalveDt)?;
+            batch_ms.push(t0.elapsed().as_secs_f64() * 1e3);
+            stats.batches += 1;
+            let diverged = match result {
+                Guarded::Done(_) => false,
+                Guarded::Retry { .. } => {
+                    stats.divergences += 1;
+                    true
+                }
+                Guarded::Diverged { step, vertex } => {
+                    status = diverged_status(&sim, step, vertex, sim.dt);
+                    physics.publish(LocalModel {
+                        diverged: true,
+                        stamp: command.stamp,
+                        sim_time: sim.time,
+                        ..Default::default()
+                    });
+                    servo.stop();
+                    break;
+                }
+            };
+            let report = sim.last_tool.unwrap_or_default();
+            let in_contact = report.contacts > 0 && !diverged;
+            if !in_contact {
+                published_k = DMat3::ZERO;
+                last_refresh = None;
+            } else {
+                match &mut stiffness {
+                    StiffnessSource::Frozen(_) => published_k = report.stiffness,
+                    StiffnessSource::Static(compliance) => {
+                        let due = last_refresh
+                            .is_none_or(|t| t.elapsed().as_secs_f64() >= opts.stiffness_period);
+                        if due {
+                            let t = Instant::now();
+                            let state = sim.state()?;
+                            let particles = sim.particle_state()?;
+                            let points = contact_points(
+                                &model,
+                                &state.displacements,
+                                particles.as_ref(),
+                                sim.tool_position,
+                            );
+                            published_k = if points.is_empty() {
+                                report.stiffness
+                            } else {
+                                compliance.stiffness(&points)
+                            };
+                            stats.stiffness_refreshes += 1;
+                            refresh_ms.push(t.elapsed().as_secs_f64() * 1e3);
+                            last_refresh = Some(Instant::now());
+                        }
+                    }
+                }
+            }
+            physics.publish(LocalModel {
+                force: if diverged { DVec3::ZERO } else { report.force },
+                stiffness: published_k,
+                contact_stiffness: if in_contact {
+                    report.stiffness
+                } else {
+                    DMat3::ZERO
+                },
+                proxy: sim.tool_position - home,
+                stamp: command.stamp,
+                sim_time: sim.time,
+                diverged,
+                in_contact,
+                penetration: report.max_penetration,
+                active_particles: sim.last_particles.map_or(0, |p| p.dynamic),
+            });
+        }
+        Ok(())
+    })();
+    if outcome.is_err() {
+        servo.stop();
+    }
+    let servo_report: ServoReport = servo.join()?;
+    outcome?;
+    let wall = start.elapsed().as_secs_f64();
+    stats.tool_stiffness = published_k.transpose().to_cols_array_2d();
+    let busy = batch_ms.iter().sum::<f64>() * 1e-3;
+    stats.busy_fraction = busy / wall.max(1e-9);
+    stats.realtime_capacity = sim.time / busy.max(1e-9);
+    stats.batch_wall_ms = Spread::of(&mut batch_ms);
+    stats.stiffness_refresh_ms = Spread::of(&mut refresh_ms);
+
+    servo_report.log.write_csv(&opts.out.join("haptic.csv"))?;
+    let state = sim.state()?;
+    write_atomic(
+        &opts.out.join("final.vtu"),
+        state_vtu(&model, &state).as_bytes(),
+    )?;
+    if let Some(snap) = sim.particle_state()? {
+        write_atomic(
+            &opts.out.join("particles_final.vtu"),
+            crate::output::particles::particles_vtu(&model, &state, &snap).as_bytes(),
+        )?;
+    }
+    let summary = HapticSummary {
+        run: summarize(scene, &sim, &state, wall, status, None),
+        haptic: HapticStats {
+            device: servo_report.device_name,
+            device_spec: spec,
+            servo: servo_report.stats,
+            device_stats: servo_report.device,
+            physics: stats,
+        },
+    };
+    summary.write(&opts.out)?;
+    Ok(summary)
+}
