@@ -317,6 +317,54 @@ fn sphere_pressed_into_a_block_gives_hertz_force() {
 }
 
 #[test]
+fn a_particle_top_layer_resolves_the_contact_that_a_coarse_core_alone_cannot() {
+    // The same block with cells of 2a under the contact: alone, the contact patch falls
+    // between a handful of vertices; with its top two layers turned into particles of a/3,
+    // the particles resolve it. Both relaxed to a static state at d = 0.5 mm.
+    use palpate::bench::contact::ParticleLayer;
+    let coarse = HertzCase {
+        fine: 2.0,
+        ..Default::default()
+    };
+    let hybrid = HertzCase {
+        particles: Some(ParticleLayer {
+            spacing: 1.0 / 3.0,
+            layers: 2,
+        }),
+        ..coarse
+    };
+    let out = std::env::temp_dir().join(format!("palpate-hertz-hybrid-{}", std::process::id()));
+    let c = run_case(&coarse, Backend::Cpu, &out).unwrap();
+    let h = run_case(&hybrid, Backend::Cpu, &out).unwrap();
+    for r in [&c, &h] {
+        eprintln!(
+            "{}: {} tets, {} particles: F = {:.4e} N vs Hertz {:.4e} N ({:+.2} %), {} steps, {:.1} s",
+            r.case.label(),
+            r.tets,
+            r.particles,
+            r.force,
+            r.hertz,
+            100.0 * r.relative_error,
+            r.steps,
+            r.wall_seconds
+        );
+        assert_eq!(r.status, "ok", "{}", r.case.label());
+    }
+    assert!(h.particles > 1000, "{} particles", h.particles);
+    assert!(
+        h.relative_error.abs() <= 0.15,
+        "hybrid block {:+.2} % from Hertz",
+        100.0 * h.relative_error
+    );
+    assert!(
+        h.relative_error.abs() < 0.5 * c.relative_error.abs(),
+        "hybrid {:+.2} % is not clearly closer than the coarse core alone {:+.2} %",
+        100.0 * h.relative_error,
+        100.0 * c.relative_error
+    );
+}
+
+#[test]
 fn contact_helpers_agree_with_the_formula() {
     // f = A (k d − b min(0, v·n)) n on a point 1 mm inside a 5 mm sphere, approaching.
     let p = palpate::contact::ToolParams {

@@ -69,6 +69,18 @@ impl Default for HertzCase {
 }
 
 impl HertzCase {
+    /// `cells a/3`, or `core 2a + particles a/3` for a hybrid block.
+    pub fn label(&self) -> String {
+        match self.particles {
+            None => format!("cells a/{:.1}", 1.0 / self.fine),
+            Some(p) => format!(
+                "core {:.1}a + particles a/{:.1}",
+                self.fine,
+                1.0 / p.spacing
+            ),
+        }
+    }
+
     /// Contact radius a = √(R d), m.
     pub fn contact_radius(&self) -> f64 {
         (self.radius * self.depth).sqrt()
@@ -170,6 +182,8 @@ pub struct HertzResult {
     pub case: HertzCase,
     /// Tets of the block.
     pub tets: usize,
+    /// Particles of its particle zone (0 without).
+    pub particles: usize,
     /// Vertical force on the tool at the static state, N.
     pub force: f64,
     /// Hertz's force, N.
@@ -201,6 +215,7 @@ pub fn run_case(case: &HertzCase, backend: Backend, out: &Path) -> Result<HertzR
     Ok(HertzResult {
         case: *case,
         tets: summary.tets,
+        particles: summary.particles,
         force,
         hertz,
         relative_error: (force - hertz) / hertz,
@@ -238,6 +253,26 @@ pub fn study(backend: Backend, quick: bool, log: &mut dyn FnMut(&str)) -> Result
             ..base
         });
     }
+    // Error against run time (the Pareto plot): all-tet blocks refined under the contact,
+    // and hybrid blocks — a coarse core of 2a cells whose top two layers are particles of
+    // a/2, a/3, a/4 spacing — at depth 0.5 mm.
+    let pareto_fines: &[f64] = if quick { &[] } else { &[1.0, 0.5, 1.0 / 3.0, 0.25] };
+    for &fine in pareto_fines {
+        if !cases.iter().any(|c| c.fine == fine && c.depth == base.depth && c.penalty == base.penalty) {
+            cases.push(HertzCase { fine, ..base });
+        }
+    }
+    let spacings: &[f64] = if quick { &[] } else { &[0.5, 1.0 / 3.0, 0.25] };
+    if !quick {
+        cases.push(HertzCase { fine: 2.0, ..base });
+    }
+    for &spacing in spacings {
+        cases.push(HertzCase {
+            fine: 2.0,
+            particles: Some(ParticleLayer { spacing, layers: 2 }),
+            ..base
+        });
+    }
     let dir = std::env::temp_dir().join(format!("palpate-hertz-{}", std::process::id()));
     std::fs::create_dir_all(&dir).map_err(|source| crate::error::PalpateError::OutputIo {
         path: dir.clone(),
@@ -247,8 +282,8 @@ pub fn study(backend: Backend, quick: bool, log: &mut dyn FnMut(&str)) -> Result
     for case in cases {
         let r = run_case(&case, backend, &dir)?;
         log(&format!(
-            "cells a/{:.1}, depth {:.2} mm, penalty {:.0e} Pa/m: {} tets, F = {:.4e} N vs Hertz {:.4e} N ({:+.2} %), {} steps, {:.1} s",
-            1.0 / case.fine,
+            "{}, depth {:.2} mm, penalty {:.0e} Pa/m: {} tets, F = {:.4e} N vs Hertz {:.4e} N ({:+.2} %), {} steps, {:.1} s",
+            case.label(),
             1e3 * case.depth,
             case.penalty,
             r.tets,
@@ -266,21 +301,23 @@ pub fn study(backend: Backend, quick: bool, log: &mut dyn FnMut(&str)) -> Result
 /// Write `contact.csv` and `contact.md` into `out`.
 pub fn write(out: &Path, rows: &[HertzResult], header: &str) -> Result<()> {
     let mut csv = String::from(
-        "radius_m,depth_m,contact_radius_m,cell_over_a,penalty_pa_per_m,tets,force_n,hertz_n,relative_error,steps,wall_seconds,status\n",
+        "radius_m,depth_m,contact_radius_m,cell_over_a,particle_spacing_over_a,penalty_pa_per_m,tets,particles,force_n,hertz_n,relative_error,steps,wall_seconds,status\n",
     );
     let mut md = format!(
-        "# Contact against Hertz\n\n{header}\n\n| cell under the contact | depth mm | penalty Pa/m | tets | F sim N | F Hertz N | error | steps | wall s |\n|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n"
+        "# Contact against Hertz\n\n{header}\n\n![contact force error against run time](accuracy_contact.png)\n\n| block | depth mm | penalty Pa/m | tets | particles | F sim N | F Hertz N | error | steps | wall s |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n"
     );
     for r in rows {
         let c = &r.case;
         csv.push_str(&format!(
-            "{},{},{},{},{},{},{},{},{},{},{},{}\n",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
             c.radius,
             c.depth,
             c.contact_radius(),
             c.fine,
+            c.particles.map_or(String::new(), |p| p.spacing.to_string()),
             c.penalty,
             r.tets,
+            r.particles,
             r.force,
             r.hertz,
             r.relative_error,
@@ -289,17 +326,50 @@ pub fn write(out: &Path, rows: &[HertzResult], header: &str) -> Result<()> {
             r.status
         ));
         md.push_str(&format!(
-            "| a/{:.1} | {:.2} | {:.0e} | {} | {:.4e} | {:.4e} | {:+.2} % | {} | {:.1} |\n",
-            1.0 / c.fine,
+            "| {} | {:.2} | {:.0e} | {} | {} | {:.4e} | {:.4e} | {:+.2} % | {} | {:.1} |\n",
+            c.label(),
             1e3 * c.depth,
             c.penalty,
             r.tets,
+            r.particles,
             r.force,
             r.hertz,
             100.0 * r.relative_error,
             r.steps,
             r.wall_seconds
         ));
+    }
+    // The Pareto plot: |error| against run time at depth 0.5 mm, penalty 1e9 Pa/m.
+    let base = HertzCase::default();
+    let series = ["all tets", "hybrid (core 2a)"];
+    let picked: Vec<&HertzResult> = rows
+        .iter()
+        .filter(|r| r.case.depth == base.depth && r.case.penalty == base.penalty)
+        .filter(|r| r.case.particles.is_some() || r.case.fine <= 1.0)
+        .collect();
+    if picked.iter().any(|r| r.case.particles.is_some()) {
+        let points: Vec<crate::output::png::PlotPoint> = picked
+            .iter()
+            .map(|r| crate::output::png::PlotPoint {
+                x: r.wall_seconds.max(1e-3),
+                y: r.relative_error.abs().max(1e-4),
+                series: usize::from(r.case.particles.is_some()),
+            })
+            .collect();
+        let front = crate::output::png::pareto_front(&points);
+        let labels: Vec<String> = series.iter().map(|s| s.to_string()).collect();
+        let canvas = crate::output::png::loglog_plot(
+            &points,
+            &front,
+            "run time to static [s]",
+            "|F - F_Hertz| / F_Hertz",
+            &labels,
+        );
+        crate::output::write_atomic(&out.join("accuracy_contact.png"), &canvas.png())?;
+        md.push_str("\nPareto-optimal (no other run is both faster and more accurate): ");
+        let names: Vec<String> = front.iter().map(|&i| picked[i].case.label()).collect();
+        md.push_str(&names.join(", "));
+        md.push('\n');
     }
     crate::output::write_atomic(&out.join("contact.csv"), csv.as_bytes())?;
     crate::output::write_atomic(&out.join("contact.md"), md.as_bytes())

@@ -2,9 +2,13 @@
 //!
 //! * [`stability`]: the largest stable time step per material and mesh, and stress cases.
 //! * [`accuracy`]: error against a converged reference versus run time, and its Pareto front.
+//! * [`contact`]: the tool's contact force against Hertz's solution.
+//! * [`haptic`]: the servo loop and the physics thread together (rate, lateness, model age,
+//!   realtime factor).
 
 pub mod accuracy;
 pub mod contact;
+pub mod haptic;
 pub mod stability;
 
 use crate::error::Result;

@@ -134,6 +134,16 @@ enum BenchStudy {
         #[arg(long, default_value = "docs")]
         out: PathBuf,
     },
+    /// The 1 kHz servo loop with the physics thread on lv, ed0 and lv_touch, per backend:
+    /// haptic.csv, haptic.md.
+    Haptic {
+        /// Seconds per session.
+        #[arg(long, default_value_t = 10.0)]
+        seconds: f64,
+        /// Output directory.
+        #[arg(long, default_value = "docs")]
+        out: PathBuf,
+    },
     /// Error against a converged reference versus run time: accuracy.csv, accuracy.png.
     Accuracy {
         /// Backend whose run time is measured.
@@ -364,6 +374,28 @@ fn execute(cli: Cli) -> Result<()> {
                 );
                 contact::write(&out, &rows, &header)?;
                 println!("wrote {0}/contact.csv, {0}/contact.md", out.display());
+                Ok(())
+            }
+            BenchStudy::Haptic { seconds, out } => {
+                use palpate::bench::haptic;
+                let cores = palpate::cpu::stepper::available_cores();
+                let mut runs = vec![(Backend::Cpu, Some(cores))];
+                if cores > 1 {
+                    runs.push((Backend::Cpu, Some(cores - 1)));
+                }
+                if palpate::gpu::GpuContext::new().is_ok() {
+                    runs.push((Backend::Gpu, None));
+                }
+                let scratch = std::env::temp_dir().join(format!("palpate-bench-haptic-{}", std::process::id()));
+                let rows = haptic::study(&runs, seconds, &scratch, &mut |s| {
+                    eprintln!("bench haptic: {s}")
+                })?;
+                let header = format!(
+                    "Written by `palpate bench haptic --seconds {seconds}` on a machine with {cores} cores; GPU: {}. A scripted device presses each scene at 0.5 Hz (sin², 4 mm into lv, 0.06 into ed0, 3 mm into lv_touch) for {seconds} s; device spec touch (k_c = 360 N/m).",
+                    adapter_name(Backend::Gpu)
+                );
+                haptic::write(&out, &rows, &header)?;
+                println!("wrote {0}/haptic.csv, {0}/haptic.md", out.display());
                 Ok(())
             }
             BenchStudy::Accuracy {
