@@ -129,6 +129,11 @@ pub struct PhysicsStats {
     pub divergences: u64,
     /// The last published stiffness K = ∂F/∂x, N/m, by rows.
     pub tool_stiffness: [[f64; 3]; 3],
+    /// Batches that ended with the tool in contact with the tissue.
+    pub contact_batches: u64,
+    /// The largest force the tissue exerted on the simulated tool over the session (the
+    /// physics side, before any shaping or fading in the servo loop), N.
+    pub peak_tool_force: [f64; 3],
 }
 
 /// The `haptic` section of `summary.json`.
@@ -318,6 +323,12 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
             };
             let report = sim.last_tool.unwrap_or_default();
             let in_contact = report.contacts > 0 && !diverged;
+            if in_contact {
+                stats.contact_batches += 1;
+                if report.force.length() > DVec3::from(stats.peak_tool_force).length() {
+                    stats.peak_tool_force = report.force.to_array();
+                }
+            }
             if !in_contact {
                 published_k = DMat3::ZERO;
                 last_refresh = None;

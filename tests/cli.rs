@@ -760,8 +760,65 @@ fn a_haptic_session_runs_on_the_gpu_backend_too() {
     let s = summary(&d);
     assert_eq!(s["backend"], "gpu");
     assert_eq!(s["status"], "ok");
-    let fz = s["tool_force"][2].as_f64().unwrap();
+    // How far the physics gets in the session depends on the adapter's speed (a software
+    // adapter on a busy 2-core machine may simulate only a few hundred steps, and the
+    // undamped beam bounces off the tool), so assert the contact over the session, not
+    // at its last batch.
+    let physics = &s["haptic"]["physics"];
+    assert!(
+        physics["contact_batches"].as_u64().unwrap() > 0,
+        "the tool never touched the beam on the gpu backend: {physics}"
+    );
+    let fz = physics["peak_tool_force"][2].as_f64().unwrap();
     assert!(fz > 0.0, "no push-back on the gpu backend: {fz}");
     assert!(s["haptic"]["servo"]["ticks"].as_u64().unwrap() > 800);
     assert!(d.join("haptic.csv").exists() && d.join("final.vtu").exists());
+}
+
+#[test]
+fn the_default_haptic_scene_runs_when_no_scene_is_given() {
+    // `palpate haptic` with no SCENE takes lv_touch (the SI hybrid LV): a scripted press of
+    // 3 mm along -x for 2 s touches it, wakes particles under the tool and pushes back.
+    let d = tmp("hapticdefault");
+    let press = d.join("press.csv");
+    std::fs::write(&press, "t,x,y,z\n0,0,0,0\n0.5,-0.003,0,0\n2,-0.003,0,0\n").unwrap();
+    let (ok, stdout, err) = palpate(&[
+        "haptic",
+        "--device",
+        &format!("scripted:{}", press.display()),
+        "--seconds",
+        "2",
+        "--backend",
+        "cpu",
+        "--out",
+        d.to_str().unwrap(),
+    ]);
+    assert!(ok, "{stdout}\n{err}");
+    let s = summary(&d);
+    assert_eq!(s["scene"], "lv_touch");
+    assert_eq!(s["status"], "ok");
+    assert!(
+        s["particles"].as_u64().unwrap() > 1000,
+        "{}",
+        s["particles"]
+    );
+    assert!(
+        s["active_particles_max"].as_u64().unwrap() > 0,
+        "no particle woke under the tool"
+    );
+    let physics = &s["haptic"]["physics"];
+    assert!(
+        physics["contact_batches"].as_u64().unwrap() > 0,
+        "{physics}"
+    );
+    let fx = physics["peak_tool_force"][0].as_f64().unwrap();
+    assert!(
+        fx > 0.0,
+        "pressing along -x, the wall pushes back along +x: {fx}"
+    );
+    // The servo loop ran for the session (loosely: a busy 2-core CI machine).
+    assert!(s["haptic"]["servo"]["ticks"].as_u64().unwrap() > 1200);
+    for f in ["haptic.csv", "final.vtu", "particles_final.vtu"] {
+        assert!(d.join(f).exists(), "{f} missing");
+    }
 }

@@ -439,3 +439,116 @@ fn hm1_activates_a_few_hundred_particles_under_the_tool_and_releases_them_withou
         "a particle jumped {worst_jump} (> 0.1 % of the spacing) when it switched"
     );
 }
+
+/// The zig-zag (hourglass) measure of a particle layer: for each particle a, the least-squares
+/// affine map F_a of its first-shell neighbours (|X_ab| ≤ 1.5 spacing), and the non-affine
+/// remainder √(Σ_b |x_ab − F_a X_ab|² / Σ_b |X_ab|²). A smooth motion leaves only a
+/// curvature-sized remainder; a zero-energy (hourglass) mode lives entirely in it. Returns the
+/// largest value over the particles with a full shell (interior ones), and the largest
+/// affine strain |F_a − I| (Frobenius) over the same particles, for scale.
+fn zigzag_measure(rest: &[f32], displacement: &[f32], spacing: f64) -> (f64, f64) {
+    let n = rest.len() / 3;
+    let p =
+        |a: &[f32], i: usize| DVec3::new(a[3 * i] as f64, a[3 * i + 1] as f64, a[3 * i + 2] as f64);
+    let (mut worst, mut strain) = (0.0f64, 0.0f64);
+    for a in 0..n {
+        let (xa, ua) = (p(rest, a), p(displacement, a));
+        let mut pairs = Vec::new();
+        for b in 0..n {
+            let d = p(rest, b) - xa;
+            if b != a && d.length() <= 1.5 * spacing {
+                pairs.push((d, d + p(displacement, b) - ua));
+            }
+        }
+        if pairs.len() < 18 {
+            continue; // on the boundary: the shell is not full
+        }
+        // F = (Σ x Xᵀ)(Σ X Xᵀ)⁻¹.
+        let (mut xx, mut yx) = (DMat3::ZERO, DMat3::ZERO);
+        for &(d, e) in &pairs {
+            xx += outer(d, d);
+            yx += outer(e, d);
+        }
+        let f = yx * xx.inverse();
+        let (mut num, mut den) = (0.0, 0.0);
+        for &(d, e) in &pairs {
+            num += (e - f * d).length_squared();
+            den += d.length_squared();
+        }
+        worst = worst.max((num / den).sqrt());
+        let g = f - DMat3::IDENTITY;
+        strain = strain.max(
+            (g.x_axis.length_squared() + g.y_axis.length_squared() + g.z_axis.length_squared())
+                .sqrt(),
+        );
+    }
+    (worst, strain)
+}
+
+fn outer(a: DVec3, b: DVec3) -> DMat3 {
+    DMat3::from_cols(a * b.x, a * b.y, a * b.z)
+}
+
+/// Press the particle half of a layered block with a 3 mm sphere (1 mm deep), withdraw it and
+/// let the block ring for three times as long: the largest zig-zag measure while pressed, and
+/// after the release the largest zig-zag measure and the largest strain.
+fn pressed_and_released_zigzag(hourglass: f64) -> (f64, f64, f64) {
+    let extra = "[[fixed]]\nplane = { normal = [0.0, 0.0, 1.0], offset = 0.0 }\n\n[tool]\nradius = 0.003\nstiffness = 1.0e8\npath = [[0.0, 0.01, 0.005, 0.0135], [0.02, 0.01, 0.005, 0.012], [0.03, 0.01, 0.005, 0.012], [0.031, 0.01, 0.005, 0.02]]\n";
+    let scene = layered_block(
+        [0.02, 0.01, 0.01],
+        [4, 2, 4],
+        extra,
+        &format!("hourglass = {hourglass}\n"),
+    );
+    let spacing = scene.particles.as_ref().unwrap().spacing;
+    let m = Arc::new(Model::from_scene(&scene));
+    let dt = 0.5 * m.bounds.dt_bound;
+    let mut s = CpuStepper::new(m.clone(), m.step_params(dt, 0.0));
+    let tool = scene.tool.clone().unwrap();
+    let rest = m.particles.as_ref().unwrap().rest.clone();
+    let (batch, mut t) = (20u32, 0.0);
+    let (mut loaded, mut released, mut strain) = (0.0f64, 0.0f64, 0.0f64);
+    while t < 0.12 {
+        let (a, b) = (tool.position_at(t), tool.position_at(t + batch as f64 * dt));
+        s.submit(batch, &palpate::stepper::BatchInput { tool: Some((a, b)) })
+            .unwrap();
+        let r = s.wait().unwrap();
+        assert!(r.stats.non_finite_vertex.is_none(), "diverged at t = {t}");
+        t += batch as f64 * dt;
+        let (u, _) = placed(&m, &mut s);
+        let (z, e) = zigzag_measure(&rest, &u, spacing);
+        if t < 0.03 {
+            loaded = loaded.max(z);
+        } else if t > 0.035 {
+            released = released.max(z);
+            strain = strain.max(e);
+        }
+    }
+    (loaded, released, strain)
+}
+
+#[test]
+fn a_pressed_and_released_tlsph_block_shows_no_hourglass_mode() {
+    let (loaded, released, strain) = pressed_and_released_zigzag(0.1);
+    let (loaded0, released0, strain0) = pressed_and_released_zigzag(0.0);
+    eprintln!(
+        "zig-zag measure (non-affine remainder of the first shell): hourglass 0.1: pressed {loaded:.2e}, after release {released:.2e} (strain {strain:.2e}); hourglass 0: pressed {loaded0:.2e}, after release {released0:.2e} (strain {strain0:.2e})"
+    );
+    // Measured (2026-11-23): ratio non-affine / strain after release 0.72 with the default
+    // coefficient 0.1, 1.59 without control; 0.54 at 0.3 and 0.39 at 1.0. What remains at
+    // 0.1 is the real curvature of a 3 mm indentation sampled at 1 mm, not a zig-zag mode.
+    assert!(
+        loaded > 0.0 && loaded0 > 0.0,
+        "the tool never deformed the particles"
+    );
+    let (ratio, ratio0) = (released / strain, released0 / strain0);
+    assert!(
+        ratio <= 0.8,
+        "after release the non-affine remainder is {:.0} % of the strain (zig-zag mode)",
+        100.0 * ratio
+    );
+    assert!(
+        ratio <= 0.5 * ratio0,
+        "hourglass control barely changes the non-affine remainder: {ratio:.2} vs {ratio0:.2} without"
+    );
+}

@@ -216,3 +216,110 @@ fn thread_counts_out_of_range_are_refused() {
         "{huge}: should name the machine's cores"
     );
 }
+
+#[test]
+fn particles_without_a_tool_run_no_particle_stage() {
+    // hm1 without its tool: nothing can make a particle dynamic, so the plan is the core's
+    // (viscous fem_forces, gather, integrate, reduce), with no particle or contact stage.
+    let text = palpate::Scene::builtin_text("hm1").unwrap();
+    let cut = text.find("[tool]").unwrap();
+    let end = cut + text[cut..].find("[solver]").unwrap();
+    let no_tool = format!("{}{}", &text[..cut], &text[end..]);
+    let scene = palpate::Scene::from_toml(&no_tool, "hm1 without a tool", "hm1", None).unwrap();
+    let m = Arc::new(Model::from_scene(&scene));
+    assert!(m.particles.as_ref().is_some_and(|p| p.len() > 20_000));
+    let stages: Vec<Stage> = StepPlan::for_model(&m)
+        .stages
+        .iter()
+        .map(|p| p.stage)
+        .collect();
+    assert_eq!(
+        stages,
+        vec![
+            Stage::FemForces,
+            Stage::Gather,
+            Stage::Integrate,
+            Stage::Reduce
+        ]
+    );
+    // With the tool, the particle stages are planned.
+    let with_tool = StepPlan::for_model(&scene_model("hm1"));
+    for s in [
+        Stage::Activate,
+        Stage::SphForces,
+        Stage::IntegrateParticles,
+        Stage::Contact,
+    ] {
+        assert!(with_tool.stages.iter().any(|p| p.stage == s), "{s:?}");
+    }
+}
+
+#[test]
+fn indirect_dispatch_runs_exactly_the_workgroups_a_kernel_counted() {
+    use palpate::cpu::dispatch_probe as twin;
+    use palpate::gpu::buffers::{BufferGroup, BufferSpec, GpuBuffers, Usage};
+    use palpate::gpu::setup::{read_u32, run_passes, SetupDispatch, SetupPass};
+    const SLOTS: usize = 300;
+    let ctx = gpu();
+    for nonzero in [0usize, 1, 7, 64, 257] {
+        // Inputs with `nonzero` nonzero words scattered among zeros.
+        let input: Vec<u32> = (0..SLOTS)
+            .map(|i| u32::from((i * 37) % SLOTS < nonzero))
+            .collect();
+        assert_eq!(input.iter().filter(|&&x| x != 0).count(), nonzero);
+        let group = BufferGroup {
+            name: "probe",
+            specs: vec![
+                BufferSpec::data("probe_input", Usage::Storage, &input),
+                BufferSpec::zeroed("probe_dispatch", Usage::Indirect, 16),
+                BufferSpec::zeroed("probe_hit_counts", Usage::Storage, 4 * SLOTS as u64),
+                BufferSpec::zeroed("probe_thread_counts", Usage::Storage, 4 * SLOTS as u64),
+            ],
+        };
+        let buffers = GpuBuffers::new(&ctx, &[group]).unwrap();
+        run_passes(
+            &ctx,
+            &buffers,
+            &[
+                SetupPass {
+                    file: "dispatch_probe",
+                    entry: "probe_args",
+                    dispatch: SetupDispatch::One,
+                    aliases: &[],
+                },
+                SetupPass {
+                    file: "dispatch_probe",
+                    entry: "probe_hits",
+                    dispatch: SetupDispatch::Indirect("probe_dispatch", 0),
+                    aliases: &[],
+                },
+            ],
+        )
+        .unwrap();
+        let read = |name: &str, n: usize| {
+            read_u32(&ctx, buffers.require(name).unwrap(), 0, n as u64).unwrap()
+        };
+        let mut args = [0u32; 3];
+        twin::probe_args(&input, &mut args);
+        let (mut hits, mut threads) = (vec![0u32; SLOTS], vec![0u32; SLOTS]);
+        twin::probe_hits(&args, &mut hits, &mut threads);
+        assert_eq!(
+            read("probe_dispatch", 3),
+            args.to_vec(),
+            "{nonzero}: arguments"
+        );
+        assert_eq!(
+            read("probe_hit_counts", SLOTS),
+            hits,
+            "{nonzero}: workgroups run"
+        );
+        assert_eq!(
+            read("probe_thread_counts", SLOTS),
+            threads,
+            "{nonzero}: threads run"
+        );
+        // Exactly `nonzero` workgroups ran, once each, with all their threads.
+        assert_eq!(hits.iter().filter(|&&h| h == 1).count(), nonzero);
+        assert!(hits[nonzero..].iter().all(|&h| h == 0));
+    }
+}

@@ -135,7 +135,7 @@ enum BenchStudy {
         out: PathBuf,
     },
     /// The 1 kHz servo loop with the physics thread on lv, ed0 and lv_touch, per backend:
-    /// haptic.csv, haptic.md.
+    /// haptic_bench.csv, haptic_bench.md.
     Haptic {
         /// Seconds per session.
         #[arg(long, default_value_t = 10.0)]
@@ -386,7 +386,8 @@ fn execute(cli: Cli) -> Result<()> {
                 if palpate::gpu::GpuContext::new().is_ok() {
                     runs.push((Backend::Gpu, None));
                 }
-                let scratch = std::env::temp_dir().join(format!("palpate-bench-haptic-{}", std::process::id()));
+                let scratch = std::env::temp_dir()
+                    .join(format!("palpate-bench-haptic-{}", std::process::id()));
                 let rows = haptic::study(&runs, seconds, &scratch, &mut |s| {
                     eprintln!("bench haptic: {s}")
                 })?;
@@ -395,7 +396,10 @@ fn execute(cli: Cli) -> Result<()> {
                     adapter_name(Backend::Gpu)
                 );
                 haptic::write(&out, &rows, &header)?;
-                println!("wrote {0}/haptic.csv, {0}/haptic.md", out.display());
+                println!(
+                    "wrote {0}/haptic_bench.csv, {0}/haptic_bench.md",
+                    out.display()
+                );
                 Ok(())
             }
             BenchStudy::Accuracy {

@@ -8,6 +8,7 @@
 pub mod activate;
 pub mod compact;
 pub mod contact;
+pub mod dispatch_probe;
 pub mod fem_forces;
 pub mod fem_forces_split;
 pub mod follow;

@@ -27,6 +27,9 @@ pub enum SetupDispatch {
     Items(u32),
     /// One workgroup.
     One,
+    /// Workgroup counts read at execution time from the `DispatchIndirectArgs` at this byte
+    /// offset of the named buffer (written by an earlier pass).
+    Indirect(&'static str, u64),
 }
 
 /// Build, bind and run `passes` in order in one compute pass, then wait.
@@ -49,6 +52,9 @@ pub fn run_passes(ctx: &GpuContext, buffers: &GpuBuffers, passes: &[SetupPass]) 
             let d = match p.dispatch {
                 SetupDispatch::Items(n) => Dispatch::Items(n),
                 SetupDispatch::One => Dispatch::One,
+                SetupDispatch::Indirect(name, offset) => {
+                    Dispatch::Indirect(buffers.require(name)?, offset)
+                }
             };
             k.record(&mut pass, bg, d, max_dim);
             pass.pop_debug_group();

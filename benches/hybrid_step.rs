@@ -1,0 +1,142 @@
+//! The hybrid model's step cost on the paper's HM1 (27,751 particles over a tet core), with
+//! the tool held pressed into the epicardium: the core alone (HM1 without its particle layer,
+//! the same tets and tool), HM1 as shipped (only the particles near the tool dynamic, about
+//! 200), and HM1 with every particle dynamic (`activation = "all"`); on the CPU path (all
+//! threads) and the GPU path. The goal (issue 9): the shipped scene costs ≤ 1.2× the core
+//! alone — inactive particles must cost next to nothing. After the criterion groups, a table
+//! of the ratios measured in the same run is printed.
+//!
+//! `PALPATE_BENCH_BACKENDS=cpu` (or `gpu`) limits the backends.
+
+use criterion::{criterion_group, BenchmarkId, Criterion};
+use palpate::sim::{Backend, SimOptions, Simulation};
+use palpate::Scene;
+use std::time::{Duration, Instant};
+
+/// Steps per timed call (one activation interval of HM1).
+const STEPS: u32 = 10;
+
+/// The three variants of HM1: (label, scene).
+fn variants() -> Vec<(&'static str, Scene)> {
+    let text = Scene::builtin_text("hm1").expect("hm1");
+    let start = text.find("[particles]").expect("[particles]");
+    let end = start
+        + text[start..]
+            .find("[tool]")
+            .expect("[tool] after [particles]");
+    let core = format!("{}{}", &text[..start], &text[end..]);
+    let all = text.replace("[particles]\n", "[particles]\nactivation = \"all\"\n");
+    vec![
+        (
+            "core_alone",
+            Scene::from_toml(&core, "hm1 core alone", "hm1", None).unwrap(),
+        ),
+        ("hm1", Scene::load("hm1").unwrap()),
+        (
+            "all_active",
+            Scene::from_toml(&all, "hm1 all active", "hm1", None).unwrap(),
+        ),
+    ]
+}
+
+fn backends() -> Vec<Backend> {
+    let want = std::env::var("PALPATE_BENCH_BACKENDS").unwrap_or_default();
+    [(Backend::Cpu, "cpu"), (Backend::Gpu, "gpu")]
+        .into_iter()
+        .filter(|(_, n)| want.is_empty() || want.split(',').any(|w| w == *n))
+        .map(|(b, _)| b)
+        .collect()
+}
+
+/// A simulation of `scene` with the tool pressed to its deepest hold (t = 3.5 time units,
+/// then held there), so the particles under it are awake.
+fn pressed(scene: &Scene, backend: Backend) -> Simulation {
+    let mut sim = Simulation::new(scene, backend, SimOptions::default()).expect("simulation");
+    let hold = scene
+        .tool
+        .as_ref()
+        .expect("hm1 has a tool")
+        .position_at(3.5);
+    while sim.time < 3.5 {
+        sim.advance(STEPS).expect("warm-up");
+    }
+    sim.tool_target = Some(hold);
+    sim.advance(STEPS).expect("warm-up");
+    sim
+}
+
+fn hybrid_step(c: &mut Criterion) {
+    let mut group = c.benchmark_group("hybrid_step");
+    group
+        .sample_size(10)
+        .warm_up_time(Duration::from_secs(1))
+        .measurement_time(Duration::from_secs(4));
+    for backend in backends() {
+        for (label, scene) in variants() {
+            let mut sim = pressed(&scene, backend);
+            let name = if backend == Backend::Gpu {
+                "gpu"
+            } else {
+                "cpu"
+            };
+            group.bench_function(BenchmarkId::new(name, label), |b| {
+                b.iter(|| sim.advance(STEPS).expect("advance"))
+            });
+        }
+    }
+    group.finish();
+}
+
+/// Median of `reps` timings of `f`, seconds.
+fn median(reps: usize, mut f: impl FnMut()) -> f64 {
+    let mut t: Vec<f64> = (0..reps)
+        .map(|_| {
+            let t = Instant::now();
+            f();
+            t.elapsed().as_secs_f64()
+        })
+        .collect();
+    t.sort_by(f64::total_cmp);
+    t[reps / 2]
+}
+
+fn ratio_table() {
+    println!(
+        "\nhybrid_step: HM1 with the tool held pressed, µs per step (median of 15 calls of {STEPS} steps, same run)"
+    );
+    println!("| backend | core alone | hm1 (dynamic particles) | all 27,751 dynamic | hm1 / core | all / core |");
+    println!("|---|---:|---:|---:|---:|---:|");
+    for backend in backends() {
+        let mut us = Vec::new();
+        let mut dynamic = 0;
+        let mut name = String::new();
+        for (label, scene) in variants() {
+            let mut sim = pressed(&scene, backend);
+            name = sim.backend_name();
+            us.push(
+                1e6 * median(15, || {
+                    sim.advance(STEPS).expect("advance");
+                }) / STEPS as f64,
+            );
+            if label == "hm1" {
+                dynamic = sim.last_particles.map_or(0, |p| p.dynamic);
+            }
+        }
+        println!(
+            "| {name} | {:.0} | {:.0} ({dynamic}) | {:.0} | {:.2} | {:.2} |",
+            us[0],
+            us[1],
+            us[2],
+            us[1] / us[0],
+            us[2] / us[0]
+        );
+    }
+}
+
+criterion_group!(benches, hybrid_step);
+
+fn main() {
+    benches();
+    Criterion::default().configure_from_args().final_summary();
+    ratio_table();
+}
