@@ -1,7 +1,7 @@
 // Indirect-dispatch probe (used by the tests of the kernel layer; no simulation stage).
-//   probe_args   one thread: counts the nonzero words of probe_input and writes
+//   dispatch_probe_args   one thread: counts the nonzero words of probe_input and writes
 //                DispatchIndirectArgs (count, 1, 1) to probe_dispatch
-//   probe_hits   dispatched indirectly with those arguments: the first thread of each
+//   dispatch_probe_hits   dispatched indirectly with those arguments: the first thread of each
 //                workgroup adds 1 to probe_hit_counts[workgroup], every thread adds 1 to
 //                probe_thread_counts[workgroup]
 // CPU twin: src/cpu/dispatch_probe.rs.
@@ -12,7 +12,7 @@
 @group(0) @binding(3) var<storage, read_write> probe_thread_counts: array<atomic<u32>>;
 
 @compute @workgroup_size(1)
-fn probe_args() {
+fn dispatch_probe_args() {
     var count = 0u;
     for (var i = 0u; i < arrayLength(&probe_input); i++) {
         if probe_input[i] != 0u {
@@ -25,7 +25,7 @@ fn probe_args() {
 }
 
 @compute @workgroup_size(64)
-fn probe_hits(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) lid: u32) {
+fn dispatch_probe_hits(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) lid: u32) {
     let w = wid.x;
     if w >= arrayLength(&probe_hit_counts) {
         return;

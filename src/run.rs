@@ -186,8 +186,8 @@ struct Relaxation {
 
 impl Relaxation {
     /// The relative residual after a batch, counting dynamic particles with the vertices
-    /// (their residual force, their weight as load, their energy and Σ m|u|² in the
-    /// Rayleigh quotient).
+    /// (their residual force, their weight and the tool's contact force as load, their
+    /// energy and Σ m|u|² in the Rayleigh quotient).
     fn after_batch(&self, sim: &mut Simulation, s: &BatchStats) -> Result<f64> {
         let (mut residual2, mut load2) = (s.residual_norm().powi(2), s.external_norm().powi(2));
         let (mut elastic, mut mu2) = (
@@ -200,6 +200,13 @@ impl Relaxation {
             load2 += p.dynamic as f64 * (pd.mass as f64 * g.length()).powi(2);
             elastic += p.elastic_energy;
             mu2 += p.mass_displacement_sq;
+            // The tool's contact forces on particles are load too (the tets' reduction counts
+            // those on vertices only): without gravity or pressure they are the whole load,
+            // and the relative residual would divide by zero. The tool's total force is
+            // their scale.
+            if let Some(t) = sim.last_tool {
+                load2 += t.force.length_squared();
+            }
         }
         if self.adaptive && mu2 > 0.0 {
             sim.set_damping(2.0 * (2.0 * elastic / mu2).sqrt())?;

@@ -157,8 +157,11 @@ fn held_still_matches_statics(
     let h = press_and_hold(&scene, direction, depth, seconds, name);
     assert!(h.run.status == "ok", "{name}: {}", h.run.status);
     let servo = &h.haptic.servo;
+    // Loose on purpose: a busy 2-core machine (CI, or a build beside the tests) costs the
+    // loop skipped deadlines; a loop that waited on the physics would run at its batch rate
+    // (tens to hundreds of Hz). The tight figures are in `palpate bench haptic`.
     assert!(
-        servo.rate_hz > 900.0 && servo.rate_hz < 1100.0,
+        servo.rate_hz > 800.0 && servo.rate_hz < 1100.0,
         "{name}: servo rate {} Hz",
         servo.rate_hz
     );

@@ -283,13 +283,13 @@ fn indirect_dispatch_runs_exactly_the_workgroups_a_kernel_counted() {
             &[
                 SetupPass {
                     file: "dispatch_probe",
-                    entry: "probe_args",
+                    entry: "dispatch_probe_args",
                     dispatch: SetupDispatch::One,
                     aliases: &[],
                 },
                 SetupPass {
                     file: "dispatch_probe",
-                    entry: "probe_hits",
+                    entry: "dispatch_probe_hits",
                     dispatch: SetupDispatch::Indirect("probe_dispatch", 0),
                     aliases: &[],
                 },
@@ -300,9 +300,9 @@ fn indirect_dispatch_runs_exactly_the_workgroups_a_kernel_counted() {
             read_u32(&ctx, buffers.require(name).unwrap(), 0, n as u64).unwrap()
         };
         let mut args = [0u32; 3];
-        twin::probe_args(&input, &mut args);
+        twin::dispatch_probe_args(&input, &mut args);
         let (mut hits, mut threads) = (vec![0u32; SLOTS], vec![0u32; SLOTS]);
-        twin::probe_hits(&args, &mut hits, &mut threads);
+        twin::dispatch_probe_hits(&args, &mut hits, &mut threads);
         assert_eq!(
             read("probe_dispatch", 3),
             args.to_vec(),
