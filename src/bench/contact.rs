@@ -289,7 +289,7 @@ pub fn study(backend: Backend, quick: bool, log: &mut dyn FnMut(&str)) -> Result
     for case in cases {
         let r = run_case(&case, backend, &dir)?;
         log(&format!(
-            "{}, depth {:.2} mm, penalty {:.0e} Pa/m: {} tets, F = {:.4e} N vs Hertz {:.4e} N ({:+.2} %), {} steps, {:.1} s",
+            "{}, depth {:.2} mm, penalty {:.0e} Pa/m: {} tets, F = {:.4e} N vs Hertz {:.4e} N ({:+.2} %), {} steps, {:.1} s, {}",
             case.label(),
             1e3 * case.depth,
             case.penalty,
@@ -298,7 +298,8 @@ pub fn study(backend: Backend, quick: bool, log: &mut dyn FnMut(&str)) -> Result
             r.hertz,
             100.0 * r.relative_error,
             r.steps,
-            r.wall_seconds
+            r.wall_seconds,
+            r.status
         ));
         rows.push(r);
     }
@@ -307,6 +308,10 @@ pub fn study(backend: Backend, quick: bool, log: &mut dyn FnMut(&str)) -> Result
 
 /// Write `contact.csv` and `contact.md` into `out`.
 pub fn write(out: &Path, rows: &[HertzResult], header: &str) -> Result<()> {
+    std::fs::create_dir_all(out).map_err(|source| crate::error::PalpateError::OutputIo {
+        path: out.to_path_buf(),
+        source,
+    })?;
     let mut csv = String::from(
         "radius_m,depth_m,contact_radius_m,cell_over_a,particle_spacing_over_a,penalty_pa_per_m,tets,particles,force_n,hertz_n,relative_error,steps,wall_seconds,status\n",
     );
