@@ -270,7 +270,12 @@ pub fn run(scene: &Scene, opts: &RunOptions) -> Result<RunSummary> {
         adaptive: until_static && scene.solver.damping == 0.0,
     };
     // A moving tool keeps the body loaded in a changing way: static only after its path ends.
-    let loads_settle_at = model.tool.as_ref().map_or(0.0, |t| t.tool.path_end());
+    // A ramped follower pressure likewise: static only once the ramp is complete.
+    let loads_settle_at = model
+        .tool
+        .as_ref()
+        .map_or(0.0, |t| t.tool.path_end())
+        .max(model.follower.as_ref().map_or(0.0, |f| f.ramp_seconds));
     let is_static =
         |r: Option<f64>, time: f64| time >= loads_settle_at && r.is_some_and(|r| r <= tolerance);
     let mut status = RunStatus::Ok;

@@ -137,6 +137,9 @@ impl HertzCase {
             mesh,
             mesh_report: report,
             material: MaterialParams::elastic(self.youngs_modulus, self.poisson_ratio, 1000.0),
+            hyperelastic: None,
+            fibre: None,
+            follower: None,
             fixed,
             gravity: [0.0; 3],
             external_forces: vec![DVec3::ZERO; n],
@@ -256,9 +259,16 @@ pub fn study(backend: Backend, quick: bool, log: &mut dyn FnMut(&str)) -> Result
     // Error against run time (the Pareto plot): all-tet blocks refined under the contact,
     // and hybrid blocks — a coarse core of 2a cells whose top two layers are particles of
     // a/2, a/3, a/4 spacing — at depth 0.5 mm.
-    let pareto_fines: &[f64] = if quick { &[] } else { &[1.0, 0.5, 1.0 / 3.0, 0.25] };
+    let pareto_fines: &[f64] = if quick {
+        &[]
+    } else {
+        &[1.0, 0.5, 1.0 / 3.0, 0.25]
+    };
     for &fine in pareto_fines {
-        if !cases.iter().any(|c| c.fine == fine && c.depth == base.depth && c.penalty == base.penalty) {
+        if !cases
+            .iter()
+            .any(|c| c.fine == fine && c.depth == base.depth && c.penalty == base.penalty)
+        {
             cases.push(HertzCase { fine, ..base });
         }
     }

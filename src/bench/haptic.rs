@@ -90,12 +90,19 @@ pub fn study(
     let mut rows = Vec::new();
     for case in cases()? {
         let csv = scratch.join(format!("{}.csv", case.scene.name));
-        write_atomic(&csv, press_csv(case.direction, case.depth, seconds).as_bytes())?;
+        write_atomic(
+            &csv,
+            press_csv(case.direction, case.depth, seconds).as_bytes(),
+        )?;
         for &(backend, threads) in runs {
             let out = scratch.join(format!(
                 "{}-{}",
                 case.scene.name,
-                if backend == Backend::Gpu { "gpu" } else { "cpu" }
+                if backend == Backend::Gpu {
+                    "gpu"
+                } else {
+                    "cpu"
+                }
             ));
             let summary = run_haptic(
                 &case.scene,

@@ -386,7 +386,8 @@ fn execute(cli: Cli) -> Result<()> {
                 if palpate::gpu::GpuContext::new().is_ok() {
                     runs.push((Backend::Gpu, None));
                 }
-                let scratch = std::env::temp_dir().join(format!("palpate-bench-haptic-{}", std::process::id()));
+                let scratch = std::env::temp_dir()
+                    .join(format!("palpate-bench-haptic-{}", std::process::id()));
                 let rows = haptic::study(&runs, seconds, &scratch, &mut |s| {
                     eprintln!("bench haptic: {s}")
                 })?;
