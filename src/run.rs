@@ -210,6 +210,14 @@ impl Relaxation {
 
 /// Run `scene` as `opts` says and write the outputs. Returns the summary (also written).
 pub fn run(scene: &Scene, opts: &RunOptions) -> Result<RunSummary> {
+    run_with_state(scene, opts).map(|(summary, _)| summary)
+}
+
+/// As [`run`], also returning the final state (benchmarks that read monitored points).
+pub fn run_with_state(
+    scene: &Scene,
+    opts: &RunOptions,
+) -> Result<(RunSummary, crate::stepper::State)> {
     std::fs::create_dir_all(&opts.out).map_err(|source| PalpateError::OutputIo {
         path: opts.out.clone(),
         source,
@@ -368,7 +376,7 @@ pub fn run(scene: &Scene, opts: &RunOptions) -> Result<RunSummary> {
         until_static.then_some((residual, tolerance)),
     );
     summary.write(&opts.out)?;
-    Ok(summary)
+    Ok((summary, state))
 }
 
 /// The summary of a finished run of `sim` (its final `state`, `wall` seconds); `statics` is
