@@ -219,8 +219,8 @@ pub fn solve(case: &LandCase, backend: Backend, scratch: &Path) -> Result<LandRu
 pub fn cases(quick: bool) -> Vec<LandCase> {
     let mut out = Vec::new();
     for (problem, levels, probe) in [
-        (Problem::P1, if quick { 1..=2 } else { 1..=4 }, 2),
-        (Problem::P2, if quick { 1..=2 } else { 1..=3 }, 2),
+        (Problem::P1, if quick { 1..=2 } else { 1..=5 }, 2),
+        (Problem::P2, if quick { 1..=2 } else { 1..=5 }, 2),
     ] {
         for level in levels {
             out.push(LandCase {

@@ -420,7 +420,7 @@ fn execute(cli: Cli) -> Result<()> {
                 use palpate::bench::land;
                 let rows = land::study(backend, quick, &mut |s| eprintln!("bench land: {s}"))?;
                 let header = format!(
-                    "Written by `palpate bench land{}` on {} ({} cores). Each row is one `--until-static` solve (relative residual 1e-4, ramped follower pressure, dynamic relaxation with critical mass damping at the Rayleigh-quotient frequency); monitored values are the deformed z of the benchmark's points, interpolated in the containing tet. κ/C is the bulk modulus over Guccione's C (the penalty for incompressibility).",
+                    "Written by `palpate bench land{}` on {} ({} cores). Each row is one `--until-static` solve (relative residual 1e-3, ramped follower pressure, dynamic relaxation with critical mass damping at the Rayleigh-quotient frequency); monitored values are the deformed z of the benchmark's points, interpolated in the containing tet. κ/C is the bulk modulus over Guccione's C (the penalty for incompressibility).",
                     if quick { " --quick" } else { "" },
                     adapter_name(backend),
                     palpate::cpu::stepper::available_cores()
