@@ -1,7 +1,7 @@
 //! The simulation model: a scene's mesh and material turned into the flat f32 arrays that
 //! both backends step (rest shape, Dm⁻¹, volumes, lumped masses, CSR incidence).
 
-use crate::material::MaterialParams;
+use crate::material::{HyperelasticParams, MaterialParams};
 use crate::mesh::TetMesh;
 use crate::params::StepParams;
 use crate::scene::Scene;
@@ -52,6 +52,54 @@ pub struct Model {
     pub tool: Option<crate::contact::ToolModel>,
     /// The particle layer (None: no particle stages).
     pub particles: Option<crate::particles::Particles>,
+    /// The split law's constants (Some exactly when `material.model` is a split law).
+    pub hyperelastic: Option<HyperelasticParams>,
+    /// Follower pressures (None: no follower stages).
+    pub follower: Option<FollowerModel>,
+}
+
+/// Follower pressures as the kernels read them.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FollowerModel {
+    /// Loaded faces, 3 vertex ids each, oriented outward.
+    pub faces: Vec<u32>,
+    /// Pressure per face, Pa.
+    pub face_pressure: Vec<f32>,
+    /// CSR row starts of the face-corner incidence (per vertex).
+    pub incidence_offsets: Vec<u32>,
+    /// Face-corner ids face·3 + corner, grouped by vertex, ascending.
+    pub incidence: Vec<u32>,
+    /// Ramp time, s (0: full load from the start).
+    pub ramp_seconds: f64,
+}
+
+impl FollowerModel {
+    /// From the resolved scene loads of a mesh with `n_vertices` vertices.
+    pub fn new(loads: &crate::scene::FollowerLoads, n_vertices: usize) -> FollowerModel {
+        let (incidence_offsets, incidence) =
+            crate::cpu::follower_pressure_gather::follower_incidence(n_vertices, &loads.faces);
+        FollowerModel {
+            faces: loads.faces.iter().flatten().copied().collect(),
+            face_pressure: loads.face_pressure.iter().map(|&p| p as f32).collect(),
+            incidence_offsets,
+            incidence,
+            ramp_seconds: loads.ramp_seconds,
+        }
+    }
+
+    /// Number of loaded faces.
+    pub fn n_faces(&self) -> usize {
+        self.face_pressure.len()
+    }
+
+    /// The ramp factor at simulated time `time`: min(t / t_ramp, 1) (1 without a ramp).
+    pub fn load_factor(&self, time: f64) -> f32 {
+        if self.ramp_seconds > 0.0 {
+            (time / self.ramp_seconds).clamp(0.0, 1.0) as f32
+        } else {
+            1.0
+        }
+    }
 }
 
 impl Model {
@@ -151,7 +199,50 @@ impl Model {
             safety: crate::timestep::DEFAULT_SAFETY,
             tool: None,
             particles: None,
+            hyperelastic: None,
+            follower: None,
         }
+    }
+
+    /// Use split law constants `h` (the material's model must be a split law; its λ, μ should
+    /// be κ − 2μ/3 and the shear modulus) and, if given, a constant fibre for every tet.
+    pub fn with_hyperelastic(mut self, h: HyperelasticParams, fibre: Option<[f64; 3]>) -> Model {
+        self.hyperelastic = Some(h);
+        if let Some(f) = fibre {
+            let f = glam::DVec3::from_array(f).normalize();
+            self.fibres = (0..self.n_tets())
+                .flat_map(|_| f.to_array().map(|c| c as f32))
+                .collect();
+        }
+        self
+    }
+
+    /// Add follower pressures.
+    pub fn with_follower(mut self, follower: FollowerModel) -> Model {
+        self.follower = Some(follower);
+        self
+    }
+
+    /// The split-law variant of `fem_forces_split` (None for the (λ, μ) laws).
+    pub fn split_variant(&self) -> Option<crate::cpu::fem_forces_split::SplitVariant> {
+        let h = self.hyperelastic.as_ref()?;
+        self.material
+            .model
+            .is_split()
+            .then(|| crate::cpu::fem_forces_split::SplitVariant {
+                model: self.material.model,
+                viscous: self.material.is_viscous(),
+                volumetric: h.volumetric,
+                nodal_pressure: h.volume_term == crate::material::VolumeTerm::NodalAverage,
+            })
+    }
+
+    /// The uniform of the split kernels (zeros for the (λ, μ) laws).
+    pub fn material_constants(&self) -> crate::material::MaterialConstants {
+        self.hyperelastic
+            .as_ref()
+            .map(|h| h.constants())
+            .unwrap_or_default()
     }
 
     /// Build from a validated scene (a scene with particles samples them here; see
@@ -176,6 +267,12 @@ impl Model {
             &scene.external_forces,
         );
         model.safety = scene.solver.safety;
+        if let Some(h) = scene.hyperelastic {
+            model = model.with_hyperelastic(h, scene.fibre);
+        }
+        if let Some(f) = &scene.follower {
+            model = model.with_follower(FollowerModel::new(f, scene.mesh.n_vertices()));
+        }
         if let Some(settings) = &scene.particles {
             let p = crate::particles::Particles::sample(
                 &scene.mesh,

@@ -28,8 +28,16 @@ pub enum Stage {
     SphForcesAccumulate,
     /// Per dynamic particle: symplectic Euler with the particle sub-step.
     IntegrateParticles,
+    /// Per loaded face: follower-pressure corner forces on the deformed surface; then per
+    /// vertex: external forces = dead loads + the follower forces around it.
+    FollowerPressure,
+    /// Average nodal Jacobian: per tet the volume change, then per vertex the pressure
+    /// U′(J_a) and volumetric energy density U(J_a).
+    NodalPressure,
     /// Per tet: deformation gradient, material stress, four corner forces, energy.
     FemForces,
+    /// Per tet: as `FemForces` for the volume/shape split laws (`MATERIAL` 3–6).
+    FemForcesSplit,
     /// Per surface vertex: the tool's penalty contact force.
     Contact,
     /// Per vertex: Σ incident corner forces + m·g + f_ext (CSR, fixed order).
@@ -58,6 +66,8 @@ pub enum Domain {
     VerticesAndTets,
     /// One thread per boundary-surface vertex.
     SurfaceVertices,
+    /// One thread per face loaded by a follower pressure.
+    FollowerFaces,
     /// One thread per particle.
     Particles,
     /// One thread per particle and one more (prefix sums over n + 1 marks).
@@ -107,6 +117,9 @@ impl Stage {
             Stage::Contact => "contact",
             Stage::ToolForce => "tool_force",
             Stage::FemForces => "fem_forces",
+            Stage::FollowerPressure => "follower_pressure",
+            Stage::NodalPressure => "nodal_pressure",
+            Stage::FemForcesSplit => "fem_forces_split",
             Stage::Gather => "gather",
             Stage::Integrate => "integrate",
             Stage::Reduce => "reduce",
@@ -196,6 +209,40 @@ impl Stage {
             Stage::FemForces => &[Entry {
                 file: "fem_forces",
                 entry: "fem_forces",
+                domain: Domain::Tets,
+                aliases: &[],
+            }],
+            Stage::FollowerPressure => &[
+                Entry {
+                    file: "follower_pressure",
+                    entry: "follower_pressure",
+                    domain: Domain::FollowerFaces,
+                    aliases: &[],
+                },
+                Entry {
+                    file: "follower_pressure_gather",
+                    entry: "follower_pressure_gather",
+                    domain: Domain::Vertices,
+                    aliases: &[],
+                },
+            ],
+            Stage::NodalPressure => &[
+                Entry {
+                    file: "tet_volume_change",
+                    entry: "tet_volume_change",
+                    domain: Domain::Tets,
+                    aliases: &[],
+                },
+                Entry {
+                    file: "nodal_pressure",
+                    entry: "nodal_pressure",
+                    domain: Domain::Vertices,
+                    aliases: &[],
+                },
+            ],
+            Stage::FemForcesSplit => &[Entry {
+                file: "fem_forces_split",
+                entry: "fem_forces_split",
                 domain: Domain::Tets,
                 aliases: &[],
             }],
@@ -371,7 +418,18 @@ impl StepPlan {
                 stages.push(every(Stage::IntegrateParticles));
             }
         }
-        stages.push(every(Stage::FemForces));
+        if model.follower.is_some() {
+            stages.push(every(Stage::FollowerPressure));
+        }
+        match model.split_variant() {
+            Some(v) => {
+                if v.nodal_pressure {
+                    stages.push(every(Stage::NodalPressure));
+                }
+                stages.push(every(Stage::FemForcesSplit));
+            }
+            None => stages.push(every(Stage::FemForces)),
+        }
         if tool {
             stages.push(every(Stage::Contact));
         }

@@ -217,6 +217,14 @@ impl Relaxation {
 
 /// Run `scene` as `opts` says and write the outputs. Returns the summary (also written).
 pub fn run(scene: &Scene, opts: &RunOptions) -> Result<RunSummary> {
+    run_with_state(scene, opts).map(|(summary, _)| summary)
+}
+
+/// As [`run`], also returning the final state (benchmarks that read monitored points).
+pub fn run_with_state(
+    scene: &Scene,
+    opts: &RunOptions,
+) -> Result<(RunSummary, crate::stepper::State)> {
     std::fs::create_dir_all(&opts.out).map_err(|source| PalpateError::OutputIo {
         path: opts.out.clone(),
         source,
@@ -277,7 +285,12 @@ pub fn run(scene: &Scene, opts: &RunOptions) -> Result<RunSummary> {
         adaptive: until_static && scene.solver.damping == 0.0,
     };
     // A moving tool keeps the body loaded in a changing way: static only after its path ends.
-    let loads_settle_at = model.tool.as_ref().map_or(0.0, |t| t.tool.path_end());
+    // A ramped follower pressure likewise: static only once the ramp is complete.
+    let loads_settle_at = model
+        .tool
+        .as_ref()
+        .map_or(0.0, |t| t.tool.path_end())
+        .max(model.follower.as_ref().map_or(0.0, |f| f.ramp_seconds));
     let is_static =
         |r: Option<f64>, time: f64| time >= loads_settle_at && r.is_some_and(|r| r <= tolerance);
     let mut status = RunStatus::Ok;
@@ -370,7 +383,7 @@ pub fn run(scene: &Scene, opts: &RunOptions) -> Result<RunSummary> {
         until_static.then_some((residual, tolerance)),
     );
     summary.write(&opts.out)?;
-    Ok(summary)
+    Ok((summary, state))
 }
 
 /// The summary of a finished run of `sim` (its final `state`, `wall` seconds); `statics` is

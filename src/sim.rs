@@ -315,6 +315,11 @@ impl Simulation {
     /// Run one batch and wait for its report.
     fn run_batch(&mut self, steps: u32) -> Result<crate::stepper::BatchReport> {
         let input = self.batch_input(steps);
+        if let Some(f) = &self.model.follower {
+            // The follower ramp at the batch's mid-time (constant over the batch).
+            self.stepper
+                .set_load_factor(f.load_factor(self.time + 0.5 * steps as f64 * self.dt))?;
+        }
         self.stepper.submit(steps, &input)?;
         let report = self.stepper.wait()?;
         if report.stats.non_finite_vertex.is_none() {

@@ -192,6 +192,11 @@ pub trait Stepper: Send {
     fn name(&self) -> String;
     /// Set the per-run parameters used by the following batches.
     fn set_params(&mut self, params: &StepParams) -> Result<()>;
+    /// Set the follower pressures' ramp factor s ∈ [0, 1] used by the following batches
+    /// (the steppers start at the model's value at t = 0; no-op without follower pressures).
+    fn set_load_factor(&mut self, _load_factor: f32) -> Result<()> {
+        Ok(())
+    }
     /// Queue a batch of `steps` steps (reduce after the last) with this batch's input.
     /// At most [`RING`] batches may be in flight; a further submit is an error.
     fn submit(&mut self, steps: u32, input: &BatchInput) -> Result<()>;

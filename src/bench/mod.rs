@@ -3,12 +3,14 @@
 //! * [`stability`]: the largest stable time step per material and mesh, and stress cases.
 //! * [`accuracy`]: error against a converged reference versus run time, and its Pareto front.
 //! * [`contact`]: the tool's contact force against Hertz's solution.
+//! * [`land`]: the Land et al. 2015 cardiac benchmark (problems 1 and 2) under refinement.
 //! * [`haptic`]: the servo loop and the physics thread together (rate, lateness, model age,
 //!   realtime factor).
 
 pub mod accuracy;
 pub mod contact;
 pub mod haptic;
+pub mod land;
 pub mod stability;
 
 use crate::error::Result;

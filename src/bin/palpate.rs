@@ -144,6 +144,19 @@ enum BenchStudy {
         #[arg(long, default_value = "docs")]
         out: PathBuf,
     },
+    /// The Land et al. 2015 cardiac benchmark, problems 1 and 2, solved to a static state
+    /// over a mesh-refinement series: land.csv, land.md, land.png.
+    Land {
+        /// Backend.
+        #[arg(long, value_enum, default_value = "cpu")]
+        backend: Backend,
+        /// CI-sized run (the two coarsest meshes).
+        #[arg(long)]
+        quick: bool,
+        /// Output directory.
+        #[arg(long, default_value = "docs")]
+        out: PathBuf,
+    },
     /// Error against a converged reference versus run time: accuracy.csv, accuracy.png.
     Accuracy {
         /// Backend whose run time is measured.
@@ -398,6 +411,26 @@ fn execute(cli: Cli) -> Result<()> {
                 haptic::write(&out, &rows, &header)?;
                 println!(
                     "wrote {0}/haptic_bench.csv, {0}/haptic_bench.md",
+                    out.display()
+                );
+                Ok(())
+            }
+            BenchStudy::Land {
+                backend,
+                quick,
+                out,
+            } => {
+                use palpate::bench::land;
+                let rows = land::study(backend, quick, &mut |s| eprintln!("bench land: {s}"))?;
+                let header = format!(
+                    "Written by `palpate bench land{}` on {} ({} cores). Each row is one `--until-static` solve (relative residual 1e-3, ramped follower pressure, dynamic relaxation with critical mass damping at the Rayleigh-quotient frequency); monitored values are the deformed z of the benchmark's points, interpolated in the containing tet. κ/C is the bulk modulus over Guccione's C (the penalty for incompressibility).",
+                    if quick { " --quick" } else { "" },
+                    adapter_name(backend),
+                    palpate::cpu::stepper::available_cores()
+                );
+                land::write(&out, &rows, &header)?;
+                println!(
+                    "wrote {0}/land.csv, {0}/land.md, {0}/land.png",
                     out.display()
                 );
                 Ok(())

@@ -88,7 +88,8 @@ pub fn tet_forces_split(
     )
 }
 
-/// Per tet e: corner force c to `corner_forces[(4e + c)·3 ..]`, V·Ψ to `tet_energy[e]`.
+/// Per tet e (in parallel, one index per tet as on the GPU): corner force c to
+/// `corner_forces[(4e + c)·3 ..]`, V·Ψ to `tet_energy[e]`.
 /// `fibres` is read only for a fibred law, `vertex_pressure` and
 /// `vertex_volumetric_energy` only with `nodal_pressure` (they may be empty otherwise).
 #[allow(clippy::too_many_arguments)]
@@ -107,37 +108,42 @@ pub fn fem_forces_split(
     tet_energy: &mut [f32],
     variant: SplitVariant,
 ) {
-    for e in 0..params.n_tets as usize {
-        let t = tets[e];
-        let u = t.map(|i| load3(displacements, i as usize));
-        let v = if variant.viscous {
-            t.map(|i| load3(velocities, i as usize))
-        } else {
-            [Vec3::ZERO; 4]
-        };
-        let (corner_pressure, corner_energy) = if variant.nodal_pressure {
-            (
-                t.map(|i| vertex_pressure[i as usize]),
-                t.map(|i| vertex_volumetric_energy[i as usize]),
-            )
-        } else {
-            ([0.0; 4], [0.0; 4])
-        };
-        let (forces, energy) = tet_forces_split(
-            params,
-            material_constants,
-            u,
-            v,
-            load_dm_inv(dm_inv, e),
-            rest_volume[e],
-            tet_fibre(material_constants, fibres, e),
-            corner_pressure,
-            corner_energy,
-            variant,
-        );
-        for (c, f) in forces.iter().enumerate() {
-            super::store3(corner_forces, 4 * e + c, *f);
-        }
-        tet_energy[e] = energy;
-    }
+    super::par::for_each_chunk2::<12, 1>(
+        corner_forces,
+        tet_energy,
+        params.n_tets as usize,
+        |e, corner, energy| {
+            let t = tets[e];
+            let u = t.map(|i| load3(displacements, i as usize));
+            let v = if variant.viscous {
+                t.map(|i| load3(velocities, i as usize))
+            } else {
+                [Vec3::ZERO; 4]
+            };
+            let (corner_pressure, corner_energy) = if variant.nodal_pressure {
+                (
+                    t.map(|i| vertex_pressure[i as usize]),
+                    t.map(|i| vertex_volumetric_energy[i as usize]),
+                )
+            } else {
+                ([0.0; 4], [0.0; 4])
+            };
+            let (forces, psi) = tet_forces_split(
+                params,
+                material_constants,
+                u,
+                v,
+                load_dm_inv(dm_inv, e),
+                rest_volume[e],
+                tet_fibre(material_constants, fibres, e),
+                corner_pressure,
+                corner_energy,
+                variant,
+            );
+            for (c, f) in forces.iter().enumerate() {
+                super::store3(corner, c, *f);
+            }
+            energy[0] = psi;
+        },
+    );
 }

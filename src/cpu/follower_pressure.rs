@@ -51,15 +51,19 @@ pub fn follower_pressure(
     follower_face_pressure: &[f32],
     follower_corner_forces: &mut [f32],
 ) {
-    for i in 0..follower_load.n_faces as usize {
-        let v = [0, 1, 2].map(|c| follower_faces[3 * i + c] as usize);
-        let f = face_corner_force(
-            v.map(|k| load3(rest_positions, k)),
-            v.map(|k| load3(displacements, k)),
-            follower_load.load_factor * follower_face_pressure[i],
-        );
-        for c in 0..3 {
-            store3(follower_corner_forces, 3 * i + c, f);
-        }
-    }
+    super::par::for_each_chunk::<9>(
+        follower_corner_forces,
+        follower_load.n_faces as usize,
+        |i, out| {
+            let v = [0, 1, 2].map(|c| follower_faces[3 * i + c] as usize);
+            let f = face_corner_force(
+                v.map(|k| load3(rest_positions, k)),
+                v.map(|k| load3(displacements, k)),
+                follower_load.load_factor * follower_face_pressure[i],
+            );
+            for c in 0..3 {
+                store3(out, c, f);
+            }
+        },
+    );
 }

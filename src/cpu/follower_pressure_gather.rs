@@ -41,7 +41,7 @@ pub fn follower_pressure_gather(
     dead_load_forces: &[f32],
     external_forces: &mut [f32],
 ) {
-    for i in 0..params.n_vertices as usize {
+    super::par::for_each_chunk::<3>(external_forces, params.n_vertices as usize, |i, out| {
         let mut f = load3(dead_load_forces, i);
         for k in follower_incidence_offsets[i]..follower_incidence_offsets[i + 1] {
             f += load3(
@@ -49,6 +49,6 @@ pub fn follower_pressure_gather(
                 follower_incidence[k as usize] as usize,
             );
         }
-        store3(external_forces, i, f);
-    }
+        store3(out, 0, f);
+    });
 }

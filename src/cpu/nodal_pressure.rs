@@ -28,20 +28,29 @@ pub fn nodal_pressure(
     vertex_volumetric_energy: &mut [f32],
     volumetric: VolumetricLaw,
 ) {
-    for a in 0..params.n_vertices as usize {
-        let mut volume = 0.0f32;
-        let mut delta = 0.0f32;
-        for k in incidence_offsets[a]..incidence_offsets[a + 1] {
-            let e = (incidence[k as usize] / 4) as usize;
-            volume += rest_volume[e];
-            delta += tet_delta_volume[e];
-        }
-        let (u, p) = if volume > 0.0 {
-            volumetric_energy_pressure(volumetric, material_constants.bulk_modulus, delta / volume)
-        } else {
-            (0.0, 0.0)
-        };
-        vertex_pressure[a] = p;
-        vertex_volumetric_energy[a] = u;
-    }
+    super::par::for_each_chunk2::<1, 1>(
+        vertex_pressure,
+        vertex_volumetric_energy,
+        params.n_vertices as usize,
+        |a, pressure, energy| {
+            let mut volume = 0.0f32;
+            let mut delta = 0.0f32;
+            for k in incidence_offsets[a]..incidence_offsets[a + 1] {
+                let e = (incidence[k as usize] / 4) as usize;
+                volume += rest_volume[e];
+                delta += tet_delta_volume[e];
+            }
+            let (u, p) = if volume > 0.0 {
+                volumetric_energy_pressure(
+                    volumetric,
+                    material_constants.bulk_modulus,
+                    delta / volume,
+                )
+            } else {
+                (0.0, 0.0)
+            };
+            pressure[0] = p;
+            energy[0] = u;
+        },
+    );
 }

@@ -191,6 +191,39 @@ impl ParticleArrays {
     }
 }
 
+/// The cardiac stages' arrays (empty when the plan does not use them).
+struct CardiacArrays {
+    split: Option<super::fem_forces_split::SplitVariant>,
+    material: crate::material::MaterialConstants,
+    tet_delta_volume: Vec<f32>,
+    vertex_pressure: Vec<f32>,
+    vertex_volumetric_energy: Vec<f32>,
+    follower_load: super::follower_pressure::FollowerLoad,
+    follower_corner_forces: Vec<f32>,
+}
+
+impl CardiacArrays {
+    fn new(model: &Model) -> CardiacArrays {
+        let split = model.split_variant();
+        let nodal = split.is_some_and(|v| v.nodal_pressure);
+        let n_faces = model.follower.as_ref().map_or(0, |f| f.n_faces());
+        CardiacArrays {
+            split,
+            material: model.material_constants(),
+            tet_delta_volume: vec![0.0; if nodal { model.n_tets() } else { 0 }],
+            vertex_pressure: vec![0.0; if nodal { model.n_vertices() } else { 0 }],
+            vertex_volumetric_energy: vec![0.0; if nodal { model.n_vertices() } else { 0 }],
+            follower_load: super::follower_pressure::FollowerLoad {
+                n_faces: n_faces as u32,
+                load_factor: model.follower.as_ref().map_or(0.0, |f| f.load_factor(0.0)),
+                _pad0: 0,
+                _pad1: 0,
+            },
+            follower_corner_forces: vec![0.0; 9 * n_faces],
+        }
+    }
+}
+
 /// CPU stepper: the reference path, parallel over tets and vertices.
 pub struct CpuStepper {
     model: Arc<Model>,
@@ -204,6 +237,10 @@ pub struct CpuStepper {
     corner_forces: Vec<f32>,
     tet_energy: Vec<f32>,
     forces: Vec<f32>,
+    /// The external forces `gather` and `reduce` read: the model's dead loads, plus the
+    /// follower pressures when the plan has them (rewritten every step).
+    external_forces: Vec<f32>,
+    cardiac: CardiacArrays,
     partials: Vec<f32>,
     stats: Vec<f32>,
     status: Vec<u32>,
@@ -273,6 +310,8 @@ impl CpuStepper {
             corner_forces: vec![0.0; 12 * model.n_tets()],
             tet_energy: vec![0.0; model.n_tets()],
             forces: vec![0.0; 3 * model.n_vertices()],
+            external_forces: model.external_forces.clone(),
+            cardiac: CardiacArrays::new(&model),
             partials: vec![0.0; PARTIAL_LEN * n_partials(&params)],
             stats: vec![0.0; stat::LEN],
             status: vec![ALL_FINITE; 4],
@@ -390,13 +429,77 @@ impl CpuStepper {
                     );
                 }
             }
+            Stage::FollowerPressure => {
+                let (Some(f), c) = (&m.follower, &mut self.cardiac) else {
+                    return;
+                };
+                super::follower_pressure::follower_pressure(
+                    &c.follower_load,
+                    &m.rest,
+                    &self.state.displacements,
+                    &f.faces,
+                    &f.face_pressure,
+                    &mut c.follower_corner_forces,
+                );
+                super::follower_pressure_gather::follower_pressure_gather(
+                    p,
+                    &c.follower_corner_forces,
+                    &f.incidence_offsets,
+                    &f.incidence,
+                    &m.external_forces,
+                    &mut self.external_forces,
+                );
+            }
+            Stage::NodalPressure => {
+                let c = &mut self.cardiac;
+                super::tet_volume_change::tet_volume_change(
+                    p,
+                    &self.state.displacements,
+                    &m.tets,
+                    &m.dm_inv,
+                    &m.rest_volume,
+                    &mut c.tet_delta_volume,
+                );
+                super::nodal_pressure::nodal_pressure(
+                    p,
+                    &c.material,
+                    &m.incidence_offsets,
+                    &m.incidence,
+                    &m.rest_volume,
+                    &c.tet_delta_volume,
+                    &mut c.vertex_pressure,
+                    &mut c.vertex_volumetric_energy,
+                    c.split.map(|v| v.volumetric).unwrap_or_default(),
+                );
+            }
+            Stage::FemForcesSplit => {
+                let c = &self.cardiac;
+                let Some(variant) = c.split else {
+                    return;
+                };
+                super::fem_forces_split::fem_forces_split(
+                    p,
+                    &c.material,
+                    &self.state.displacements,
+                    &self.state.velocities,
+                    &m.tets,
+                    &m.dm_inv,
+                    &m.rest_volume,
+                    &m.fibres,
+                    &c.vertex_pressure,
+                    &c.vertex_volumetric_energy,
+                    &mut self.corner_forces,
+                    &mut self.tet_energy,
+                    variant,
+                );
+            }
             Stage::Gather => gather(
                 p,
                 &self.corner_forces,
                 &m.incidence_offsets,
                 &m.incidence,
                 mass,
-                &m.external_forces,
+                &self.external_forces,
                 &mut self.forces,
             ),
             Stage::GatherCoupled => {
@@ -427,7 +530,7 @@ impl CpuStepper {
                     &m.incidence_offsets,
                     &m.incidence,
                     mass,
-                    &m.external_forces,
+                    &self.external_forces,
                     &mut self.forces,
                     &Coupling {
                         surface_index,
@@ -459,7 +562,7 @@ impl CpuStepper {
                     mass,
                     inv_mass,
                     &self.forces,
-                    &m.external_forces,
+                    &self.external_forces,
                     &self.tet_energy,
                     &mut self.partials,
                     surface_index,
@@ -749,6 +852,13 @@ impl Stepper for CpuStepper {
                 pp.sub_dt = params.dt / substeps as f32;
                 pa.params = pp;
             }
+        }
+        Ok(())
+    }
+
+    fn set_load_factor(&mut self, load_factor: f32) -> Result<()> {
+        if self.model.follower.is_some() {
+            self.cardiac.follower_load.load_factor = load_factor;
         }
         Ok(())
     }

@@ -17,9 +17,9 @@ pub fn tet_volume_change(
     rest_volume: &[f32],
     tet_delta_volume: &mut [f32],
 ) {
-    for e in 0..params.n_tets as usize {
+    super::par::for_each_chunk::<1>(tet_delta_volume, params.n_tets as usize, |e, out| {
         let u = tets[e].map(|i| load3(displacements, i as usize));
         let h = displacement_gradient(u, load_dm_inv(dm_inv, e));
-        tet_delta_volume[e] = rest_volume[e] * jacobian_minus_one(h);
-    }
+        out[0] = rest_volume[e] * jacobian_minus_one(h);
+    });
 }

@@ -268,6 +268,115 @@ pub fn particle_stubs() -> BufferGroup<'static> {
     }
 }
 
+/// Per-run data of the cardiac stages (split laws, nodal pressure, follower pressure), owned
+/// by the stepper while the tables borrow it.
+pub struct CardiacTables {
+    /// The split laws' uniform.
+    pub material: [crate::material::MaterialConstants; 1],
+    /// The follower uniform (its load factor is rewritten per batch).
+    pub follower_load: [crate::cpu::follower_pressure::FollowerLoad; 1],
+    /// The model's constant loads (what `external_forces` starts from each step).
+    pub dead_load: Vec<f32>,
+}
+
+impl CardiacTables {
+    /// The tables of `model` (None when it has no split law and no follower pressure).
+    pub fn new(model: &Model) -> Option<CardiacTables> {
+        if model.hyperelastic.is_none() && model.follower.is_none() {
+            return None;
+        }
+        Some(CardiacTables {
+            material: [model.material_constants()],
+            follower_load: [crate::cpu::follower_pressure::FollowerLoad {
+                n_faces: model.follower.as_ref().map_or(0, |f| f.n_faces() as u32),
+                load_factor: model.follower.as_ref().map_or(0.0, |f| f.load_factor(0.0)),
+                _pad0: 0,
+                _pad1: 0,
+            }],
+            dead_load: model.external_forces.clone(),
+        })
+    }
+}
+
+/// The cardiac stages' buffers: the split laws' uniform and per-tet fibres, the nodal
+/// pressure arrays, and the follower faces, their CSR corner incidence and the dead loads.
+/// Arrays a model does not use are 4-byte stand-ins (their kernels are not in the plan, or
+/// their pipeline constant keeps them unread).
+pub fn cardiac<'a>(model: &'a Model, t: &'a CardiacTables) -> BufferGroup<'a> {
+    let n = model.n_vertices() as u64;
+    let m = model.n_tets() as u64;
+    let nodal = model.split_variant().is_some_and(|v| v.nodal_pressure);
+    let or_stub = |name: &'static str, bytes: u64, used: bool| {
+        BufferSpec::zeroed(name, Usage::Storage, if used { bytes.max(4) } else { 4 })
+    };
+    let mut specs = vec![
+        BufferSpec::data("material_constants", Usage::Uniform, &t.material),
+        if model.fibres.is_empty() {
+            BufferSpec::zeroed("fibres", Usage::Storage, 4)
+        } else {
+            BufferSpec::data("fibres", Usage::Storage, &model.fibres)
+        },
+        or_stub("tet_delta_volume", 4 * m, nodal),
+        or_stub("vertex_pressure", 4 * n, nodal),
+        or_stub("vertex_volumetric_energy", 4 * n, nodal),
+        BufferSpec::data("follower_load", Usage::Uniform, &t.follower_load),
+    ];
+    match &model.follower {
+        Some(f) => {
+            specs.push(BufferSpec::data("follower_faces", Usage::Storage, &f.faces));
+            specs.push(BufferSpec::data(
+                "follower_face_pressure",
+                Usage::Storage,
+                &f.face_pressure,
+            ));
+            specs.push(BufferSpec::zeroed(
+                "follower_corner_forces",
+                Usage::Storage,
+                36 * f.n_faces() as u64,
+            ));
+            specs.push(BufferSpec::data(
+                "follower_incidence_offsets",
+                Usage::Storage,
+                &f.incidence_offsets,
+            ));
+            specs.push(BufferSpec::data(
+                "follower_incidence",
+                Usage::Storage,
+                &f.incidence,
+            ));
+            specs.push(BufferSpec::data(
+                "dead_load_forces",
+                Usage::Storage,
+                &t.dead_load,
+            ));
+            if model.tool.is_none() {
+                // The tool group holds `rest_positions` when there is a tool.
+                specs.push(BufferSpec::data(
+                    "rest_positions",
+                    Usage::Storage,
+                    &model.rest,
+                ));
+            }
+        }
+        None => {
+            for name in [
+                "follower_faces",
+                "follower_face_pressure",
+                "follower_corner_forces",
+                "follower_incidence_offsets",
+                "follower_incidence",
+                "dead_load_forces",
+            ] {
+                specs.push(BufferSpec::zeroed(name, Usage::Storage, 4));
+            }
+        }
+    }
+    BufferGroup {
+        name: "cardiac",
+        specs,
+    }
+}
+
 /// Every group a model needs, in order (the neighbour lists come later, sized on the
 /// device).
 pub fn for_model<'a>(
@@ -275,9 +384,13 @@ pub fn for_model<'a>(
     params: &'a StepParams,
     tool_params: &'a ToolParams,
     particles: Option<&'a ParticleTables>,
+    cardiac: Option<&'a CardiacTables>,
     max_dim: u32,
 ) -> Vec<BufferGroup<'a>> {
     let mut groups = vec![fem(model, params, max_dim), tool(model, tool_params)];
+    if let Some(t) = cardiac {
+        groups.push(self::cardiac(model, t));
+    }
     match (particles, &model.particles) {
         (Some(t), Some(p)) => {
             groups.push(self::particles(p, &t.grid, &t.setup_scans));

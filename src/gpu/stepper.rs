@@ -29,6 +29,19 @@ pub fn stage_constants(stage: Stage, model: &Model) -> Vec<(&'static str, f64)> 
                 ("PARTICLES", flag(model.particles.is_some())),
             ]
         }
+        Stage::FemForcesSplit => {
+            let v = model.split_variant().unwrap_or_default();
+            vec![
+                ("MATERIAL", v.model as u32 as f64),
+                ("VISCOUS", flag(v.viscous)),
+                ("VOLUMETRIC", v.volumetric as u32 as f64),
+                ("NODAL_PRESSURE", flag(v.nodal_pressure)),
+            ]
+        }
+        Stage::NodalPressure => {
+            let v = model.split_variant().unwrap_or_default();
+            vec![("VOLUMETRIC", v.volumetric as u32 as f64)]
+        }
         _ => stage_flags(stage, model),
     }
 }
@@ -135,6 +148,8 @@ pub struct GpuStepper {
     /// For each plan position, its index in `stages`.
     plan_stage: Vec<usize>,
     model_particles: Option<crate::gpu::groups::ParticleTables>,
+    /// The follower uniform (None without follower pressures).
+    follower_load: Option<crate::cpu::follower_pressure::FollowerLoad>,
     n_particles: u32,
     params_dt_before: f32,
     buffers: GpuBuffers,
@@ -168,8 +183,15 @@ impl GpuStepper {
         let mut tool_params = model.tool.as_ref().map(|t| t.params()).unwrap_or_default();
         tool_params.n_particles = model.particles.as_ref().map_or(0, |p| p.len() as u32);
         let tables = crate::gpu::groups::ParticleTables::new(model, &params);
-        let groups =
-            crate::gpu::groups::for_model(model, &params, &tool_params, tables.as_ref(), max_dim);
+        let cardiac = crate::gpu::groups::CardiacTables::new(model);
+        let groups = crate::gpu::groups::for_model(
+            model,
+            &params,
+            &tool_params,
+            tables.as_ref(),
+            cardiac.as_ref(),
+            max_dim,
+        );
         let mut buffers = GpuBuffers::new(&ctx, &groups)?;
         drop(groups);
         if let Some(t) = &tables {
@@ -231,6 +253,11 @@ impl GpuStepper {
             n_particles: tool_params.n_particles,
             params_dt_before: params.dt,
             model_particles: tables,
+            follower_load: model
+                .follower
+                .as_ref()
+                .and(cardiac.as_ref())
+                .map(|c| c.follower_load[0]),
             buffers,
             params,
             n_vertices: n as u32,
@@ -268,6 +295,7 @@ impl GpuStepper {
             Domain::Vertices => Dispatch::Items(self.n_vertices),
             Domain::VerticesAndTets => Dispatch::Items(self.n_vertices.max(self.n_tets)),
             Domain::SurfaceVertices => Dispatch::Items(self.n_surface),
+            Domain::FollowerFaces => Dispatch::Items(self.follower_load.map_or(0, |f| f.n_faces)),
             Domain::Particles => Dispatch::Items(self.n_particles),
             Domain::ParticlesPlusOne => Dispatch::Items(self.n_particles + 1),
             Domain::OneWorkgroup => Dispatch::One,
@@ -563,6 +591,20 @@ impl Stepper for GpuStepper {
             );
         }
         self.params_dt_before = params.dt;
+        Ok(())
+    }
+
+    fn set_load_factor(&mut self, load_factor: f32) -> Result<()> {
+        if let Some(f) = &mut self.follower_load {
+            if f.load_factor != load_factor {
+                f.load_factor = load_factor;
+                self.ctx.queue.write_buffer(
+                    self.buffers.require("follower_load")?,
+                    0,
+                    bytemuck::bytes_of(f),
+                );
+            }
+        }
         Ok(())
     }
 

@@ -1,4 +1,4 @@
-//! `[loads]`: gravity and dead-load surface pressures.
+//! `[loads]`: gravity, dead-load surface pressures and follower pressures.
 
 use super::Bad;
 use crate::error::Result;
@@ -17,6 +17,25 @@ pub struct PressureSpec {
     pub pascals: f64,
 }
 
+/// `[[loads.follower_pressure]]`: a pressure on the deformed surface (a follower load: its
+/// direction and area follow the faces as they move), on the boundary faces whose vertices
+/// all carry `tag`, or all lie within `tolerance` of `plane`; optionally ramped linearly from
+/// 0 over `ramp_seconds` of simulated time.
+#[derive(Clone, Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FollowerSpec {
+    /// Surface tag (`endocardium`, `epicardium`, `base`).
+    pub tag: Option<String>,
+    /// A plane n·x = offset.
+    pub plane: Option<super::PlaneSpec>,
+    /// Distance tolerance for `plane`, m (default 1e-6 × the mesh's bounding-box diagonal).
+    pub tolerance: Option<f64>,
+    /// Pressure, Pa (positive pushes into the body).
+    pub pascals: f64,
+    /// Ramp time, s (default: the full load from the start).
+    pub ramp_seconds: Option<f64>,
+}
+
 /// `[loads]`.
 #[derive(Clone, Debug, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -26,6 +45,109 @@ pub struct LoadsSpec {
     /// Surface pressures.
     #[serde(default)]
     pub pressure: Vec<PressureSpec>,
+    /// Follower pressures.
+    #[serde(default)]
+    pub follower_pressure: Vec<FollowerSpec>,
+}
+
+/// The resolved follower pressures: loaded faces (outward), their pressure and the ramp.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct FollowerLoads {
+    /// Loaded boundary faces, oriented with the normal out of the body.
+    pub faces: Vec<[u32; 3]>,
+    /// Pressure per face, Pa.
+    pub face_pressure: Vec<f64>,
+    /// Ramp time, s (0: none). With several items, the longest ramp scales all of them.
+    pub ramp_seconds: f64,
+}
+
+/// Select the faces of the `[[loads.follower_pressure]]` items (None when there are none).
+pub(super) fn follower_loads(
+    specs: &[FollowerSpec],
+    mesh: &TetMesh,
+    bad: &Bad,
+) -> Result<Option<FollowerLoads>> {
+    if specs.is_empty() {
+        return Ok(None);
+    }
+    let faces = mesh.boundary_faces();
+    let diag = {
+        let (lo, hi) = mesh.positions.iter().fold(
+            (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+            |(lo, hi), p| (lo.min(*p), hi.max(*p)),
+        );
+        (hi - lo).length()
+    };
+    let mut out = FollowerLoads::default();
+    for (k, spec) in specs.iter().enumerate() {
+        let item = format!("loads.follower_pressure[{k}]");
+        if !spec.pascals.is_finite() {
+            return Err(bad(&format!("{item}.pascals"), "must be finite".into()));
+        }
+        if let Some(r) = spec.ramp_seconds {
+            if !(r.is_finite() && r > 0.0) {
+                return Err(bad(
+                    &format!("{item}.ramp_seconds"),
+                    format!("must be > 0 s, got {r}"),
+                ));
+            }
+            out.ramp_seconds = out.ramp_seconds.max(r);
+        }
+        let select: Box<dyn Fn(u32) -> bool> = match (&spec.tag, &spec.plane) {
+            (Some(name), None) => {
+                if spec.tolerance.is_some() {
+                    return Err(bad(
+                        &format!("{item}.tolerance"),
+                        "applies to a plane only".into(),
+                    ));
+                }
+                let bit = tags::by_name(name).ok_or_else(|| {
+                    bad(
+                        &format!("{item}.tag"),
+                        format!("unknown tag '{name}' (known: endocardium, epicardium, base)"),
+                    )
+                })?;
+                if mesh.vertex_tags.is_empty() {
+                    return Err(bad(
+                        &format!("{item}.tag"),
+                        "this mesh carries no vertex tags".into(),
+                    ));
+                }
+                Box::new(move |v| mesh.vertex_tags[v as usize] & bit != 0)
+            }
+            (None, Some(plane)) => {
+                let n = DVec3::from_array(plane.normal);
+                if !(n.is_finite() && n.length() > 0.0) {
+                    return Err(bad(
+                        &format!("{item}.plane.normal"),
+                        "must be a non-zero vector".into(),
+                    ));
+                }
+                let n = n.normalize();
+                let tol = spec.tolerance.unwrap_or(1e-6 * diag);
+                if !(tol.is_finite() && tol >= 0.0) {
+                    return Err(bad(
+                        &format!("{item}.tolerance"),
+                        format!("must be >= 0 m, got {tol}"),
+                    ));
+                }
+                let offset = plane.offset;
+                Box::new(move |v| (n.dot(mesh.positions[v as usize]) - offset).abs() <= tol)
+            }
+            _ => return Err(bad(&item, "give exactly one of tag or plane".into())),
+        };
+        let before = out.faces.len();
+        for face in &faces {
+            if face.iter().all(|&v| select(v)) {
+                out.faces.push(*face);
+                out.face_pressure.push(spec.pascals);
+            }
+        }
+        if out.faces.len() == before {
+            return Err(bad(&item, "selects no boundary face".into()));
+        }
+    }
+    Ok(Some(out))
 }
 
 /// Nodal forces of the pressures: each tagged boundary face (outward normal n, area A)

@@ -13,7 +13,7 @@ mod solver;
 mod tool;
 
 pub use fixed::{BoxSpec, FixedSpec, PlaneSpec};
-pub use loads::{LoadsSpec, PressureSpec};
+pub use loads::{FollowerLoads, FollowerSpec, LoadsSpec, PressureSpec};
 pub use material::MaterialSpec;
 pub use mesh::MeshSpec;
 pub use particles::{ParticleModel, ParticleSettings, ParticleSpec, MAX_PARTICLES};
@@ -21,7 +21,7 @@ pub use solver::{DtSpec, SolverSettings, SolverSpec};
 pub use tool::{Tool, ToolSpec};
 
 use crate::error::{PalpateError, Result};
-use crate::material::MaterialParams;
+use crate::material::{HyperelasticParams, MaterialParams};
 use crate::mesh::{TetMesh, ValidationReport};
 use glam::DVec3;
 use serde::Deserialize;
@@ -35,6 +35,8 @@ pub const BUILTIN: &[(&str, &str)] = &[
     ("hm1", include_str!("../../scenes/hm1.toml")),
     ("hm2", include_str!("../../scenes/hm2.toml")),
     ("lv_touch", include_str!("../../scenes/lv_touch.toml")),
+    ("land_p1", include_str!("../../scenes/land_p1.toml")),
+    ("land_p2", include_str!("../../scenes/land_p2.toml")),
 ];
 
 /// The scene `palpate run` uses when none is named.
@@ -80,8 +82,14 @@ pub struct Scene {
     pub mesh: TetMesh,
     /// What mesh validation fixed.
     pub mesh_report: ValidationReport,
-    /// Material.
+    /// Material. For a split law μ is its small-strain shear modulus and λ = κ − 2μ/3.
     pub material: MaterialParams,
+    /// The split law's constants (None for the (λ, μ) laws).
+    pub hyperelastic: Option<HyperelasticParams>,
+    /// A constant fibre for every tet (`material.fibre`), overriding the mesh's fibres.
+    pub fibre: Option<[f64; 3]>,
+    /// Follower pressures (None: no follower stage).
+    pub follower: Option<FollowerLoads>,
     /// Per vertex: held fixed at rest.
     pub fixed: Vec<bool>,
     /// Gravity, m/s².
@@ -186,8 +194,31 @@ impl Scene {
             item: item.to_string(),
             message,
         };
-        let material = material::resolve_material(&file.material, &bad)?;
+        let resolved = material::resolve_material(&file.material, &bad)?;
+        let material = resolved.params;
+        if resolved.hyperelastic.is_some() && file.particles.is_some() {
+            return Err(bad(
+                "particles",
+                format!(
+                    "the particle layer does not support the split law '{}' (use stvk, stable_neohookean or corotational)",
+                    material.model.name()
+                ),
+            ));
+        }
         let (mesh, mesh_report) = mesh::build_mesh(&file.mesh, origin, dir, &bad)?;
+        if let (Some(h), None) = (&resolved.hyperelastic, resolved.fibre) {
+            let fibres: Vec<f32> = mesh
+                .fibres
+                .iter()
+                .flat_map(|f| f.to_array().map(|c| c as f32))
+                .collect();
+            h.check_fibres(material.model, &fibres, mesh.n_tets())
+                .map_err(|e| {
+                    let (key, rest) = e.split_once(' ').unwrap_or(("material.fibre", &e));
+                    bad(key.trim_end_matches(':'), rest.to_string())
+                })?;
+        }
+        let follower = loads::follower_loads(&file.loads.follower_pressure, &mesh, &bad)?;
         let fixed = fixed::select_fixed(&file.fixed, &mesh, &bad)?;
         let gravity = file.loads.gravity.unwrap_or([0.0; 3]);
         if gravity.iter().any(|g| !g.is_finite()) {
@@ -210,6 +241,9 @@ impl Scene {
             mesh,
             mesh_report,
             material,
+            hyperelastic: resolved.hyperelastic,
+            fibre: resolved.fibre,
+            follower,
             fixed,
             gravity,
             external_forces,
