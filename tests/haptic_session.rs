@@ -56,16 +56,19 @@ damping = 1.0e3
 
 /// The `lv` scene (Land LV, 1 kPa endocardial pressure) with a 10 mm sphere 1 mm clear of
 /// the epicardium at the equator side (large enough to touch several surface vertices of
-/// this coarse mesh), mass scaling 100 so that a session runs near real time on CI, and
+/// this coarse mesh), mass scaling 300 so that the physics keeps up with real time on a
+/// 2-core machine (at 100 it ran at 0.59× real time, and the proxy and the lagging physics
+/// fell into a make-and-break contact cycle that never settled: peak force 4.7× the static
+/// one, contact in 64 % of the batches), and
 /// shear viscosity 20 Pa·s: without it the few surface vertices under the tool ring
 /// against the contact springs and the session never settles (statics depend on neither).
 fn lv_scene(tool_keys: &str) -> String {
     let lv = Scene::builtin_text("lv").unwrap();
-    // Mass-proportional damping near critical for the slowed-down wall (60/s would be
-    // overdamped at mass scaling 100 and creep for seconds).
+    // Mass-proportional damping near critical for the slowed-down wall (20/s at mass
+    // scaling 100, × √(100/300); 60/s would be overdamped and creep for seconds).
     let lv = lv
-        .replace("duration = 0.1", "mass_scaling = 100.0")
-        .replace("damping = 60.0", "damping = 20.0")
+        .replace("duration = 0.1", "mass_scaling = 300.0")
+        .replace("damping = 60.0", "damping = 11.5")
         .replace("viscosity = [0.0, 0.0]", "viscosity = [0.0, 20.0]");
     format!("{lv}\n[tool]\nradius = 0.01\nstiffness = 1.0e8\ndamping = 2.0e4\n{tool_keys}\n")
 }
@@ -214,8 +217,10 @@ fn held_still_matches_statics(
     );
     assert!(
         force_error <= 0.03,
-        "{name}: held force {force:?} vs static {f0:?} ({:.1} %)",
-        100.0 * force_error
+        "{name}: held force {force:?} vs static {f0:?} ({:.1} %) after {:.2} s simulated (realtime {:.2})",
+        100.0 * force_error,
+        h.run.sim_seconds,
+        h.run.realtime_factor
     );
     assert!(
         k_error.abs() <= k_tolerance,
@@ -246,7 +251,8 @@ fn lv_held_still_matches_the_static_reaction_and_its_stiffness() {
         DVec3::NEG_X,
         0.004,
         0.0003,
-        2.5,
+        // 3.5 s of hold: margin to settle on a loaded machine.
+        4.0,
         0.2,
         "lv",
     );

@@ -284,8 +284,9 @@ pub fn study(
     Ok(rows)
 }
 
-/// Write `land.csv`, `land.md` and `land.png` (monitored value against tets, per problem
-/// and point, with the reference as a line) under `out`.
+/// Write `land.csv`, `land.md`, `land.png` (error against the reference per problem and
+/// point, against tets) and `land_pareto.png` (error against the finest run, against run
+/// time) under `out`.
 pub fn write(out: &Path, rows: &[LandRun], header: &str) -> Result<()> {
     std::fs::create_dir_all(out).map_err(|source| PalpateError::OutputIo {
         path: out.to_path_buf(),
@@ -295,7 +296,7 @@ pub fn write(out: &Path, rows: &[LandRun], header: &str) -> Result<()> {
         "problem,mesh,tets,vertices,kappa_over_c,volume_term,point,z_mm,reference_mm,steps,dt_s,wall_seconds,adapter,status\n",
     );
     let mut md = format!(
-        "# Land et al. 2015 benchmark, problems 1 and 2\n\n{header}\n\n![monitored values against mesh size](land.png)\n\n| problem | mesh | tets | κ/C | volume term | monitored (mm) | reference (mm) | steps | dt (s) | wall (s) | status |\n|---|---|---:|---:|---|---|---|---:|---:|---:|---|\n"
+        "# Land et al. 2015 benchmark, problems 1 and 2\n\n{header}\n\n![monitored values against mesh size](land.png)\n\n![error against the finest run of the series, against the time to a static solution](land_pareto.png)\n\n| problem | mesh | tets | κ/C | volume term | monitored (mm) | reference (mm) | steps | dt (s) | wall (s) | status |\n|---|---|---:|---:|---|---|---|---:|---:|---:|---|\n"
     );
     for r in rows {
         let c = &r.case;
@@ -348,7 +349,63 @@ pub fn write(out: &Path, rows: &[LandRun], header: &str) -> Result<()> {
     write("land.csv", csv.as_bytes())?;
     write("land.md", md.as_bytes())?;
     write("land.png", &plot(rows).png())?;
+    write("land_pareto.png", &pareto_plot(rows).png())?;
     Ok(())
+}
+
+/// Error against run time (as the accuracy study's Pareto plots): for each problem's first
+/// monitored value, |z − z_finest| / |z_finest| against the wall time to a static solution,
+/// where z_finest is the finest κ/C = 100 nodal-average run of that problem. Series: the
+/// refinement series at κ/C = 100, the κ/C = 1000 runs and the element volume term; the
+/// black line is the Pareto front over all of them.
+fn pareto_plot(rows: &[LandRun]) -> crate::output::png::Canvas {
+    use crate::output::png::{loglog_plot, pareto_front, PlotPoint};
+    let mut points = Vec::new();
+    let mut legend = Vec::new();
+    for problem in [Problem::P1, Problem::P2] {
+        let series_of = |r: &LandRun| {
+            (r.case.problem == problem).then_some(if r.case.volume_term != "nodal_average" {
+                2
+            } else if r.case.kappa_ratio == 100.0 {
+                0
+            } else {
+                1
+            })
+        };
+        let Some(finest) = rows
+            .iter()
+            .filter(|r| series_of(r) == Some(0))
+            .max_by_key(|r| r.tets)
+        else {
+            continue;
+        };
+        let name = problem.points()[0].0;
+        let base = legend.len();
+        for label in ["κ/C 100", "κ/C 1000", "element term"] {
+            legend.push(format!("{} {name}, {label}", problem.scene_name()));
+        }
+        let z_finest = finest.monitored_mm[0];
+        for r in rows {
+            if std::ptr::eq(r, finest) {
+                continue;
+            }
+            if let Some(series) = series_of(r) {
+                points.push(PlotPoint {
+                    x: r.wall_seconds.max(1e-3),
+                    y: ((r.monitored_mm[0] - z_finest) / z_finest).abs().max(1e-6),
+                    series: base + series,
+                });
+            }
+        }
+    }
+    let front = pareto_front(&points);
+    loglog_plot(
+        &points,
+        &front,
+        "wall time to static [s]",
+        "|z - z_finest| / |z_finest|",
+        &legend,
+    )
 }
 
 /// Relative error of each monitored value against the reference, per (problem, point), on
