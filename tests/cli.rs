@@ -771,6 +771,13 @@ fn a_haptic_session_runs_on_the_gpu_backend_too() {
     );
     let fz = physics["peak_tool_force"][2].as_f64().unwrap();
     assert!(fz > 0.0, "no push-back on the gpu backend: {fz}");
+    // A physics thread that cannot keep up is reported (lavapipe here: far below 1).
+    let capacity = physics["realtime_capacity"].as_f64().unwrap();
+    assert_eq!(
+        err.contains("warning: the physics kept up with only"),
+        capacity < 0.95,
+        "capacity {capacity}, stderr: {err}"
+    );
     assert!(s["haptic"]["servo"]["ticks"].as_u64().unwrap() > 800);
     assert!(d.join("haptic.csv").exists() && d.join("final.vtu").exists());
 }

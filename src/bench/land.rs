@@ -379,10 +379,13 @@ fn pareto_plot(rows: &[LandRun]) -> crate::output::png::Canvas {
         else {
             continue;
         };
-        let name = problem.points()[0].0;
+        let short = match problem {
+            Problem::P1 => "p1 tip",
+            Problem::P2 => "p2 endo apex",
+        };
         let base = legend.len();
-        for label in ["κ/C 100", "κ/C 1000", "element term"] {
-            legend.push(format!("{} {name}, {label}", problem.scene_name()));
+        for label in ["k/C 100", "k/C 1000", "element"] {
+            legend.push(format!("{short}, {label}"));
         }
         let z_finest = finest.monitored_mm[0];
         for r in rows {

@@ -310,6 +310,12 @@ fn execute(cli: Cli) -> Result<()> {
                 s.run.realtime_factor,
                 h.physics.stiffness_model
             );
+            if h.physics.realtime_capacity < 0.95 {
+                eprintln!(
+                    "warning: the physics kept up with only {:.2}x real time: the simulated tissue lags the hand, and contact can chatter (make and break) instead of settling; use a coarser mesh, a larger [solver] mass_scaling (statics unchanged) or a GPU",
+                    h.physics.realtime_capacity
+                );
+            }
             println!(
                 "wrote {0}/haptic.csv, {0}/final.vtu, {0}/summary.json; status: {1}",
                 out.display(),
