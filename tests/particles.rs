@@ -475,6 +475,59 @@ fn particle_kernels_match_their_cpu_twins() {
     ));
     eprintln!("integrate_particles: rel err {e:.2e}");
     assert!(e <= KERNEL_TOL, "integrate_particles rel err {e:.2e}");
+
+    // gather_coupled: corner forces + m g + f_ext + the tool's contact + the SPH forces of
+    // the non-dynamic particles of the force set, back to their host nodes (wᵢ·f).
+    let corner = g.read_f32("corner_forces").unwrap();
+    let mass = g.read_f32("mass").unwrap();
+    let ext = g.read_f32("external_forces").unwrap();
+    let contact = g.read_f32("contact_forces").unwrap();
+    let force_sum = g.read_f32("particle_force_sum").unwrap();
+    let weights = g.read_f32("particle_weights").unwrap();
+    let (inc_off, inc) = (bits_u32(&g, "incidence_offsets"), bits_u32(&g, "incidence"));
+    let surface_index = bits_u32(&g, "surface_index");
+    let node_flags = bits_u32(&g, "node_flags");
+    let (slot_off, slots) = (
+        bits_u32(&g, "particle_slot_offsets"),
+        bits_u32(&g, "particle_slots"),
+    );
+    let gmode = bits_u32(&g, "particle_mode");
+    let coupled = (0..m.n_vertices())
+        .filter(|&i| node_flags[i] & palpate::particles::params::NODE_COUPLED != 0)
+        .filter(|&i| {
+            (slot_off[i]..slot_off[i + 1]).any(|k| {
+                let p = slots[k as usize] as usize / 4;
+                gmode[p] & mode::IN_F != 0 && gmode[p] & mode::DYNAMIC == 0
+            })
+        })
+        .count();
+    assert!(coupled > 0, "no vertex receives particle forces");
+    g.run_stage(Stage::GatherCoupled).unwrap();
+    let mut forces = vec![0.0f32; 3 * m.n_vertices()];
+    cpu::gather::gather_coupled(
+        &params,
+        &corner,
+        &inc_off,
+        &inc,
+        &mass,
+        &ext,
+        &mut forces,
+        &cpu::gather::Coupling {
+            surface_index: &surface_index,
+            contact_forces: &contact,
+            contact: true,
+            node_flags: &node_flags,
+            slot_offsets: &slot_off,
+            slots: &slots,
+            weights: &weights,
+            mode: &gmode,
+            force_sum: &force_sum,
+            particles: true,
+        },
+    );
+    let e = rel(&g.read_f32("forces").unwrap()[..forces.len()], &forces);
+    eprintln!("gather_coupled: rel err {e:.2e} ({coupled} vertices receive particle forces)");
+    assert!(e <= KERNEL_TOL, "gather_coupled rel err {e:.2e}");
 }
 
 #[test]
