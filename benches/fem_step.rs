@@ -7,6 +7,9 @@
 //! GPU steps are recorded 20 to a command buffer (as the engine runs them) and the time
 //! includes submit and wait. `PALPATE_BENCH_SIZES=10k,100k` limits the sizes.
 
+mod common;
+
+use common::median;
 use criterion::{criterion_group, BenchmarkId, Criterion, Throughput};
 use palpate::cpu::stepper::available_cores;
 use palpate::cpu::CpuStepper;
@@ -15,7 +18,7 @@ use palpate::material::MaterialParams;
 use palpate::mesh::generators;
 use palpate::model::Model;
 use std::sync::Arc;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 const SIZES: [(&str, [usize; 3]); 3] = [
     ("10k", [25, 8, 8]),
@@ -72,19 +75,6 @@ fn fem_step(c: &mut Criterion) {
         });
     }
     group.finish();
-}
-
-/// Median of `reps` timings of `f`, seconds.
-fn median(reps: usize, mut f: impl FnMut()) -> f64 {
-    let mut t: Vec<f64> = (0..reps)
-        .map(|_| {
-            let t = Instant::now();
-            f();
-            t.elapsed().as_secs_f64()
-        })
-        .collect();
-    t.sort_by(f64::total_cmp);
-    t[reps / 2]
 }
 
 fn ratio_table() {

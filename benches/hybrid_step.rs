@@ -8,10 +8,13 @@
 //!
 //! `PALPATE_BENCH_BACKENDS=cpu` (or `gpu`) limits the backends.
 
+mod common;
+
+use common::median;
 use criterion::{criterion_group, BenchmarkId, Criterion};
 use palpate::sim::{Backend, SimOptions, Simulation};
 use palpate::Scene;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 /// Steps per timed call (one activation interval of HM1).
 const STEPS: u32 = 10;
@@ -85,19 +88,6 @@ fn hybrid_step(c: &mut Criterion) {
         }
     }
     group.finish();
-}
-
-/// Median of `reps` timings of `f`, seconds.
-fn median(reps: usize, mut f: impl FnMut()) -> f64 {
-    let mut t: Vec<f64> = (0..reps)
-        .map(|_| {
-            let t = Instant::now();
-            f();
-            t.elapsed().as_secs_f64()
-        })
-        .collect();
-    t.sort_by(f64::total_cmp);
-    t[reps / 2]
 }
 
 fn ratio_table() {

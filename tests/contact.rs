@@ -337,17 +337,7 @@ fn a_particle_top_layer_resolves_the_contact_that_a_coarse_core_alone_cannot() {
     let c = run_case(&coarse, Backend::Cpu, &out).unwrap();
     let h = run_case(&hybrid, Backend::Cpu, &out).unwrap();
     for r in [&c, &h] {
-        eprintln!(
-            "{}: {} tets, {} particles: F = {:.4e} N vs Hertz {:.4e} N ({:+.2} %), {} steps, {:.1} s",
-            r.case.label(),
-            r.tets,
-            r.particles,
-            r.force,
-            r.hertz,
-            100.0 * r.relative_error,
-            r.steps,
-            r.wall_seconds
-        );
+        eprintln!("{}", r.line());
         assert_eq!(r.status, "ok", "{}", r.case.label());
     }
     assert!(h.particles > 1000, "{} particles", h.particles);

@@ -201,6 +201,28 @@ pub struct HertzResult {
     pub status: String,
 }
 
+impl HertzResult {
+    /// One line for logs: the block, depth, penalty, size, force against Hertz, steps, wall
+    /// time and status.
+    pub fn line(&self) -> String {
+        let c = &self.case;
+        format!(
+            "{}, depth {:.2} mm, penalty {:.0e} Pa/m: {} tets, {} particles, F = {:.4e} N vs Hertz {:.4e} N ({:+.2} %), {} steps, {:.1} s, {}",
+            c.label(),
+            1e3 * c.depth,
+            c.penalty,
+            self.tets,
+            self.particles,
+            self.force,
+            self.hertz,
+            100.0 * self.relative_error,
+            self.steps,
+            self.wall_seconds,
+            self.status
+        )
+    }
+}
+
 /// Run one case to a static state on `backend`, writing the run's outputs to `out`.
 pub fn run_case(case: &HertzCase, backend: Backend, out: &Path) -> Result<HertzResult> {
     let scene = case.scene()?;
@@ -291,19 +313,7 @@ pub fn study(backend: Backend, quick: bool, log: &mut dyn FnMut(&str)) -> Result
     let mut rows = Vec::new();
     for case in cases {
         let r = run_case(&case, backend, &dir)?;
-        log(&format!(
-            "{}, depth {:.2} mm, penalty {:.0e} Pa/m: {} tets, F = {:.4e} N vs Hertz {:.4e} N ({:+.2} %), {} steps, {:.1} s, {}",
-            case.label(),
-            1e3 * case.depth,
-            case.penalty,
-            r.tets,
-            r.force,
-            r.hertz,
-            100.0 * r.relative_error,
-            r.steps,
-            r.wall_seconds,
-            r.status
-        ));
+        log(&r.line());
         rows.push(r);
     }
     Ok(rows)

@@ -41,13 +41,49 @@ pub struct FixedSpec {
     pub tag: Option<String>,
 }
 
-pub(super) fn select_fixed(specs: &[FixedSpec], mesh: &TetMesh, bad: &Bad) -> Result<Vec<bool>> {
-    let mut fixed = vec![false; mesh.n_vertices()];
+/// The mesh's bounding-box diagonal, m: the scale of a plane's default tolerance.
+pub(super) fn bounding_diagonal(mesh: &TetMesh) -> f64 {
     let (lo, hi) = mesh.positions.iter().fold(
         (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
         |(lo, hi), p| (lo.min(*p), hi.max(*p)),
     );
-    let diag = (hi - lo).length();
+    (hi - lo).length()
+}
+
+/// The unit normal of `plane`; a zero or non-finite normal is an error naming
+/// `{item}.plane.normal`.
+pub(super) fn unit_normal(plane: &PlaneSpec, item: &str, bad: &Bad) -> Result<DVec3> {
+    let n = DVec3::from_array(plane.normal);
+    if !(n.is_finite() && n.length() > 0.0) {
+        return Err(bad(
+            &format!("{item}.plane.normal"),
+            "must be a non-zero vector".into(),
+        ));
+    }
+    Ok(n.normalize())
+}
+
+/// The vertex-tag bit of surface tag `name`; an unknown tag, or a mesh without vertex tags,
+/// is an error naming `{item}.tag`.
+pub(super) fn tag_bit(name: &str, mesh: &TetMesh, item: &str, bad: &Bad) -> Result<u32> {
+    let bit = tags::by_name(name).ok_or_else(|| {
+        bad(
+            &format!("{item}.tag"),
+            format!("unknown tag '{name}' (known: endocardium, epicardium, base)"),
+        )
+    })?;
+    if mesh.vertex_tags.is_empty() {
+        return Err(bad(
+            &format!("{item}.tag"),
+            "this mesh carries no vertex tags".into(),
+        ));
+    }
+    Ok(bit)
+}
+
+pub(super) fn select_fixed(specs: &[FixedSpec], mesh: &TetMesh, bad: &Bad) -> Result<Vec<bool>> {
+    let mut fixed = vec![false; mesh.n_vertices()];
+    let diag = bounding_diagonal(mesh);
     for (k, spec) in specs.iter().enumerate() {
         let item = format!("fixed[{k}]");
         let chosen = [
@@ -68,14 +104,7 @@ pub(super) fn select_fixed(specs: &[FixedSpec], mesh: &TetMesh, bad: &Bad) -> Re
             ));
         }
         let select: Box<dyn Fn(usize, DVec3) -> bool> = if let Some(plane) = &spec.plane {
-            let n = DVec3::from_array(plane.normal);
-            if n.length() <= 0.0 || !n.is_finite() {
-                return Err(bad(
-                    &format!("{item}.plane.normal"),
-                    "must be a non-zero vector".into(),
-                ));
-            }
-            let n = n.normalize();
+            let n = unit_normal(plane, &item, bad)?;
             let tol = spec.tolerance.unwrap_or(1e-6 * diag);
             let offset = plane.offset;
             Box::new(move |_, p| (n.dot(p) - offset).abs() <= tol)
@@ -83,19 +112,7 @@ pub(super) fn select_fixed(specs: &[FixedSpec], mesh: &TetMesh, bad: &Bad) -> Re
             let (bmin, bmax) = (DVec3::from_array(b.min), DVec3::from_array(b.max));
             Box::new(move |_, p| p.cmpge(bmin).all() && p.cmple(bmax).all())
         } else {
-            let name = spec.tag.as_deref().unwrap_or_default();
-            let bit = tags::by_name(name).ok_or_else(|| {
-                bad(
-                    &format!("{item}.tag"),
-                    format!("unknown tag '{name}' (known: endocardium, epicardium, base)"),
-                )
-            })?;
-            if mesh.vertex_tags.is_empty() {
-                return Err(bad(
-                    &format!("{item}.tag"),
-                    "this mesh carries no vertex tags".into(),
-                ));
-            }
+            let bit = tag_bit(spec.tag.as_deref().unwrap_or_default(), mesh, &item, bad)?;
             let tags_of = mesh.vertex_tags.clone();
             Box::new(move |i, _| tags_of[i] & bit != 0)
         };

@@ -2,7 +2,7 @@
 
 use super::Bad;
 use crate::error::Result;
-use crate::mesh::{tags, TetMesh};
+use crate::mesh::TetMesh;
 use glam::DVec3;
 use serde::Deserialize;
 
@@ -71,13 +71,7 @@ pub(super) fn follower_loads(
         return Ok(None);
     }
     let faces = mesh.boundary_faces();
-    let diag = {
-        let (lo, hi) = mesh.positions.iter().fold(
-            (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
-            |(lo, hi), p| (lo.min(*p), hi.max(*p)),
-        );
-        (hi - lo).length()
-    };
+    let diag = super::fixed::bounding_diagonal(mesh);
     let mut out = FollowerLoads::default();
     for (k, spec) in specs.iter().enumerate() {
         let item = format!("loads.follower_pressure[{k}]");
@@ -101,29 +95,11 @@ pub(super) fn follower_loads(
                         "applies to a plane only".into(),
                     ));
                 }
-                let bit = tags::by_name(name).ok_or_else(|| {
-                    bad(
-                        &format!("{item}.tag"),
-                        format!("unknown tag '{name}' (known: endocardium, epicardium, base)"),
-                    )
-                })?;
-                if mesh.vertex_tags.is_empty() {
-                    return Err(bad(
-                        &format!("{item}.tag"),
-                        "this mesh carries no vertex tags".into(),
-                    ));
-                }
+                let bit = super::fixed::tag_bit(name, mesh, &item, bad)?;
                 Box::new(move |v| mesh.vertex_tags[v as usize] & bit != 0)
             }
             (None, Some(plane)) => {
-                let n = DVec3::from_array(plane.normal);
-                if !(n.is_finite() && n.length() > 0.0) {
-                    return Err(bad(
-                        &format!("{item}.plane.normal"),
-                        "must be a non-zero vector".into(),
-                    ));
-                }
-                let n = n.normalize();
+                let n = super::fixed::unit_normal(plane, &item, bad)?;
                 let tol = spec.tolerance.unwrap_or(1e-6 * diag);
                 if !(tol.is_finite() && tol >= 0.0) {
                     return Err(bad(
@@ -167,21 +143,7 @@ pub(super) fn pressure_forces(
         if !spec.pascals.is_finite() {
             return Err(bad(&format!("{item}.pascals"), "must be finite".into()));
         }
-        let bit = tags::by_name(&spec.tag).ok_or_else(|| {
-            bad(
-                &format!("{item}.tag"),
-                format!(
-                    "unknown tag '{}' (known: endocardium, epicardium, base)",
-                    spec.tag
-                ),
-            )
-        })?;
-        if mesh.vertex_tags.is_empty() {
-            return Err(bad(
-                &format!("{item}.tag"),
-                "this mesh carries no vertex tags".into(),
-            ));
-        }
+        let bit = super::fixed::tag_bit(&spec.tag, mesh, &item, bad)?;
         let mut count = 0;
         for face in &faces {
             if face
