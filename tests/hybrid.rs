@@ -143,16 +143,20 @@ fn forces_under(scene: &Scene, a: DMat3) -> ForcesUnder {
         velocities: vec![0.0; 3 * m.n_vertices()],
     })
     .unwrap();
-    for stage in [
-        Stage::Activate,
-        Stage::Follow,
-        Stage::SphStress,
-        Stage::SphForces,
-        Stage::FemForces,
-        Stage::GatherCoupled,
-    ] {
-        s.run_stage_pooled(stage);
+    // One core step's force stages. The hosts receive the mean particle force over the
+    // particle sub-steps, so the sub-step stages run as often as in a step.
+    s.run_stage_pooled(Stage::Activate);
+    for k in 0..m.particle_substeps(s.dt() as f64) {
+        s.run_stage_pooled(Stage::Follow);
+        s.run_stage_pooled(Stage::SphStress);
+        s.run_stage_pooled(if k == 0 {
+            Stage::SphForces
+        } else {
+            Stage::SphForcesAccumulate
+        });
     }
+    s.run_stage_pooled(Stage::FemForces);
+    s.run_stage_pooled(Stage::GatherCoupled);
     let vf: Vec<Vec3> = s
         .forces()
         .chunks(3)
@@ -168,20 +172,21 @@ fn forces_under(scene: &Scene, a: DMat3) -> ForcesUnder {
     for v in scene.mesh.boundary_vertices() {
         boundary[v as usize] = true;
     }
-    // Interior particles: dynamic, with a full lattice neighbourhood whose members all have
-    // full neighbourhoods too (two kernel supports from any edge of the lattice).
-    let lists = s.neighbour_lists().unwrap();
-    let count = |p: usize| lists.neighbour_offsets[p + 1] - lists.neighbour_offsets[p];
-    let full = (0..pf.len()).map(count).max().unwrap();
+    // Interior particles: every dynamic particle two kernel supports from the body's surface
+    // (those nearer have a free surface in their sums), however near the tet core it lies.
+    let pd = m.particles.as_ref().unwrap();
+    let (lo, hi) = scene.mesh.positions.iter().fold(
+        (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+        |(a, b), &x| (a.min(x), b.max(x)),
+    );
+    let margin = 2.0 * pd.support as f64;
     let modes = s.particle_modes().unwrap();
     let interior_particles: Vec<bool> = (0..pf.len())
         .map(|p| {
+            let x = pd.rest_position(p).as_dvec3();
             modes[p] & mode::DYNAMIC != 0
-                && count(p) == full
-                && lists.neighbours
-                    [lists.neighbour_offsets[p] as usize..lists.neighbour_offsets[p + 1] as usize]
-                    .iter()
-                    .all(|&b| count(b as usize) == full)
+                && (x - lo).min_element() > margin
+                && (hi - x).min_element() > margin
         })
         .collect();
     // Vertices that carry mass (kinematic ones, with none, take no force).
@@ -193,62 +198,72 @@ fn forces_under(scene: &Scene, a: DMat3) -> ForcesUnder {
     (m, vf, pf, boundary_or_dead, interior_particles)
 }
 
-/// Rigid motion: no force on any vertex or particle. Affine stretch: no residual on interior
-/// particles. The vertices at the tet/particle interface DO keep a residual (printed; about
-/// 40 % of a boundary vertex's force here): where the stress-carrying particles end, their
-/// truncated SPH sums act as a free surface whose traction the embedding spreads over the host
-/// vertices differently from the core's own traction. Cancelling it needs an integration
-/// correction (Fernández-Méndez, Bonet & Huerta, Comput. Struct. 83, 2005), not built.
-#[test]
-fn rigid_motion_gives_no_force_and_an_affine_stretch_no_interior_particle_residual() {
-    // 30 mm cube, 10 mm cells: the dynamic particles (z > 20 mm) have an interior two kernel
-    // supports from every edge of the lattice.
-    let scene = layered_block([0.03, 0.03, 0.03], [3, 3, 3], "", "");
-    // The force scale: the largest boundary-vertex force under a 1 % stretch and shear.
+/// The largest residual under an affine stretch and shear of the whole body, relative to the
+/// largest boundary-vertex force: (at interior dynamic particles, at interior vertices,
+/// their counts, the largest boundary-vertex force in N).
+fn affine_residuals(scene: &Scene) -> (f32, f32, usize, usize, f32) {
     let stretch = DMat3::from_cols(
         DVec3::new(1.01, 0.0, 0.002),
         DVec3::new(0.003, 0.995, 0.0),
         DVec3::new(0.0, 0.004, 1.008),
     );
-    let (_, vf, pf, edge, interior) = forces_under(&scene, stretch);
-    let scale = vf
-        .iter()
-        .zip(&edge)
-        .filter(|(_, &b)| b)
-        .map(|(f, _)| f.length())
-        .fold(0.0f32, f32::max);
+    let (_, vf, pf, edge, interior) = forces_under(scene, stretch);
+    let largest = |f: &[Vec3], keep: &dyn Fn(usize) -> bool| {
+        (0..f.len())
+            .filter(|&i| keep(i))
+            .map(|i| f[i].length())
+            .fold(0.0f32, f32::max)
+    };
+    let scale = largest(&vf, &|i| edge[i]);
     assert!(scale > 0.0);
-    let node_res = vf
-        .iter()
-        .zip(&edge)
-        .filter(|(_, &b)| !b)
-        .map(|(f, _)| f.length())
-        .fold(0.0f32, f32::max);
-    let particle_res = pf
-        .iter()
-        .zip(&interior)
-        .filter(|(_, &i)| i)
-        .map(|(f, _)| f.length())
-        .fold(0.0f32, f32::max);
-    let n_interior = interior.iter().filter(|&&i| i).count();
-    let n_inner_nodes = edge.iter().filter(|&&b| !b).count();
+    (
+        largest(&pf, &|p| interior[p]) / scale,
+        largest(&vf, &|i| !edge[i]) / scale,
+        interior.iter().filter(|&&i| i).count(),
+        edge.iter().filter(|&&b| !b).count(),
+        scale,
+    )
+}
+
+/// Rigid motion: no force on any vertex or particle. Affine stretch (patch test), 10 mm tets
+/// (four kernel supports): no residual on the dynamic particles away from the body's surface,
+/// and 2.4 % of a boundary vertex's force at the interface vertices. That remainder is the
+/// SPH side's boundary smear: where the stress-carrying particles end, their traction is
+/// spread over a kernel support, while the tets' partition-of-unity weights are constant per
+/// tet, so the two integrate the tets' hat functions differently. It does not shrink with the
+/// tets (~2.5 P Δx² per vertex), so with 2.5 mm tets (one support) it is 27 %, and the
+/// dynamic particles that come within a support of the core, whose sums are cut where the
+/// lattice ends, keep 5.6 %. An integration correction (Fernández-Méndez, Bonet & Huerta,
+/// Comput. Struct. 83, 2005) would remove both; not built. (A band of massless lattice
+/// particles continuing into the core removed the 5.6 % but made the core's kink modes soft:
+/// the zig-zag test below failed, so it is not shipped.) The bounds guard what is measured.
+#[test]
+fn rigid_motion_gives_no_force_and_an_affine_stretch_no_interior_residual() {
+    // 30 mm cube, 10 mm cells (tets four kernel supports across).
+    let coarse = layered_block([0.03, 0.03, 0.03], [3, 3, 3], "", "");
+    let (particles, vertices, n_p, n_v, scale) = affine_residuals(&coarse);
     eprintln!(
-        "affine stretch: force scale {scale:.3e} N; largest residual at {n_interior} interior particles {particle_res:.3e} N ({:.2e} of the scale); at {n_inner_nodes} interior (interface) vertices {node_res:.3e} N ({:.2e}, not asserted)",
-        particle_res / scale,
-        node_res / scale
+        "affine stretch, 10 mm tets: largest residual at {n_p} interior particles {particles:.2e}, at {n_v} interior vertices {vertices:.2e} (of the largest boundary-vertex force)"
     );
-    assert!(n_interior > 0 && n_inner_nodes > 0);
-    assert!(
-        particle_res <= 1e-4 * scale,
-        "interior particles: {:.2e}",
-        particle_res / scale
+    assert!(n_p > 500 && n_v > 0);
+    assert!(particles <= 1e-4, "interior particles: {particles:.2e}");
+    assert!(vertices <= 0.05, "interface vertices: {vertices:.2e}");
+    // 2.5 mm cells: the dynamic particles come within a kernel support of the core (without
+    // the overlap band they kept 5 % of the scale there).
+    let fine = layered_block([0.03, 0.03, 0.03], [12, 12, 12], "", "");
+    let (particles, vertices, n_p, n_v, _) = affine_residuals(&fine);
+    eprintln!(
+        "affine stretch, 2.5 mm tets: largest residual at {n_p} interior particles {particles:.2e}, at {n_v} interior vertices {vertices:.2e}"
     );
+    assert!(n_p > 500 && n_v > 0);
+    assert!(particles <= 0.1, "interior particles: {particles:.2e}");
+    assert!(vertices <= 0.4, "interface vertices: {vertices:.2e}");
     // A rigid rotation of 30 degrees: no force anywhere.
     let rot = DMat3::from_axis_angle(
         DVec3::new(1.0, 2.0, 3.0).normalize(),
         std::f64::consts::FRAC_PI_6,
     );
-    let (_, vf, pf, _, _) = forces_under(&scene, rot);
+    let (_, vf, pf, _, _) = forces_under(&coarse, rot);
     let worst = vf
         .iter()
         .chain(&pf)
@@ -410,7 +425,7 @@ fn hm1_activates_a_few_hundred_particles_under_the_tool_and_releases_them_withou
         let (before, modes_before) = placed(&m, &mut s);
         s.run_stage_pooled(Stage::Activate);
         let (after, modes_after) = placed(&m, &mut s);
-        for k in 0..n {
+        for k in 0..modes_before.len() {
             if (modes_before[k] ^ modes_after[k]) & mode::DYNAMIC != 0 {
                 switched += 1;
                 let d = Vec3::from_slice(&after[3 * k..]) - Vec3::from_slice(&before[3 * k..]);

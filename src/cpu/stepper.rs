@@ -331,6 +331,11 @@ impl CpuStepper {
         self.threads
     }
 
+    /// The core time step, s.
+    pub fn dt(&self) -> f32 {
+        self.params.dt
+    }
+
     /// The step plan this stepper executes.
     pub fn plan(&self) -> &StepPlan {
         &self.plan
