@@ -535,41 +535,21 @@ fn particle_kernels_match_their_cpu_twins() {
 #[test]
 fn hybrid_trajectory_300_steps_gpu_matches_cpu() {
     let scene = pressed_block();
-    let run = |backend: palpate::sim::Backend| {
-        let mut sim = palpate::sim::Simulation::new(
-            &scene,
-            backend,
-            palpate::sim::SimOptions {
-                gpu: (backend == palpate::sim::Backend::Gpu).then(gpu),
-                ..Default::default()
-            },
-        )
-        .unwrap();
-        let mut out = Vec::new();
-        for _ in 0..3 {
-            assert!(matches!(
-                sim.advance(100).unwrap(),
-                palpate::sim::Advance::Done(_)
-            ));
-            out.push((
-                sim.state().unwrap().displacements,
-                sim.particle_state().unwrap().unwrap().displacements,
-                sim.last_tool.unwrap().force,
-                sim.last_particles.unwrap().dynamic,
-            ));
-        }
-        out
-    };
-    let (c, g) = (
-        run(palpate::sim::Backend::Cpu),
-        run(palpate::sim::Backend::Gpu),
-    );
-    for (k, (cc, gg)) in c.iter().zip(&g).enumerate() {
+    let (c, _) = run_batches(&scene, palpate::sim::Backend::Cpu, None, 3, 100);
+    let (g, _) = run_batches(&scene, palpate::sim::Backend::Gpu, None, 3, 100);
+    backends_agree("", &c, &g);
+}
+
+/// Snapshots of batches of 100 steps on the CPU (`c`) and the GPU (`g`) agree: the same
+/// dynamic-particle counts (some), vertex and particle displacements and the tool force within
+/// 1e-4 relative. `label` prefixes the printed lines.
+fn backends_agree(label: &str, c: &[Snapshot], g: &[Snapshot]) {
+    for (k, (cc, gg)) in c.iter().zip(g).enumerate() {
         let eu = rel(&gg.0, &cc.0);
         let ep = rel(&gg.1, &cc.1);
         let ef = (gg.2 - cc.2).length() / cc.2.length().max(1e-30);
         eprintln!(
-            "step {}: {} dynamic particles, |F| {:.4e} N; rel err vertices {eu:.2e}, particles {ep:.2e}, tool force {ef:.2e}",
+            "{label}step {}: {} dynamic particles, |F| {:.4e} N; rel err vertices {eu:.2e}, particles {ep:.2e}, tool force {ef:.2e}",
             100 * (k + 1),
             cc.3,
             cc.2.length()
@@ -968,24 +948,7 @@ fn particle_substeps_are_planned_run_and_match_between_backends() {
             assert_eq!(total(x), n, "{name}: {x:?} ran {} times", total(x));
         }
     }
-    for (k, (cc, gg)) in c.iter().zip(&g).enumerate() {
-        let eu = rel(&gg.0, &cc.0);
-        let ep = rel(&gg.1, &cc.1);
-        let ef = (gg.2 - cc.2).length() / cc.2.length().max(1e-30);
-        eprintln!(
-            "{s} sub-steps, step {}: {} dynamic particles, |F| {:.4e} N; rel err vertices {eu:.2e}, particles {ep:.2e}, tool force {ef:.2e}",
-            100 * (k + 1),
-            cc.3,
-            cc.2.length()
-        );
-        assert_eq!(cc.3, gg.3, "dynamic particle counts");
-        assert!(cc.3 > 0, "no particle became dynamic");
-        assert!(
-            eu <= 1e-4 && ep <= 1e-4 && ef <= 1e-4,
-            "step {}",
-            100 * (k + 1)
-        );
-    }
+    backends_agree(&format!("{s} sub-steps, "), &c, &g);
     assert!(c[2].2.length() > 0.0, "the tool never touched");
 }
 
