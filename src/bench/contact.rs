@@ -50,6 +50,8 @@ pub struct ParticleLayer {
     pub spacing: f64,
     /// Tet layers (from the top) in the zone.
     pub layers: usize,
+    /// Kernel support radius, in spacings (the scene default is 2.4).
+    pub kernel_radius: f64,
 }
 
 impl Default for HertzCase {
@@ -73,6 +75,12 @@ impl HertzCase {
     pub fn label(&self) -> String {
         match self.particles {
             None => format!("cells a/{:.1}", 1.0 / self.fine),
+            Some(p) if p.kernel_radius != 2.4 => format!(
+                "core {:.1}a + particles a/{:.1} (support {}Δx)",
+                self.fine,
+                1.0 / p.spacing,
+                p.kernel_radius
+            ),
             Some(p) => format!(
                 "core {:.1}a + particles a/{:.1}",
                 self.fine,
@@ -166,7 +174,7 @@ impl HertzCase {
                 spacing: layer.spacing * self.contact_radius(),
                 model: crate::scene::ParticleModel::Tlsph,
                 activation_radius: 2.0 * self.contact_radius(),
-                kernel_radius: 2.4,
+                kernel_radius: layer.kernel_radius,
                 hourglass: 0.1,
                 hysteresis: 1.5,
                 dwell: 0.01,
@@ -301,7 +309,11 @@ pub fn study(backend: Backend, quick: bool, log: &mut dyn FnMut(&str)) -> Result
     for &spacing in spacings {
         cases.push(HertzCase {
             fine: 2.0,
-            particles: Some(ParticleLayer { spacing, layers: 2 }),
+            particles: Some(ParticleLayer {
+                spacing,
+                layers: 2,
+                kernel_radius: 2.4,
+            }),
             ..base
         });
     }
