@@ -420,29 +420,33 @@ impl Model {
         let substeps = self.particle_substeps(dt);
         let m = &self.material;
         let youngs = m.mu * (3.0 * m.lambda + 2.0 * m.mu) / (m.lambda + m.mu);
-        Some(crate::particles::params::ParticleParams {
-            n_particles: p.len() as u32,
-            model: match s.model {
-                crate::scene::ParticleModel::Tlsph => 0,
-                crate::scene::ParticleModel::Paper => 1,
-            },
-            substeps,
-            all_active: s.all_active as u32,
-            volume: p.volume,
-            mass: p.mass,
-            spacing: s.spacing as f32,
-            support: p.support,
-            hourglass: s.hourglass as f32,
-            youngs: youngs as f32,
-            activation_radius: s.activation_radius as f32,
-            release_radius: (s.activation_radius * s.hysteresis) as f32,
-            candidate_radius: (s.activation_radius * s.hysteresis + 2.0 * p.support as f64) as f32,
-            dwell: s.dwell as f32,
-            blend: s.blend as f32,
-            interval: (s.activation_interval as f64 * dt) as f32,
-            sub_dt: (dt / substeps as f64) as f32,
-            _pad: [0; 3],
-        })
+        Some(
+            crate::particles::params::ParticleParams {
+                n_particles: p.len() as u32,
+                model: match s.model {
+                    crate::scene::ParticleModel::Tlsph => 0,
+                    crate::scene::ParticleModel::Paper => 1,
+                },
+                substeps,
+                all_active: s.all_active as u32,
+                volume: p.volume,
+                mass: p.mass,
+                spacing: s.spacing as f32,
+                support: p.support,
+                hourglass: s.hourglass as f32,
+                youngs: youngs as f32,
+                activation_radius: s.activation_radius as f32,
+                release_radius: (s.activation_radius * s.hysteresis) as f32,
+                candidate_radius: (s.activation_radius * s.hysteresis + 2.0 * p.support as f64)
+                    as f32,
+                dwell: s.dwell as f32,
+                blend: s.blend as f32,
+                interval: 0.0,
+                sub_dt: 0.0,
+                _pad: [0; 3],
+            }
+            .at_core_dt(params.dt, s.activation_interval),
+        )
     }
 
     /// Number of vertices.

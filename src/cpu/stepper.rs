@@ -804,6 +804,11 @@ impl CpuStepper {
         })
     }
 
+    /// The particles' per-run uniform as the stages see it now (None without particles).
+    pub fn particle_params(&self) -> Option<ParticleParams> {
+        self.particles.as_ref().map(|pa| pa.params)
+    }
+
     /// The particles' modes (bits of [`crate::particles::params::mode`]).
     pub fn particle_modes(&self) -> Option<&[u32]> {
         self.particles.as_ref().map(|pa| pa.state.mode.as_slice())
@@ -849,14 +854,11 @@ impl Stepper for CpuStepper {
 
     fn set_params(&mut self, params: &StepParams) -> Result<()> {
         self.params = *params;
-        if let Some(pa) = &mut self.particles {
+        if let (Some(pa), Some(pd)) = (&mut self.particles, self.model.particles.as_ref()) {
             // Keep the plan's sub-step count; only the sub-step and interval follow dt.
-            let substeps = pa.params.substeps;
-            if let Some(mut pp) = self.model.particle_params(params) {
-                pp.substeps = substeps;
-                pp.sub_dt = params.dt / substeps as f32;
-                pa.params = pp;
-            }
+            pa.params = pa
+                .params
+                .at_core_dt(params.dt, pd.settings.activation_interval);
         }
         Ok(())
     }

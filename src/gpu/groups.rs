@@ -154,6 +154,8 @@ pub struct ParticleTables {
     pub ones_vertices: Vec<f32>,
     /// Initial indirect arguments: no work.
     pub no_dispatch: [u32; 9],
+    /// Core steps between activation updates (for `ParticleParams::at_core_dt`).
+    pub activation_interval: u32,
 }
 
 impl ParticleTables {
@@ -183,6 +185,7 @@ impl ParticleTables {
             ones_tets: vec![1.0; model.n_tets()],
             ones_vertices: vec![1.0; model.n_vertices()],
             no_dispatch: [0, 1, 1, 0, 1, 1, 0, 1, 1],
+            activation_interval: p.settings.activation_interval,
         })
     }
 }

@@ -151,7 +151,6 @@ pub struct GpuStepper {
     /// The follower uniform (None without follower pressures).
     follower_load: Option<crate::cpu::follower_pressure::FollowerLoad>,
     n_particles: u32,
-    params_dt_before: f32,
     buffers: GpuBuffers,
     params: StepParams,
     n_vertices: u32,
@@ -251,7 +250,6 @@ impl GpuStepper {
             stages,
             plan_stage,
             n_particles: tool_params.n_particles,
-            params_dt_before: params.dt,
             model_particles: tables,
             follower_load: model
                 .follower
@@ -481,6 +479,11 @@ impl GpuStepper {
         Ok(bytemuck::cast_slice(&bytes).to_vec())
     }
 
+    /// The particles' per-run uniform as last written to the GPU (None without particles).
+    pub fn particle_params(&self) -> Option<crate::particles::params::ParticleParams> {
+        self.model_particles.as_ref().map(|t| t.params)
+    }
+
     /// Run `steps` steps without any readback (benchmarks); waits for completion.
     pub fn run_no_readback(&mut self, steps: u32) -> Result<()> {
         let mut enc = self.ctx.device.create_command_encoder(&Default::default());
@@ -580,17 +583,13 @@ impl Stepper for GpuStepper {
         );
         if let Some(t) = &mut self.model_particles {
             // Keep the plan's sub-step count; the sub-step and interval follow dt.
-            let substeps = t.params.substeps;
-            t.params.sub_dt = params.dt / substeps as f32;
-            t.params.interval =
-                t.params.interval / self.params_dt_before.max(f32::MIN_POSITIVE) * params.dt;
+            t.params = t.params.at_core_dt(params.dt, t.activation_interval);
             self.ctx.queue.write_buffer(
                 self.buffers.require("particle_params")?,
                 0,
                 bytemuck::bytes_of(&t.params),
             );
         }
-        self.params_dt_before = params.dt;
         Ok(())
     }
 

@@ -119,3 +119,16 @@ pub struct ParticleParams {
     /// Padding.
     pub _pad: [u32; 3],
 }
+
+impl ParticleParams {
+    /// These parameters for core step `dt`, keeping the sub-step count: the activation
+    /// interval N_act·dt and the sub-step dt/substeps, formed in f64 and rounded once, so
+    /// every backend gets the same values for the same dt (`Model::particle_params` builds
+    /// them the same way; the steppers call this when dt changes).
+    pub fn at_core_dt(mut self, dt: f32, activation_interval: u32) -> ParticleParams {
+        let dt = dt as f64;
+        self.interval = (activation_interval as f64 * dt) as f32;
+        self.sub_dt = (dt / self.substeps.max(1) as f64) as f32;
+        self
+    }
+}
