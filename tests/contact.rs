@@ -335,10 +335,10 @@ fn a_particle_top_layer_resolves_the_contact_that_a_coarse_core_alone_cannot() {
         ..coarse
     };
     let out = std::env::temp_dir().join(format!("palpate-hertz-hybrid-{}", std::process::id()));
-    // hm1's cheaper kernel (support 2.0 spacings instead of 2.4) must resolve it too.
+    // hm1's cheaper kernel (support 1.95 spacings instead of 2.4) must resolve it too.
     let first_shell = HertzCase {
         particles: Some(ParticleLayer {
-            kernel_radius: 2.0,
+            kernel_radius: 1.95,
             ..hybrid.particles.unwrap()
         }),
         ..hybrid

@@ -1018,8 +1018,9 @@ fn particle_substeps_agree_with_a_core_step_divided_as_much() {
 fn a_dt_change_gives_both_backends_the_same_particle_parameters_and_trajectory() {
     // The stability guard halves dt mid-run (Stepper::set_params). Both steppers keep the
     // plan's sub-step count and derive the sub-step and activation interval from the new dt
-    // the same way (ParticleParams::at_core_dt), so the uniforms are bit-equal and the runs
-    // stay together. dt × 0.6 is not a power of two: a rescale in f32 would round differently.
+    // the same way (ParticleParams::at_core_dt), so the uniforms are byte-equal (this fails
+    // if either stepper forms them differently) and the runs stay together (measured 1e-7 /
+    // 7e-7, asserted 1e-5; the particle modes must be equal).
     let scene = soft_pressed_block(3);
     let m = Arc::new(Model::from_scene(&scene));
     let dt = 0.5 * m.bounds.dt_bound;
@@ -1039,12 +1040,6 @@ fn a_dt_change_gives_both_backends_the_same_particle_parameters_and_trajectory()
         bytemuck::bytes_of(&pg),
         "particle uniforms differ: CPU {pc:?}, GPU {pg:?}"
     );
-    assert_eq!(
-        pc.substeps, built.substeps,
-        "the plan's sub-step count was kept"
-    );
-    assert_eq!(pc.sub_dt, (smaller.dt as f64 / pc.substeps as f64) as f32);
-    assert_eq!(pc.interval, (3.0 * smaller.dt as f64) as f32);
     // Press for 200 steps at the new dt: the runs agree.
     let tool = scene.tool.clone().unwrap();
     let (batch, mut t) = (20u32, 0.0);

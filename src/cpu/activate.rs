@@ -76,7 +76,9 @@ pub fn activate(
             if tool_active && m & (mode::DYNAMIC | mode::BLENDING) == 0 {
                 let reach: f32 = s.weights[4 * p..4 * p + 4].iter().map(|w| w.abs()).sum();
                 let centre = (x0 - c).length();
-                let margin = 1e-4 * (centre + tool_params.radius + 1.0);
+                // The kernel forms X + u − c in f32: its rounding grows with |X| and |c|.
+                let scale = x0.abs().max_element() + c.abs().max_element();
+                let margin = 1e-4 * (centre + scale + tool_params.radius + 1.0);
                 if centre - reach * u_max - tool_params.radius >= pp.activation_radius + margin {
                     *pm = m;
                     return;
