@@ -2,7 +2,8 @@
 // from the SPH strain energy E = sum_{p in S} V Psi(F_p) (total-Lagrangian SPH):
 //   tlsph: f_c = -dE/dx_c = V^2 sum_b (A_c + A_b) grad W(X_b - X_c), A = P G^T for particles
 //          in S and 0 outside (an exact gradient: linear and angular momentum are conserved);
-//          plus Ganzenmueller's (2015) hourglass penalty, a central pair force
+//          plus Ganzenmueller's (2015) hourglass penalty on pairs with a dynamic particle
+//          (followers move with their tets and cannot form a zig-zag mode), a central pair force
 //          f_c += alpha E V^2 W(X_cb)/|X_cb|^2 (delta_cb + delta_bc)/2 x_cb/|x_cb|,
 //          delta_ab = (F_a X_ab - x_ab).x_ab/|x_ab| (zero for affine motion);
 //   paper: eq. (13) as printed, one-sided: f_c = V^2 sum_b A_b grad W(X_b - X_c).
@@ -115,7 +116,8 @@ fn sph_forces(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgr
     var f = vec3<f32>(0.0);
     for (var n = neighbour_offsets[c]; n < neighbour_offsets[c + 1u]; n++) {
         let b = neighbours[n];
-        let in_s_b = (particle_mode[b] & MODE_IN_S) != 0u;
+        let mode_b = particle_mode[b];
+        let in_s_b = (mode_b & MODE_IN_S) != 0u;
         if !in_s_c && !in_s_b {
             continue;
         }
@@ -129,7 +131,7 @@ fn sph_forces(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgr
             f += (a_b * w) * v2;
         } else {
             f += ((a_c + a_b) * w) * v2;
-            if pp.hourglass > 0.0 {
+            if pp.hourglass > 0.0 && ((mode_c | mode_b) & MODE_DYNAMIC) != 0u {
                 let x0cb = x0c - x0b;
                 let xcb = x0cb + uc - disp(b);
                 let r = length(xcb);

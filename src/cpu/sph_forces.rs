@@ -46,7 +46,7 @@ pub struct ForceInputs<'a> {
 
 /// What particle c's side of the pair (c, b) computes: the stress term V²(A_c + A_b)∇W
 /// (tlsph; V² A_b ∇W for the paper model) and, for tlsph with hourglass control, the
-/// hourglass term (None where it does not apply). `None` overall when neither is in S.
+/// hourglass term on pairs with a dynamic particle (None where it does not apply). `None` overall when neither is in S.
 #[inline]
 fn pair_terms(inp: &ForceInputs, k: usize, side: &Side) -> Option<(Vec3, Option<Vec3>)> {
     let pp = inp.pp;
@@ -71,7 +71,10 @@ fn pair_terms(inp: &ForceInputs, k: usize, side: &Side) -> Option<(Vec3, Option<
     }
     let stress = ((side.a + a_b) * w) * v2;
     let mut hourglass = None;
-    if pp.hourglass > 0.0 {
+    // Only pairs with a dynamic particle: followers move with their tets, so a pair of them
+    // cannot form a zig-zag mode (their relative motion is the tets').
+    let dynamic_pair = (inp.mode[b] | side.mode) & mode::DYNAMIC != 0;
+    if pp.hourglass > 0.0 && dynamic_pair {
         let x0cb = side.x0 - x0b;
         let xcb = x0cb + side.u - load3(inp.displacements, b);
         let r = xcb.length();
@@ -103,6 +106,7 @@ fn pair_terms(inp: &ForceInputs, k: usize, side: &Side) -> Option<(Vec3, Option<
 
 /// Particle c's own quantities for [`pair_terms`].
 struct Side {
+    mode: u32,
     in_s: bool,
     x0: Vec3,
     u: Vec3,
@@ -122,6 +126,7 @@ impl Side {
             (Mat3::ZERO, Mat3::IDENTITY)
         };
         Side {
+            mode: inp.mode[c],
             in_s,
             x0: load3(inp.rest, c),
             u: load3(inp.displacements, c),
