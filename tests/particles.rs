@@ -1074,3 +1074,128 @@ fn a_dt_change_gives_both_backends_the_same_particle_parameters_and_trajectory()
         "GPU vs CPU after a dt change: {eu:.2e} / {ep:.2e}"
     );
 }
+
+#[test]
+fn the_cpu_activation_skips_only_particles_the_kernel_leaves_unchanged() {
+    // The CPU twin of `activate` skips particles that cannot reach the tool
+    // (|X − c| − Σ|w|·max|u| − R ≥ activation radius + margin); the kernel evaluates every
+    // particle. On hm1 (a curved zone; its particles all lie inside their hosts), pressed and
+    // deformed, the tool is moved through 24 positions that sweep the activation boundary
+    // across the particles; at each the kernel and the twin must give bit-equal modes,
+    // timers, offsets and particle states.
+    let scene = Scene::load("hm1").unwrap();
+    let m = Arc::new(Model::from_scene(&scene));
+    let pd = m.particles.as_ref().unwrap();
+    let dt = scene.solver.dt.unwrap();
+    let params = m.step_params(dt, 0.5);
+    let pp = m.particle_params(&params).unwrap();
+    let mut g = GpuStepper::new(gpu(), &m, params).unwrap();
+    let tool = scene.tool.clone().unwrap();
+    let (batch, mut t) = (50u32, 0.0);
+    while t < 3.0 {
+        let (a, b) = (tool.position_at(t), tool.position_at(t + batch as f64 * dt));
+        g.submit(batch, &BatchInput { tool: Some((a, b)) }).unwrap();
+        g.wait().unwrap();
+        t += batch as f64 * dt;
+    }
+    let st = ParticleStatic {
+        rest: &pd.rest,
+        host: &pd.host,
+        weights: &pd.weights,
+        tets: &m.tets,
+    };
+    let n = pd.len();
+    let tp = {
+        let mut t = m.tool.as_ref().unwrap().params();
+        t.n_particles = n as u32;
+        t
+    };
+    let pressed = tool.position_at(3.0);
+    let (mut near, mut dynamic_max) = (0usize, 0usize);
+    for k in 0..24 {
+        // Out along the outward normal (x) from 0.5 inside to 2.5 outside, and across z.
+        let c = pressed
+            + DVec3::new(
+                -0.5 + 3.0 * k as f64 / 23.0,
+                0.0,
+                if k % 2 == 0 { 0.7 } else { -0.7 },
+            );
+        let state = palpate::contact::ToolState {
+            position: c.as_vec3().to_array(),
+            step: 0,
+        };
+        g.write_f32("tool_state", bytemuck::cast_slice(&[state]))
+            .unwrap();
+        let u = g.read_f32("displacements").unwrap();
+        let v = g.read_f32("velocities").unwrap();
+        let mut pu = g.read_f32("particle_displacements").unwrap();
+        let mut pv = g.read_f32("particle_velocities").unwrap();
+        let mut pmode = bits_u32(&g, "particle_mode");
+        let mut ptimer = g.read_f32("particle_timer").unwrap();
+        let mut poffset = g.read_f32("particle_offset").unwrap();
+        near += (0..n)
+            .filter(|&p| {
+                let x = st.embed(&u, p) + glam::Vec3::from_slice(&pd.rest[3 * p..3 * p + 3]);
+                let d = (x - c.as_vec3()).length() - tp.radius;
+                (d - pp.activation_radius).abs() < 0.1 * pp.activation_radius
+            })
+            .count();
+        g.run_stage(Stage::Activate).unwrap();
+        cpu::activate::activate(
+            &pp,
+            &tp,
+            &state,
+            true,
+            &st,
+            &u,
+            &v,
+            &mut pu,
+            &mut pv,
+            &mut pmode,
+            &mut ptimer,
+            &mut poffset,
+        );
+        let sets = mode::IN_S | mode::IN_F;
+        let gmode: Vec<u32> = bits_u32(&g, "particle_mode")[..n]
+            .iter()
+            .map(|m| m & !sets)
+            .collect();
+        let differ = |kernel: &[u32], twin: &[u32]| {
+            let bad: Vec<usize> = (0..twin.len()).filter(|&i| kernel[i] != twin[i]).collect();
+            bad.first().map(|&i| {
+                format!(
+                    "{} entries differ, first [{i}]: kernel {:#x}, twin {:#x}",
+                    bad.len(),
+                    kernel[i],
+                    twin[i]
+                )
+            })
+        };
+        if let Some(d) = differ(&gmode, &pmode[..n]) {
+            panic!("tool position {k}: particle_mode: {d}");
+        }
+        for (name, c) in [
+            ("particle_timer", &ptimer),
+            ("particle_offset", &poffset),
+            ("particle_displacements", &pu),
+            ("particle_velocities", &pv),
+        ] {
+            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
+            if let Some(d) = differ(&bits(&g.read_f32(name).unwrap()), &bits(c)) {
+                panic!("tool position {k}: {name}: {d}");
+            }
+        }
+        dynamic_max = dynamic_max.max(pmode.iter().filter(|&&m| m & mode::DYNAMIC != 0).count());
+    }
+    eprintln!(
+        "activation sweep: {n} particles, {near} particle-positions within 10 % of the activation radius, up to {dynamic_max} dynamic: kernel and twin equal"
+    );
+    assert!(
+        near > 100,
+        "the sweep never brought particles near the boundary"
+    );
+    assert!(
+        dynamic_max > 50,
+        "the sweep activated {dynamic_max} particles"
+    );
+}
