@@ -449,6 +449,13 @@ impl Model {
         )
     }
 
+    /// The tool's per-run uniform with the particle count (the default without a tool).
+    pub fn tool_params(&self) -> crate::contact::ToolParams {
+        let mut t = self.tool.as_ref().map(|t| t.params()).unwrap_or_default();
+        t.n_particles = self.particles.as_ref().map_or(0, |p| p.len() as u32);
+        t
+    }
+
     /// Number of vertices.
     pub fn n_vertices(&self) -> usize {
         self.mass.len()

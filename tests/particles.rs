@@ -193,6 +193,55 @@ fn rel(a: &[f32], b: &[f32]) -> f64 {
     common::rel_err(a, b)
 }
 
+/// The activate stage's inputs and outputs, as the GPU stepper's buffers hold them.
+struct ActivateIo {
+    u: Vec<f32>,
+    v: Vec<f32>,
+    pu: Vec<f32>,
+    pv: Vec<f32>,
+    pmode: Vec<u32>,
+    ptimer: Vec<f32>,
+    poffset: Vec<f32>,
+}
+
+impl ActivateIo {
+    fn read(g: &GpuStepper) -> ActivateIo {
+        ActivateIo {
+            u: g.read_f32("displacements").unwrap(),
+            v: g.read_f32("velocities").unwrap(),
+            pu: g.read_f32("particle_displacements").unwrap(),
+            pv: g.read_f32("particle_velocities").unwrap(),
+            pmode: bits_u32(g, "particle_mode"),
+            ptimer: g.read_f32("particle_timer").unwrap(),
+            poffset: g.read_f32("particle_offset").unwrap(),
+        }
+    }
+
+    /// The CPU mode machine (`cpu::activate::activate`) on these arrays.
+    fn run_twin(
+        &mut self,
+        pp: &palpate::particles::params::ParticleParams,
+        tp: &palpate::contact::ToolParams,
+        state: &palpate::contact::ToolState,
+        st: &ParticleStatic,
+    ) {
+        cpu::activate::activate(
+            pp,
+            tp,
+            state,
+            true,
+            st,
+            &self.u,
+            &self.v,
+            &mut self.pu,
+            &mut self.pv,
+            &mut self.pmode,
+            &mut self.ptimer,
+            &mut self.poffset,
+        );
+    }
+}
+
 #[test]
 fn particle_kernels_match_their_cpu_twins() {
     let scene = pressed_block();
@@ -211,47 +260,28 @@ fn particle_kernels_match_their_cpu_twins() {
     let grid = GridParams::over(&pd.rest, pd.support);
     let lists = cpu::neighbours::build(&grid, &pd.rest);
     let (noff, nbrs) = (&lists.neighbour_offsets, &lists.neighbours);
-    let st = ParticleStatic {
-        rest: &pd.rest,
-        host: &pd.host,
-        weights: &pd.weights,
-        tets: &m.tets,
-    };
+    let st = ParticleStatic::of(&m).unwrap();
     let n = pd.len();
-    let tp = {
-        let mut t = m.tool.as_ref().unwrap().params();
-        t.n_particles = n as u32;
-        t
-    };
+    let tp = m.tool_params();
     let tool_input = palpate::contact::batch_input(a, b, 60);
     let tool_state: palpate::contact::ToolState = *bytemuck::from_bytes(bytemuck::cast_slice(
         &g.read_f32("tool_state").unwrap()[..4],
     ));
 
     // activate (mode machine, sets, compaction, tet weights, relump)
-    let u = g.read_f32("displacements").unwrap();
-    let mut v = g.read_f32("velocities").unwrap();
-    let mut pu = g.read_f32("particle_displacements").unwrap();
-    let mut pv = g.read_f32("particle_velocities").unwrap();
-    let mut pmode = bits_u32(&g, "particle_mode");
-    let mut ptimer = g.read_f32("particle_timer").unwrap();
-    let mut poffset = g.read_f32("particle_offset").unwrap();
+    let mut io = ActivateIo::read(&g);
     let node_fixed = bits_u32(&g, "node_fixed");
     g.run_stage(Stage::Activate).unwrap();
-    cpu::activate::activate(
-        &pp,
-        &tp,
-        &tool_state,
-        true,
-        &st,
-        &u,
-        &v,
-        &mut pu,
-        &mut pv,
-        &mut pmode,
-        &mut ptimer,
-        &mut poffset,
-    );
+    io.run_twin(&pp, &tp, &tool_state, &st);
+    let ActivateIo {
+        u,
+        mut v,
+        mut pu,
+        pv,
+        mut pmode,
+        ptimer,
+        poffset,
+    } = io;
     cpu::activate::mark_set(n, mode::DYNAMIC, mode::IN_S, noff, nbrs, &mut pmode);
     cpu::activate::mark_set(n, mode::IN_S, mode::IN_F, noff, nbrs, &mut pmode);
     let (mut dl, mut sl, mut fl) = (Vec::new(), Vec::new(), Vec::new());
@@ -698,11 +728,7 @@ fn sph_forces_accumulate_and_particle_reduce_match_their_cpu_twins() {
     let lists = cpu::neighbours::build(&grid, &pd.rest);
     let (noff, nbrs) = (&lists.neighbour_offsets, &lists.neighbours);
     let pairs = cpu::sph::PairTable::new(&pp, &pd.rest, noff, nbrs);
-    let tp = {
-        let mut t = m.tool.as_ref().unwrap().params();
-        t.n_particles = n as u32;
-        t
-    };
+    let tp = m.tool_params();
     let tool_input = palpate::contact::batch_input(a, b, 60);
     let tool_state: palpate::contact::ToolState = *bytemuck::from_bytes(bytemuck::cast_slice(
         &g.read_f32("tool_state").unwrap()[..4],
@@ -1098,18 +1124,9 @@ fn the_cpu_activation_skips_only_particles_the_kernel_leaves_unchanged() {
         g.wait().unwrap();
         t += batch as f64 * dt;
     }
-    let st = ParticleStatic {
-        rest: &pd.rest,
-        host: &pd.host,
-        weights: &pd.weights,
-        tets: &m.tets,
-    };
+    let st = ParticleStatic::of(&m).unwrap();
     let n = pd.len();
-    let tp = {
-        let mut t = m.tool.as_ref().unwrap().params();
-        t.n_particles = n as u32;
-        t
-    };
+    let tp = m.tool_params();
     let pressed = tool.position_at(3.0);
     let (mut near, mut dynamic_max) = (0usize, 0usize);
     for k in 0..24 {
@@ -1126,35 +1143,25 @@ fn the_cpu_activation_skips_only_particles_the_kernel_leaves_unchanged() {
         };
         g.write_f32("tool_state", bytemuck::cast_slice(&[state]))
             .unwrap();
-        let u = g.read_f32("displacements").unwrap();
-        let v = g.read_f32("velocities").unwrap();
-        let mut pu = g.read_f32("particle_displacements").unwrap();
-        let mut pv = g.read_f32("particle_velocities").unwrap();
-        let mut pmode = bits_u32(&g, "particle_mode");
-        let mut ptimer = g.read_f32("particle_timer").unwrap();
-        let mut poffset = g.read_f32("particle_offset").unwrap();
+        let mut io = ActivateIo::read(&g);
+        let u = &io.u;
         near += (0..n)
             .filter(|&p| {
-                let x = st.embed(&u, p) + glam::Vec3::from_slice(&pd.rest[3 * p..3 * p + 3]);
+                let x = st.embed(u, p) + glam::Vec3::from_slice(&pd.rest[3 * p..3 * p + 3]);
                 let d = (x - c.as_vec3()).length() - tp.radius;
                 (d - pp.activation_radius).abs() < 0.1 * pp.activation_radius
             })
             .count();
         g.run_stage(Stage::Activate).unwrap();
-        cpu::activate::activate(
-            &pp,
-            &tp,
-            &state,
-            true,
-            &st,
-            &u,
-            &v,
-            &mut pu,
-            &mut pv,
-            &mut pmode,
-            &mut ptimer,
-            &mut poffset,
-        );
+        io.run_twin(&pp, &tp, &state, &st);
+        let ActivateIo {
+            pu,
+            pv,
+            pmode,
+            ptimer,
+            poffset,
+            ..
+        } = io;
         let sets = mode::IN_S | mode::IN_F;
         let gmode: Vec<u32> = bits_u32(&g, "particle_mode")[..n]
             .iter()

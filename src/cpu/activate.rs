@@ -21,7 +21,18 @@ pub struct ParticleStatic<'a> {
     pub tets: &'a [[u32; 4]],
 }
 
-impl ParticleStatic<'_> {
+impl<'a> ParticleStatic<'a> {
+    /// The particle data of `model` (None without particles).
+    pub fn of(model: &'a crate::model::Model) -> Option<ParticleStatic<'a>> {
+        let p = model.particles.as_ref()?;
+        Some(ParticleStatic {
+            rest: &p.rest,
+            host: &p.host,
+            weights: &p.weights,
+            tets: &model.tets,
+        })
+    }
+
     /// Σ wᵢ aᵢ over particle p's host corners (a: packed xyz per vertex).
     pub fn embed(&self, a: &[f32], p: usize) -> Vec3 {
         let t = self.tets[self.host[p] as usize];

@@ -282,8 +282,7 @@ impl CpuStepper {
             velocities: vec![0.0; model.rest.len()],
         };
         let plan = StepPlan::for_model_at(&model, model.particle_substeps(params.dt as f64));
-        let mut tool_params = model.tool.as_ref().map(|t| t.params()).unwrap_or_default();
-        tool_params.n_particles = model.particles.as_ref().map_or(0, |p| p.len() as u32);
+        let tool_params = model.tool_params();
         let tool = ToolArrays {
             params: tool_params,
             input: ToolInput::default(),
@@ -594,11 +593,8 @@ impl CpuStepper {
             return;
         };
         let pp = pa.params;
-        let st = ParticleStatic {
-            rest: &pd.rest,
-            host: &pd.host,
-            weights: &pd.weights,
-            tets: &m.tets,
+        let Some(st) = ParticleStatic::of(m) else {
+            return;
         };
         let n = pd.len();
         let (noff, nbrs) = (&pa.lists.neighbour_offsets, &pa.lists.neighbours);

@@ -179,8 +179,7 @@ impl GpuStepper {
             )));
         }
         let max_dim = ctx.limits.max_compute_workgroups_per_dimension;
-        let mut tool_params = model.tool.as_ref().map(|t| t.params()).unwrap_or_default();
-        tool_params.n_particles = model.particles.as_ref().map_or(0, |p| p.len() as u32);
+        let tool_params = model.tool_params();
         let tables = crate::gpu::groups::ParticleTables::new(model, &params);
         let cardiac = crate::gpu::groups::CardiacTables::new(model);
         let groups = crate::gpu::groups::for_model(

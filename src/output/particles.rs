@@ -14,11 +14,8 @@ pub fn particle_displacements(model: &Model, nodes: &State, snap: &ParticleSnaps
     let Some(p) = &model.particles else {
         return Vec::new();
     };
-    let st = ParticleStatic {
-        rest: &p.rest,
-        host: &p.host,
-        weights: &p.weights,
-        tets: &model.tets,
+    let Some(st) = ParticleStatic::of(model) else {
+        return Vec::new();
     };
     (0..p.len())
         .flat_map(|k| {
