@@ -5,7 +5,9 @@
 //          plus Ganzenmueller's (2015) hourglass penalty on pairs with a dynamic particle
 //          (followers move with their tets and cannot form a zig-zag mode), a central pair force
 //          f_c += alpha E V^2 W(X_cb)/|X_cb|^2 (delta_cb + delta_bc)/2 x_cb/|x_cb|,
-//          delta_ab = (F_a X_ab - x_ab).x_ab/|x_ab| (zero for affine motion);
+//          delta_ab = (F_a X_ab - x_ab).x_ab/|x_ab| (zero for affine motion), evaluated
+//          without a square root as ((F_c + F_b) X_cb).x_cb/|x_cb|^2 - 2 (a side outside S
+//          drops its F and counts 0);
 //   paper: eq. (13) as printed, one-sided: f_c = V^2 sum_b A_b grad W(X_b - X_c).
 // Dynamic particles also get m g and the tool's contact on surface particles (area Δx^2),
 // taken at x_p + F_p o_p (o_p the rest offset to the true surface, which the lattice's outer
@@ -134,17 +136,21 @@ fn sph_forces(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgr
             if pp.hourglass > 0.0 && ((mode_c | mode_b) & MODE_DYNAMIC) != 0u {
                 let x0cb = x0c - x0b;
                 let xcb = x0cb + uc - disp(b);
-                let r = length(xcb);
+                let r2 = dot(xcb, xcb);
                 let r0 = length(x0cb);
-                if r > 0.0 && r0 > 0.0 {
-                    var delta = 0.0;
+                if r2 > 0.0 && r0 > 0.0 {
+                    // delta/r = (sum over the sides in S of (F X_cb).x_cb)/r^2 - (their count).
+                    var g = vec3<f32>(0.0);
+                    var sides = 0.0;
                     if in_s_c {
-                        delta += dot(f_c * x0cb - xcb, xcb) / r;
+                        g += f_c * x0cb;
+                        sides += 1.0;
                     }
                     if in_s_b {
-                        delta += dot((identity3() + mat(b, 1u)) * x0cb - xcb, xcb) / r;
+                        g += (identity3() + mat(b, 1u)) * x0cb;
+                        sides += 1.0;
                     }
-                    f += xcb * (hg * wendland(r0, pp.support) / (r0 * r0) * delta / r);
+                    f += xcb * (hg * wendland(r0, pp.support) / (r0 * r0) * (dot(g, xcb) / r2 - sides));
                 }
             }
         }

@@ -4,13 +4,12 @@
 //! sum over sub-steps that embedded particles pass to their hosts.
 
 use super::contact::contact_force;
-use super::fem_forces::load_dm_inv;
 use super::load3;
 use super::sph::{kernel_gradient, wendland};
 use crate::contact::{ToolInput, ToolParams, ToolState};
 use crate::params::StepParams;
 use crate::particles::params::{mode, ParticleParams};
-use glam::{Mat3, Vec3};
+use glam::{Mat3A, Vec3, Vec3A};
 
 /// Inputs of the force kernel.
 pub struct ForceInputs<'a> {
@@ -46,50 +45,57 @@ pub struct ForceInputs<'a> {
 
 /// What particle c's side of the pair (c, b) computes: the stress term V²(A_c + A_b)∇W
 /// (tlsph; V² A_b ∇W for the paper model) and, for tlsph with hourglass control, the
-/// hourglass term on pairs with a dynamic particle (None where it does not apply). `None` overall when neither is in S.
+/// hourglass term on pairs with a dynamic particle (zero where it does not apply); both
+/// added to `f`. Nothing when neither is in S. SIMD-width glam types (`Mat3A`, `Vec3A`):
+/// the same operations as the kernel, in registers.
 #[inline]
-fn pair_terms(inp: &ForceInputs, k: usize, side: &Side) -> Option<(Vec3, Option<Vec3>)> {
+fn add_pair_terms(inp: &ForceInputs, k: usize, side: &Side, f: &mut Vec3A) {
     let pp = inp.pp;
     let b = inp.neighbours[k] as usize;
-    let in_s_b = inp.mode[b] & mode::IN_S != 0;
+    let mode_b = inp.mode[b];
+    let in_s_b = mode_b & mode::IN_S != 0;
     if !side.in_s && !in_s_b {
-        return None;
+        return;
     }
-    let x0b = load3(inp.rest, b);
+    let x0b = load3a(inp.rest, b);
     let w = match inp.pairs {
-        Some(t) => t.gradient[k],
-        None => kernel_gradient(pp.model, x0b - side.x0, pp.spacing, pp.support),
-    };
-    let a_b = if in_s_b {
-        load_dm_inv(inp.stress, b)
-    } else {
-        Mat3::ZERO
+        Some(t) => Vec3A::from(t.gradient[k]),
+        None => kernel_gradient(pp.model, (x0b - side.x0).into(), pp.spacing, pp.support).into(),
     };
     let v2 = pp.volume * pp.volume;
     if pp.model == 1 {
-        return Some(((a_b * w) * v2, None));
+        if in_s_b {
+            *f += (load_mat3a(inp.stress, b) * w) * v2;
+        }
+        return;
     }
-    let stress = ((side.a + a_b) * w) * v2;
-    let mut hourglass = None;
+    let a_sum = if in_s_b {
+        side.a + load_mat3a(inp.stress, b)
+    } else {
+        side.a
+    };
+    *f += (a_sum * w) * v2;
     // Only pairs with a dynamic particle: followers move with their tets, so a pair of them
     // cannot form a zig-zag mode (their relative motion is the tets').
-    let dynamic_pair = (inp.mode[b] | side.mode) & mode::DYNAMIC != 0;
+    let dynamic_pair = (mode_b | side.mode) & mode::DYNAMIC != 0;
     if pp.hourglass > 0.0 && dynamic_pair {
         let x0cb = side.x0 - x0b;
-        let xcb = x0cb + side.u - load3(inp.displacements, b);
-        let r = xcb.length();
+        let xcb = x0cb + side.u - load3a(inp.displacements, b);
+        let r2 = xcb.length_squared();
         let r0 = match inp.pairs {
             Some(t) => t.rest_distance[k],
             None => x0cb.length(),
         };
-        if r > 0.0 && r0 > 0.0 {
-            let mut delta = 0.0;
+        if r2 > 0.0 && r0 > 0.0 {
+            // δ/r = (Σ over the sides in S of (F X_cb)·x_cb)/r² − (their count).
+            let (mut g, mut sides) = (Vec3A::ZERO, 0.0);
             if side.in_s {
-                delta += (side.f * x0cb - xcb).dot(xcb) / r;
+                g += side.f * x0cb;
+                sides += 1.0;
             }
             if in_s_b {
-                delta +=
-                    ((Mat3::IDENTITY + load_dm_inv(inp.gradient, b)) * x0cb - xcb).dot(xcb) / r;
+                g += (Mat3A::IDENTITY + load_mat3a(inp.gradient, b)) * x0cb;
+                sides += 1.0;
             }
             let weight = match inp.pairs {
                 Some(t) => t.hourglass[k],
@@ -98,20 +104,34 @@ fn pair_terms(inp: &ForceInputs, k: usize, side: &Side) -> Option<(Vec3, Option<
                     hg * wendland(r0, pp.support) / (r0 * r0)
                 }
             };
-            hourglass = Some(xcb * (weight * delta / r));
+            *f += xcb * (weight * (g.dot(xcb) / r2 - sides));
         }
     }
-    Some((stress, hourglass))
 }
 
-/// Particle c's own quantities for [`pair_terms`].
+#[inline]
+fn load3a(a: &[f32], i: usize) -> Vec3A {
+    Vec3A::new(a[3 * i], a[3 * i + 1], a[3 * i + 2])
+}
+
+#[inline]
+fn load_mat3a(a: &[f32], i: usize) -> Mat3A {
+    let m = &a[9 * i..9 * i + 9];
+    Mat3A::from_cols(
+        Vec3A::new(m[0], m[1], m[2]),
+        Vec3A::new(m[3], m[4], m[5]),
+        Vec3A::new(m[6], m[7], m[8]),
+    )
+}
+
+/// Particle c's own quantities for [`add_pair_terms`].
 struct Side {
     mode: u32,
     in_s: bool,
-    x0: Vec3,
-    u: Vec3,
-    a: Mat3,
-    f: Mat3,
+    x0: Vec3A,
+    u: Vec3A,
+    a: Mat3A,
+    f: Mat3A,
 }
 
 impl Side {
@@ -119,17 +139,17 @@ impl Side {
         let in_s = inp.mode[c] & mode::IN_S != 0;
         let (a, f) = if in_s {
             (
-                load_dm_inv(inp.stress, c),
-                Mat3::IDENTITY + load_dm_inv(inp.gradient, c),
+                load_mat3a(inp.stress, c),
+                Mat3A::IDENTITY + load_mat3a(inp.gradient, c),
             )
         } else {
-            (Mat3::ZERO, Mat3::IDENTITY)
+            (Mat3A::ZERO, Mat3A::IDENTITY)
         };
         Side {
             mode: inp.mode[c],
             in_s,
-            x0: load3(inp.rest, c),
-            u: load3(inp.displacements, c),
+            x0: load3a(inp.rest, c),
+            u: load3a(inp.displacements, c),
             a,
             f,
         }
@@ -149,7 +169,7 @@ fn add_external(inp: &ForceInputs, c: usize, side: &Side, f: &mut Vec3) -> Vec3 
                 let o = load3(inp.contact_offset, c);
                 contact = contact_force(
                     tp,
-                    side.x0 + side.u + side.f * o,
+                    Vec3::from(side.x0 + side.u + side.f * Vec3A::from(o)),
                     load3(inp.velocities, c),
                     Vec3::from_array(ts.position),
                     vc,
@@ -166,15 +186,11 @@ fn add_external(inp: &ForceInputs, c: usize, side: &Side, f: &mut Vec3) -> Vec3 
 /// The force on particle c and its tool contact (twin of one `sph_forces` thread).
 pub fn force_on(inp: &ForceInputs, c: usize) -> (Vec3, Vec3) {
     let side = Side::of(inp, c);
-    let mut f = Vec3::ZERO;
+    let mut fa = Vec3A::ZERO;
     for k in inp.neighbour_offsets[c]..inp.neighbour_offsets[c + 1] {
-        if let Some((stress, hourglass)) = pair_terms(inp, k as usize, &side) {
-            f += stress;
-            if let Some(h) = hourglass {
-                f += h;
-            }
-        }
+        add_pair_terms(inp, k as usize, &side, &mut fa);
     }
+    let mut f = Vec3::from(fa);
     let contact = add_external(inp, c, &side, &mut f);
     (f, contact)
 }
