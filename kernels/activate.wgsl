@@ -249,7 +249,10 @@ fn activate_relump(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_w
         v = vec3<f32>(0.0);
     } else if m > 0.0 {
         w_inv = 1.0 / m;
-        v = (v * (m - m_released) + p_released) / m;
+        // Without released particles v stays exactly (v (m - 0)/m would round it).
+        if m_released > 0.0 {
+            v = (v * (m - m_released) + p_released) / m;
+        }
     } else {
         // No mass left: the vertex is carried (kinematically) by its dynamic particles.
         w_inv = -1.0;

@@ -455,6 +455,98 @@ fn hm1_activates_a_few_hundred_particles_under_the_tool_and_releases_them_withou
     );
 }
 
+/// The CPU stepper's activation visits only the region it can change (`cpu/active_region.rs`):
+/// live particles and those of tets near the tool, tets that host stress-set particles and
+/// vertices that host force-set or released particles, now or at the last activation. On hm1
+/// through the tool's press, hold and withdrawal (activation, dwell, blending back, all
+/// released), with a checkpoint restored on the way, it must leave every vertex and particle,
+/// tet weight, coupling flag and contact weight bit-equal to the activation over everything
+/// after every batch.
+#[test]
+fn the_cpu_activation_over_its_region_equals_the_activation_over_everything() {
+    let scene = Scene::load("hm1").unwrap();
+    let m = Arc::new(Model::from_scene(&scene));
+    let dt = scene.solver.dt.unwrap();
+    let params = m.step_params(dt, scene.solver.damping);
+    let mut region = CpuStepper::with_threads(m.clone(), params, 2).unwrap();
+    let mut everything = CpuStepper::with_threads(m.clone(), params, 2).unwrap();
+    everything.set_full_activation(true);
+    let tool = scene.tool.clone().unwrap();
+    let interval = scene.particles.as_ref().unwrap().activation_interval;
+    let (mut t, mut batch) = (0.0, 0u32);
+    let (mut dynamic_max, mut released, mut restored) = (0u32, 0usize, false);
+    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
+    // Press (t 1–3), hold, withdraw (6–7) and let the particles settle and blend back.
+    while t < 7.8 {
+        let input = palpate::stepper::BatchInput {
+            tool: Some((
+                tool.position_at(t),
+                tool.position_at(t + interval as f64 * dt),
+            )),
+        };
+        for s in [&mut region, &mut everything] {
+            s.submit(interval, &input).unwrap();
+            s.wait().unwrap();
+        }
+        batch += 1;
+        t += interval as f64 * dt;
+        let (a, b) = (
+            region.particle_state().unwrap(),
+            everything.particle_state().unwrap(),
+        );
+        let (sa, sb) = (
+            region.read_state().unwrap(),
+            everything.read_state().unwrap(),
+        );
+        let (ma, mb) = (region.vertex_masses(), everything.vertex_masses());
+        let same = a.modes == b.modes
+            && bits(&a.displacements) == bits(&b.displacements)
+            && bits(&a.velocities) == bits(&b.velocities)
+            && bits(&a.timers) == bits(&b.timers)
+            && bits(&a.offsets) == bits(&b.offsets)
+            && bits(&sa.displacements) == bits(&sb.displacements)
+            && bits(&sa.velocities) == bits(&sb.velocities)
+            && bits(ma.0) == bits(mb.0)
+            && bits(ma.1) == bits(mb.1);
+        let (oa, ob) = (
+            region.activation_outputs().unwrap(),
+            everything.activation_outputs().unwrap(),
+        );
+        let same = same && bits(oa.0) == bits(ob.0) && oa.1 == ob.1 && bits(oa.2) == bits(ob.2);
+        assert!(
+            same,
+            "batch {batch} (t = {t:.3}): the region's activation differs from the full one"
+        );
+        dynamic_max =
+            dynamic_max.max(a.modes.iter().filter(|&&x| x & mode::DYNAMIC != 0).count() as u32);
+        released += a.modes.iter().filter(|&&x| x & mode::RELEASED != 0).count();
+        if batch == 57 {
+            for s in [&mut region, &mut everything] {
+                s.checkpoint().unwrap();
+            }
+        }
+        // Pressed (t ≈ 4.2), both go back to their checkpoint three batches earlier and replay.
+        if batch == 60 && !restored {
+            restored = true;
+            for s in [&mut region, &mut everything] {
+                s.restore().unwrap();
+            }
+            batch = 57;
+            t = 57.0 * interval as f64 * dt;
+        }
+    }
+    let left = region
+        .particle_modes()
+        .unwrap()
+        .iter()
+        .filter(|&&x| x & (mode::DYNAMIC | mode::BLENDING) != 0)
+        .count();
+    eprintln!("region vs full activation: equal over {batch} batches; up to {dynamic_max} dynamic, {released} releases, {left} left active");
+    assert!(dynamic_max > 100, "{dynamic_max} dynamic");
+    assert!(released > 100, "{released} releases");
+    assert_eq!(left, 0);
+}
+
 /// The zig-zag (hourglass) measure of a particle layer: for each particle a, the least-squares
 /// affine map F_a of its first-shell neighbours (|X_ab| ≤ 1.5 spacing), and the non-affine
 /// remainder √(Σ_b |x_ab − F_a X_ab|² / Σ_b |X_ab|²). A smooth motion leaves only a

@@ -42,13 +42,152 @@ impl<'a> ParticleStatic<'a> {
     }
 }
 
-/// Per particle: the mode machine (twin of entry `activate`), in parallel over particles.
-///
-/// A particle that is neither pinned, dynamic nor blending and lies so far from the tool
-/// that it cannot qualify keeps its state (only the per-update bits are cleared), so it is
-/// skipped without embedding it: its displacement is Σ wᵢuᵢ, at most Σ|wᵢ|·max|uᵢ| long,
-/// so |X_p − c| − Σ|wᵢ|·max|uᵢ| − R ≥ activation radius (with a margin for rounding) rules it
-/// out. Results are those of the kernel, which evaluates every particle.
+/// What the mode machine reads besides the particle's own state.
+pub struct ModeInputs<'a> {
+    /// Particle constants.
+    pub pp: &'a ParticleParams,
+    /// Tool constants.
+    pub tool_params: &'a ToolParams,
+    /// Tool centre.
+    pub centre: Vec3,
+    /// The scene has a tool.
+    pub tool: bool,
+    /// The tool decides (a tool, and not `activation = "all"`).
+    pub tool_active: bool,
+    /// The largest vertex displacement |u| (0 when the tool does not decide).
+    pub u_max: f32,
+    /// Particle statics.
+    pub s: &'a ParticleStatic<'a>,
+    /// Vertex displacements.
+    pub displacements: &'a [f32],
+    /// Vertex velocities.
+    pub velocities: &'a [f32],
+}
+
+impl<'a> ModeInputs<'a> {
+    /// The inputs for one activation.
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        pp: &'a ParticleParams,
+        tool_params: &'a ToolParams,
+        tool_state: &ToolState,
+        tool: bool,
+        s: &'a ParticleStatic<'a>,
+        displacements: &'a [f32],
+        velocities: &'a [f32],
+    ) -> ModeInputs<'a> {
+        let tool_active = tool && pp.all_active == 0;
+        let u_max = if tool_active {
+            displacements
+                .chunks_exact(3)
+                .map(|u| Vec3::from_slice(u).length())
+                .fold(0.0f32, f32::max)
+        } else {
+            0.0
+        };
+        ModeInputs {
+            pp,
+            tool_params,
+            centre: Vec3::from_array(tool_state.position),
+            tool,
+            tool_active,
+            u_max,
+            s,
+            displacements,
+            velocities,
+        }
+    }
+}
+
+/// One particle's state for the mode machine.
+pub struct ModeState<'a> {
+    /// Displacement (xyz).
+    pub u: &'a mut [f32],
+    /// Velocity (xyz).
+    pub v: &'a mut [f32],
+    /// Mode bits.
+    pub mode: &'a mut u32,
+    /// Dwell or blend timer, s.
+    pub timer: &'a mut f32,
+    /// Release offset (xyz).
+    pub offset: &'a mut [f32],
+}
+
+/// The mode machine for particle p (one thread of the kernel). A particle that is neither
+/// pinned, dynamic nor blending and lies so far from the tool that it cannot qualify keeps
+/// its state (only the per-update bits are cleared), so it is skipped without embedding it:
+/// its displacement is Σ wᵢuᵢ, at most Σ|wᵢ|·max|uᵢ| long, so
+/// |X_p − c| − Σ|wᵢ|·max|uᵢ| − R ≥ activation radius (with a margin for rounding) rules it out.
+pub fn update_particle(inp: &ModeInputs, p: usize, st: ModeState) {
+    let (pp, s, c) = (inp.pp, inp.s, inp.centre);
+    let mut m = *st.mode & !PER_UPDATE;
+    if m & mode::PINNED != 0 {
+        *st.mode = m;
+        return;
+    }
+    let x0 = load3(s.rest, p);
+    if inp.tool_active && m & (mode::DYNAMIC | mode::BLENDING) == 0 {
+        let reach: f32 = s.weights[4 * p..4 * p + 4].iter().map(|w| w.abs()).sum();
+        let centre = (x0 - c).length();
+        // The kernel forms X + u − c in f32: its rounding grows with |X| and |c|.
+        let scale = x0.abs().max_element() + c.abs().max_element();
+        let margin = 1e-4 * (centre + scale + inp.tool_params.radius + 1.0);
+        if centre - reach * inp.u_max - inp.tool_params.radius >= pp.activation_radius + margin {
+            *st.mode = m;
+            return;
+        }
+    }
+    let mut timer = *st.timer;
+    let mut offset = Vec3::from_slice(st.offset);
+    let ue = s.embed(inp.displacements, p);
+    let blend = if m & mode::BLENDING != 0 {
+        0.0f32.max(1.0 - timer / pp.blend.max(1e-30))
+    } else {
+        0.0
+    };
+    let u = if m & mode::DYNAMIC != 0 {
+        Vec3::from_slice(st.u)
+    } else {
+        ue + offset * blend
+    };
+    let mut qualifies = pp.all_active != 0;
+    let mut keep = qualifies;
+    if inp.tool && !qualifies {
+        let d = (x0 + u - c).length() - inp.tool_params.radius;
+        qualifies = d < pp.activation_radius;
+        keep = d < pp.release_radius;
+    }
+    if m & mode::DYNAMIC != 0 {
+        if keep {
+            timer = 0.0;
+        } else {
+            timer += pp.interval;
+            if timer >= pp.dwell {
+                offset = u - ue;
+                m = (m & !mode::DYNAMIC) | mode::BLENDING | mode::RELEASED;
+                timer = 0.0;
+            }
+        }
+    } else if qualifies {
+        st.u.copy_from_slice(&u.to_array());
+        st.v.copy_from_slice(&s.embed(inp.velocities, p).to_array());
+        m = (m & !mode::BLENDING) | mode::DYNAMIC | mode::ACTIVATED;
+        timer = 0.0;
+        offset = Vec3::ZERO;
+    } else if m & mode::BLENDING != 0 {
+        timer += pp.interval;
+        if timer >= pp.blend {
+            m &= !mode::BLENDING;
+            offset = Vec3::ZERO;
+        }
+    }
+    *st.timer = timer;
+    st.offset.copy_from_slice(&offset.to_array());
+    *st.mode = m;
+}
+
+/// Per particle: the mode machine (twin of entry `activate`, see [`update_particle`]), in
+/// parallel over blocks of particles, so the result is the same for any thread count.
 #[allow(clippy::too_many_arguments)]
 pub fn activate(
     pp: &ParticleParams,
@@ -65,84 +204,16 @@ pub fn activate(
     particle_offset: &mut [f32],
 ) {
     use rayon::prelude::*;
-    let c = Vec3::from_array(tool_state.position);
+    let inp = ModeInputs::new(
+        pp,
+        tool_params,
+        tool_state,
+        tool,
+        s,
+        displacements,
+        velocities,
+    );
     let n = pp.n_particles as usize;
-    let tool_active = tool && pp.all_active == 0;
-    let u_max = if tool_active {
-        displacements
-            .chunks_exact(3)
-            .map(|u| Vec3::from_slice(u).length())
-            .fold(0.0f32, f32::max)
-    } else {
-        0.0
-    };
-    let update_particle =
-        |p: usize, pd: &mut [f32], pv: &mut [f32], pm: &mut u32, pt: &mut f32, po: &mut [f32]| {
-            let mut m = *pm & !PER_UPDATE;
-            if m & mode::PINNED != 0 {
-                *pm = m;
-                return;
-            }
-            let x0 = load3(s.rest, p);
-            if tool_active && m & (mode::DYNAMIC | mode::BLENDING) == 0 {
-                let reach: f32 = s.weights[4 * p..4 * p + 4].iter().map(|w| w.abs()).sum();
-                let centre = (x0 - c).length();
-                // The kernel forms X + u − c in f32: its rounding grows with |X| and |c|.
-                let scale = x0.abs().max_element() + c.abs().max_element();
-                let margin = 1e-4 * (centre + scale + tool_params.radius + 1.0);
-                if centre - reach * u_max - tool_params.radius >= pp.activation_radius + margin {
-                    *pm = m;
-                    return;
-                }
-            }
-            let mut timer = *pt;
-            let mut offset = Vec3::from_slice(po);
-            let ue = s.embed(displacements, p);
-            let blend = if m & mode::BLENDING != 0 {
-                0.0f32.max(1.0 - timer / pp.blend.max(1e-30))
-            } else {
-                0.0
-            };
-            let u = if m & mode::DYNAMIC != 0 {
-                Vec3::from_slice(pd)
-            } else {
-                ue + offset * blend
-            };
-            let mut qualifies = pp.all_active != 0;
-            let mut keep = qualifies;
-            if tool && !qualifies {
-                let d = (x0 + u - c).length() - tool_params.radius;
-                qualifies = d < pp.activation_radius;
-                keep = d < pp.release_radius;
-            }
-            if m & mode::DYNAMIC != 0 {
-                if keep {
-                    timer = 0.0;
-                } else {
-                    timer += pp.interval;
-                    if timer >= pp.dwell {
-                        offset = u - ue;
-                        m = (m & !mode::DYNAMIC) | mode::BLENDING | mode::RELEASED;
-                        timer = 0.0;
-                    }
-                }
-            } else if qualifies {
-                pd.copy_from_slice(&u.to_array());
-                pv.copy_from_slice(&s.embed(velocities, p).to_array());
-                m = (m & !mode::BLENDING) | mode::DYNAMIC | mode::ACTIVATED;
-                timer = 0.0;
-                offset = Vec3::ZERO;
-            } else if m & mode::BLENDING != 0 {
-                timer += pp.interval;
-                if timer >= pp.blend {
-                    m &= !mode::BLENDING;
-                    offset = Vec3::ZERO;
-                }
-            }
-            *pt = timer;
-            po.copy_from_slice(&offset.to_array());
-            *pm = m;
-        };
     const BLOCK: usize = 256;
     particle_displacements[..3 * n]
         .par_chunks_mut(3 * BLOCK)
@@ -153,9 +224,14 @@ pub fn activate(
         .enumerate()
         .for_each(|(block, ((((pd, pv), pm), pt), po))| {
             for j in 0..pm.len() {
-                let (pd, pv) = (&mut pd[3 * j..3 * j + 3], &mut pv[3 * j..3 * j + 3]);
-                let (pm, pt, po) = (&mut pm[j], &mut pt[j], &mut po[3 * j..3 * j + 3]);
-                update_particle(block * BLOCK + j, pd, pv, pm, pt, po);
+                let st = ModeState {
+                    u: &mut pd[3 * j..3 * j + 3],
+                    v: &mut pv[3 * j..3 * j + 3],
+                    mode: &mut pm[j],
+                    timer: &mut pt[j],
+                    offset: &mut po[3 * j..3 * j + 3],
+                };
+                update_particle(&inp, block * BLOCK + j, st);
             }
         });
 }
@@ -182,8 +258,20 @@ pub fn mark_set(
     }
 }
 
-/// Per tet: 1 − (its particles in S)/(its particles), 1 without particles (twin of
-/// `activate_tet_weights`).
+/// Tet e's energy weight: 1 − (its particles in S)/(its particles), 1 without particles.
+pub fn tet_weight_of(e: usize, tet_offsets: &[u32], particle_mode: &[u32]) -> f32 {
+    let (first, last) = (tet_offsets[e], tet_offsets[e + 1]);
+    let in_s = (first..last)
+        .filter(|&p| particle_mode[p as usize] & mode::IN_S != 0)
+        .count() as u32;
+    if last > first {
+        1.0 - in_s as f32 / (last - first) as f32
+    } else {
+        1.0
+    }
+}
+
+/// Per tet: [`tet_weight_of`] (twin of `activate_tet_weights`).
 pub fn tet_weights(
     params: &StepParams,
     tet_offsets: &[u32],
@@ -191,20 +279,110 @@ pub fn tet_weights(
     tet_weight: &mut [f32],
 ) {
     super::par::for_each_chunk::<1>(tet_weight, params.n_tets as usize, |e, out| {
-        let (first, last) = (tet_offsets[e], tet_offsets[e + 1]);
-        let in_s = (first..last)
-            .filter(|&p| particle_mode[p as usize] & mode::IN_S != 0)
-            .count() as u32;
-        out[0] = if last > first {
-            1.0 - in_s as f32 / (last - first) as f32
-        } else {
-            1.0
-        };
+        out[0] = tet_weight_of(e, tet_offsets, particle_mode);
     });
 }
 
-/// Per vertex, in parallel: lumped mass, momentum-preserving velocity, kinematic vertices,
-/// coupling flag and contact weight (twin of `activate_relump`).
+/// What the relump reads (see [`relump_vertex`]).
+pub struct RelumpInputs<'a> {
+    /// Particle constants (the particle mass).
+    pub pp: &'a ParticleParams,
+    /// CSR vertex → particle slots.
+    pub slot_offsets: &'a [u32],
+    /// Particle slots p·4 + corner.
+    pub slots: &'a [u32],
+    /// Barycentric weights, 4 per particle.
+    pub weights: &'a [f32],
+    /// Particle modes.
+    pub particle_mode: &'a [u32],
+    /// Particle velocities.
+    pub particle_velocities: &'a [f32],
+    /// Per vertex, the mass of the tets that are not particle zone.
+    pub core_mass: &'a [f32],
+    /// Per vertex, 1 when fixed.
+    pub node_fixed: &'a [u32],
+    /// CSR vertex → tet corners.
+    pub incidence_offsets: &'a [u32],
+    /// Tet corners t·4 + corner.
+    pub incidence: &'a [u32],
+    /// Per tet energy weight.
+    pub tet_weight: &'a [f32],
+}
+
+/// One vertex's relumped values.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct VertexLump {
+    /// m = core mass + Σ wᵢ m_p over the non-dynamic hosted particles.
+    pub mass: f32,
+    /// 1/m; 0 fixed; −1 kinematic (no mass left).
+    pub inv_mass: f32,
+    /// The velocity that keeps the momentum of released particles.
+    pub velocity: Vec3,
+    /// `NODE_COUPLED` when it hosts a force-set particle.
+    pub flags: u32,
+    /// The smallest energy weight of its tets.
+    pub contact_weight: f32,
+}
+
+/// Vertex i's relump (one thread of `activate_relump`) from its velocity `v`. A vertex
+/// hosting no released particle keeps v exactly: v·(m − 0)/m is skipped, not rounded.
+pub fn relump_vertex(inp: &RelumpInputs, i: usize, v: Vec3) -> VertexLump {
+    let mp = inp.pp.mass;
+    let mut m = inp.core_mass[i];
+    let (mut m_released, mut p_released) = (0.0f32, Vec3::ZERO);
+    let (mut m_dynamic, mut p_dynamic) = (0.0f32, Vec3::ZERO);
+    let mut coupled = false;
+    for k in inp.slot_offsets[i]..inp.slot_offsets[i + 1] {
+        let slot = inp.slots[k as usize] as usize;
+        let p = slot / 4;
+        let w = inp.weights[slot];
+        let md = inp.particle_mode[p];
+        if md & mode::DYNAMIC == 0 {
+            m += w * mp;
+            if md & mode::RELEASED != 0 {
+                m_released += w * mp;
+                p_released += load3(inp.particle_velocities, p) * (w * mp);
+            }
+            if md & mode::IN_F != 0 {
+                coupled = true;
+            }
+        } else {
+            m_dynamic += w * mp;
+            p_dynamic += load3(inp.particle_velocities, p) * (w * mp);
+        }
+    }
+    let mut v = v;
+    let w_inv;
+    if inp.node_fixed[i] != 0 {
+        v = Vec3::ZERO;
+        w_inv = 0.0;
+    } else if m > 0.0 {
+        w_inv = 1.0 / m;
+        if m_released > 0.0 {
+            v = (v * (m - m_released) + p_released) / m;
+        }
+    } else {
+        w_inv = -1.0;
+        v = if m_dynamic > 0.0 {
+            p_dynamic / m_dynamic
+        } else {
+            Vec3::ZERO
+        };
+    }
+    let mut cw = 1.0f32;
+    for k in inp.incidence_offsets[i]..inp.incidence_offsets[i + 1] {
+        cw = cw.min(inp.tet_weight[inp.incidence[k as usize] as usize / 4]);
+    }
+    VertexLump {
+        mass: m,
+        inv_mass: w_inv,
+        velocity: v,
+        flags: if coupled { NODE_COUPLED } else { 0 },
+        contact_weight: cw,
+    }
+}
+
+/// Per vertex, in parallel: [`relump_vertex`] (twin of `activate_relump`).
 #[allow(clippy::too_many_arguments)]
 pub fn relump(
     params: &StepParams,
@@ -226,7 +404,19 @@ pub fn relump(
     contact_weight: &mut [f32],
 ) {
     use rayon::prelude::*;
-    let mp = pp.mass;
+    let inp = RelumpInputs {
+        pp,
+        slot_offsets,
+        slots,
+        weights,
+        particle_mode,
+        particle_velocities,
+        core_mass,
+        node_fixed,
+        incidence_offsets,
+        incidence,
+        tet_weight,
+    };
     let nv = params.n_vertices as usize;
     mass[..nv]
         .par_iter_mut()
@@ -237,53 +427,11 @@ pub fn relump(
         .with_min_len(super::par::MIN_INDICES_PER_TASK)
         .enumerate()
         .for_each(|(i, ((((mass_i, inv_mass_i), vel), flags), contact_w))| {
-            let mut m = core_mass[i];
-            let (mut m_released, mut p_released) = (0.0f32, Vec3::ZERO);
-            let (mut m_dynamic, mut p_dynamic) = (0.0f32, Vec3::ZERO);
-            let mut coupled = false;
-            for k in slot_offsets[i]..slot_offsets[i + 1] {
-                let slot = slots[k as usize] as usize;
-                let p = slot / 4;
-                let w = weights[slot];
-                let md = particle_mode[p];
-                if md & mode::DYNAMIC == 0 {
-                    m += w * mp;
-                    if md & mode::RELEASED != 0 {
-                        m_released += w * mp;
-                        p_released += load3(particle_velocities, p) * (w * mp);
-                    }
-                    if md & mode::IN_F != 0 {
-                        coupled = true;
-                    }
-                } else {
-                    m_dynamic += w * mp;
-                    p_dynamic += load3(particle_velocities, p) * (w * mp);
-                }
-            }
-            *mass_i = m;
-            let mut v = Vec3::from_slice(vel);
-            let w_inv;
-            if node_fixed[i] != 0 {
-                v = Vec3::ZERO;
-                w_inv = 0.0;
-            } else if m > 0.0 {
-                w_inv = 1.0 / m;
-                v = (v * (m - m_released) + p_released) / m;
-            } else {
-                w_inv = -1.0;
-                v = if m_dynamic > 0.0 {
-                    p_dynamic / m_dynamic
-                } else {
-                    Vec3::ZERO
-                };
-            }
-            *inv_mass_i = w_inv;
-            vel.copy_from_slice(&v.to_array());
-            *flags = if coupled { NODE_COUPLED } else { 0 };
-            let mut cw = 1.0f32;
-            for k in incidence_offsets[i]..incidence_offsets[i + 1] {
-                cw = cw.min(tet_weight[incidence[k as usize] as usize / 4]);
-            }
-            *contact_w = cw;
+            let lump = relump_vertex(&inp, i, Vec3::from_slice(vel));
+            *mass_i = lump.mass;
+            *inv_mass_i = lump.inv_mass;
+            vel.copy_from_slice(&lump.velocity.to_array());
+            *flags = lump.flags;
+            *contact_w = lump.contact_weight;
         });
 }

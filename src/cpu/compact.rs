@@ -31,11 +31,20 @@ pub fn compact(
             force_list.push(p as u32);
         }
     }
-    let counts = [
-        dynamic_list.len() as u32,
-        stress_list.len() as u32,
-        force_list.len() as u32,
-    ];
+    counts_and_dispatch(
+        [dynamic_list, stress_list, force_list],
+        particle_counts,
+        particle_dispatch,
+    );
+}
+
+/// The lists' counts and indirect dispatch arguments (twin of compact_args).
+pub fn counts_and_dispatch(
+    lists: [&[u32]; 3],
+    particle_counts: &mut [u32; 4],
+    particle_dispatch: &mut [u32; 9],
+) {
+    let counts = lists.map(|l| l.len() as u32);
     *particle_counts = [counts[0], counts[1], counts[2], 0];
     for (k, &count) in counts.iter().enumerate() {
         let groups = count.div_ceil(PARTICLE_WORKGROUP);

@@ -6,6 +6,7 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod activate;
+pub mod active_region;
 pub mod compact;
 pub mod contact;
 pub mod dispatch_probe;

@@ -2,7 +2,10 @@
 //! worker threads. Every twin writes only per-index outputs, so the result is bit-identical
 //! for any thread count; the reductions sum in the GPU's fixed tree order.
 
-use super::activate::{mark_set, ParticleStatic};
+use super::activate::{
+    mark_set, relump_vertex, ModeInputs, ParticleStatic, RelumpInputs, VertexLump,
+};
+use super::active_region::{ActiveRegion, ModeArrays, RegionStatics};
 use super::gather::Coupling;
 use super::{
     contact, fem_forces, gather, integrate, reduce_final, reduce_partial, tool_force_final,
@@ -129,6 +132,10 @@ struct ParticleArrays {
     contact_weight: Vec<f32>,
     partials: Vec<f32>,
     stats: Vec<f32>,
+    /// What the next activation must visit (see `cpu/active_region.rs`).
+    region: ActiveRegion,
+    /// Run every activation over all particles, tets and vertices (tests compare the two).
+    full_activation: bool,
 }
 
 impl ParticleArrays {
@@ -153,6 +160,17 @@ impl ParticleArrays {
             .collect();
         let pairs =
             super::sph::PairTable::new(&pp, &p.rest, &lists.neighbour_offsets, &lists.neighbours);
+        let node_fixed: Vec<u32> = model.inv_mass.iter().map(|&w| (w == 0.0) as u32).collect();
+        let region = ActiveRegion::new(&RegionStatics {
+            rest: &p.rest,
+            weights: &p.weights,
+            tet_offsets: &p.tet_offsets,
+            slot_offsets: &p.slot_offsets,
+            slots: &p.slots,
+            particle_mass: pp.mass,
+            core_mass: &p.core_mass,
+            node_fixed: &node_fixed,
+        });
         Some(ParticleArrays {
             params: pp,
             lists,
@@ -179,7 +197,7 @@ impl ParticleArrays {
             counts: [0; 4],
             dispatch: [0, 1, 1, 0, 1, 1, 0, 1, 1],
             tet_weight: vec![1.0; model.n_tets()],
-            node_fixed: model.inv_mass.iter().map(|&w| (w == 0.0) as u32).collect(),
+            node_fixed,
             node_flags: vec![0; model.n_vertices()],
             contact_weight: vec![1.0; model.n_vertices()],
             partials: vec![
@@ -187,6 +205,8 @@ impl ParticleArrays {
                 super::particle_reduce::LANE * super::particle_reduce::n_partials(&pp)
             ],
             stats: vec![0.0; 8],
+            region,
+            full_activation: false,
         })
     }
 }
@@ -585,6 +605,93 @@ impl CpuStepper {
         }
     }
 
+    /// The activation over every particle, tet and vertex, as the kernel runs it; then the
+    /// active region is rebuilt from the modes.
+    fn activate_everywhere(&mut self) {
+        let m = &*self.model;
+        let p = &self.params;
+        let (Some(pa), Some(pd)) = (self.particles.as_mut(), m.particles.as_ref()) else {
+            return;
+        };
+        let Some(st) = ParticleStatic::of(m) else {
+            return;
+        };
+        let pp = pa.params;
+        let n = pd.len();
+        let (noff, nbrs) = (&pa.lists.neighbour_offsets, &pa.lists.neighbours);
+        super::activate::activate(
+            &pp,
+            &self.tool.params,
+            &self.tool.state,
+            m.tool.is_some(),
+            &st,
+            &self.state.displacements,
+            &self.state.velocities,
+            &mut pa.state.displacements,
+            &mut pa.state.velocities,
+            &mut pa.state.mode,
+            &mut pa.state.timer,
+            &mut pa.state.offset,
+        );
+        mark_set(n, mode::DYNAMIC, mode::IN_S, noff, nbrs, &mut pa.state.mode);
+        mark_set(n, mode::IN_S, mode::IN_F, noff, nbrs, &mut pa.state.mode);
+        super::compact::compact(
+            &pa.state.mode,
+            &mut pa.dynamic_list,
+            &mut pa.stress_list,
+            &mut pa.force_list,
+            &mut pa.counts,
+            &mut pa.dispatch,
+        );
+        super::activate::tet_weights(p, &pd.tet_offsets, &pa.state.mode, &mut pa.tet_weight);
+        super::activate::relump(
+            p,
+            &pp,
+            &pd.slot_offsets,
+            &pd.slots,
+            &pd.weights,
+            &pa.state.mode,
+            &pa.state.velocities,
+            &pd.core_mass,
+            &pa.node_fixed,
+            &m.incidence_offsets,
+            &m.incidence,
+            &pa.tet_weight,
+            &mut pa.state.mass,
+            &mut pa.state.inv_mass,
+            &mut self.state.velocities,
+            &mut pa.node_flags,
+            &mut pa.contact_weight,
+        );
+        pa.region.prime(
+            &pa.state.mode,
+            &pa.force_list,
+            &pa.stress_list,
+            &pd.host,
+            &m.tets,
+        );
+    }
+
+    /// What the last activation left besides the particle state: the tets' energy weights,
+    /// the vertices' coupling flags and contact weights (None without particles).
+    pub fn activation_outputs(&self) -> Option<(&[f32], &[u32], &[f32])> {
+        self.particles.as_ref().map(|pa| {
+            (
+                &pa.tet_weight[..],
+                &pa.node_flags[..],
+                &pa.contact_weight[..],
+            )
+        })
+    }
+
+    /// Run every activation over all particles, tets and vertices (`true`), or over the
+    /// region it can change (`false`, the default; the results are the same).
+    pub fn set_full_activation(&mut self, full: bool) {
+        if let Some(pa) = &mut self.particles {
+            pa.full_activation = full;
+        }
+    }
+
     /// The particle stages' twins.
     fn run_particle_stage(&mut self, stage: Stage) {
         let m = &*self.model;
@@ -596,11 +703,11 @@ impl CpuStepper {
         let Some(st) = ParticleStatic::of(m) else {
             return;
         };
-        let n = pd.len();
         let (noff, nbrs) = (&pa.lists.neighbour_offsets, &pa.lists.neighbours);
         match stage {
             Stage::Activate => {
-                super::activate::activate(
+                let incremental = pa.region.primed() && !pa.full_activation;
+                let inp = ModeInputs::new(
                     &pp,
                     &self.tool.params,
                     &self.tool.state,
@@ -608,47 +715,85 @@ impl CpuStepper {
                     &st,
                     &self.state.displacements,
                     &self.state.velocities,
-                    &mut pa.state.displacements,
-                    &mut pa.state.velocities,
-                    &mut pa.state.mode,
-                    &mut pa.state.timer,
-                    &mut pa.state.offset,
                 );
-                mark_set(n, mode::DYNAMIC, mode::IN_S, noff, nbrs, &mut pa.state.mode);
-                mark_set(n, mode::IN_S, mode::IN_F, noff, nbrs, &mut pa.state.mode);
-                super::compact::compact(
-                    &pa.state.mode,
-                    &mut pa.dynamic_list,
-                    &mut pa.stress_list,
-                    &mut pa.force_list,
+                if !(incremental && inp.tool_active) {
+                    self.activate_everywhere();
+                    return;
+                }
+                let candidates = pa.region.candidates(&inp, &pd.tet_offsets);
+                ActiveRegion::update(
+                    &inp,
+                    &candidates,
+                    ModeArrays {
+                        displacements: &mut pa.state.displacements,
+                        velocities: &mut pa.state.velocities,
+                        mode: &mut pa.state.mode,
+                        timer: &mut pa.state.timer,
+                        offset: &mut pa.state.offset,
+                    },
+                );
+                let with = |bit: u32, modes: &[u32]| -> Vec<u32> {
+                    candidates
+                        .iter()
+                        .copied()
+                        .filter(|&p| modes[p as usize] & bit != 0)
+                        .collect()
+                };
+                let dynamic = with(mode::DYNAMIC, &pa.state.mode);
+                let blending = with(mode::BLENDING, &pa.state.mode);
+                let stress =
+                    ActiveRegion::mark(&dynamic, mode::IN_S, noff, nbrs, &mut pa.state.mode);
+                let force = ActiveRegion::mark(&stress, mode::IN_F, noff, nbrs, &mut pa.state.mode);
+                super::compact::counts_and_dispatch(
+                    [&dynamic, &stress, &force],
                     &mut pa.counts,
                     &mut pa.dispatch,
                 );
-                super::activate::tet_weights(
-                    p,
-                    &pd.tet_offsets,
-                    &pa.state.mode,
-                    &mut pa.tet_weight,
+                for e in pa.region.tets_to_weigh(&stress, &pd.host) {
+                    pa.tet_weight[e as usize] =
+                        super::activate::tet_weight_of(e as usize, &pd.tet_offsets, &pa.state.mode);
+                }
+                let mut coupled = force.clone();
+                coupled.extend(
+                    blending
+                        .iter()
+                        .filter(|&&p| pa.state.mode[p as usize] & mode::RELEASED != 0),
                 );
-                super::activate::relump(
-                    p,
-                    &pp,
-                    &pd.slot_offsets,
-                    &pd.slots,
-                    &pd.weights,
-                    &pa.state.mode,
-                    &pa.state.velocities,
-                    &pd.core_mass,
-                    &pa.node_fixed,
-                    &m.incidence_offsets,
-                    &m.incidence,
-                    &pa.tet_weight,
-                    &mut pa.state.mass,
-                    &mut pa.state.inv_mass,
-                    &mut self.state.velocities,
-                    &mut pa.node_flags,
-                    &mut pa.contact_weight,
-                );
+                let vertices = pa.region.vertices_to_relump(&coupled, &pd.host, &m.tets);
+                let inputs = RelumpInputs {
+                    pp: &pp,
+                    slot_offsets: &pd.slot_offsets,
+                    slots: &pd.slots,
+                    weights: &pd.weights,
+                    particle_mode: &pa.state.mode,
+                    particle_velocities: &pa.state.velocities,
+                    core_mass: &pd.core_mass,
+                    node_fixed: &pa.node_fixed,
+                    incidence_offsets: &m.incidence_offsets,
+                    incidence: &m.incidence,
+                    tet_weight: &pa.tet_weight,
+                };
+                let lumps: Vec<VertexLump> = {
+                    use rayon::prelude::*;
+                    let v = &self.state.velocities;
+                    vertices
+                        .par_iter()
+                        .with_min_len(64)
+                        .map(|&i| relump_vertex(&inputs, i as usize, super::load3(v, i as usize)))
+                        .collect()
+                };
+                for (&i, lump) in vertices.iter().zip(lumps) {
+                    let i = i as usize;
+                    pa.state.mass[i] = lump.mass;
+                    pa.state.inv_mass[i] = lump.inv_mass;
+                    super::store3(&mut self.state.velocities, i, lump.velocity);
+                    pa.node_flags[i] = lump.flags;
+                    pa.contact_weight[i] = lump.contact_weight;
+                }
+                pa.region.settle(&force, &blending);
+                pa.dynamic_list = dynamic;
+                pa.stress_list = stress;
+                pa.force_list = force;
             }
             Stage::Follow => super::follow::follow(
                 &pp,
@@ -830,6 +975,7 @@ impl CpuStepper {
         if let Some(pa) = &mut self.particles {
             pa.state.displacements.clone_from(&state.displacements);
             pa.state.velocities.clone_from(&state.velocities);
+            pa.region.forget();
         }
     }
 
@@ -949,6 +1095,7 @@ impl Stepper for CpuStepper {
                 self.state = state.clone();
                 if let (Some(pa), Some(ps)) = (&mut self.particles, particles) {
                     pa.state = ps.clone();
+                    pa.region.forget();
                 }
             }
             None => {
@@ -967,6 +1114,9 @@ impl Stepper for CpuStepper {
 
     fn write_state(&mut self, state: &State) -> Result<()> {
         self.state = state.clone();
+        if let Some(pa) = &mut self.particles {
+            pa.region.forget();
+        }
         self.stats.iter_mut().for_each(|s| *s = 0.0);
         Ok(())
     }

@@ -1,0 +1,311 @@
+//! Where an activation can change anything, so the CPU stepper runs the activation's twins
+//! there alone (the kernel runs them over every particle, tet and vertex).
+//!
+//! A particle is *live* when it has any mode bit besides `PINNED` (dynamic, blending, in the
+//! stress or force set). An activation changes only live particles and those the tool can
+//! reach; a tet's weight differs from 1 only while it hosts stress-set particles; a vertex's
+//! relump differs from its all-embedded value only while it hosts force-set or released
+//! particles (the relump leaves v exactly when no released particle is hosted). So after one
+//! full pass, each activation visits: the live particles and those of tets near the tool; the
+//! tets that host stress-set particles now or did at the last activation; the vertices that
+//! host force-set or released particles now or did, plus the fixed and massless ones. The
+//! results are bit-equal to the full pass (`tests/particles.rs` compares them along hm1's
+//! press and release).
+
+use super::activate::{update_particle, ModeInputs, ModeState};
+use crate::particles::params::mode;
+use glam::DVec3;
+
+/// A tet's particles at rest: the centre and radius of a sphere holding them, and their
+/// largest Σ|wᵢ| (1 inside the host, more when extrapolated).
+#[derive(Clone, Copy, Debug)]
+struct TetBound {
+    centre: DVec3,
+    radius: f64,
+    reach: f64,
+}
+
+/// The sets one activation leaves for the next (see the module comment).
+#[derive(Clone, Debug, Default)]
+pub struct ActiveRegion {
+    /// Per tet (None: it hosts no particle).
+    bounds: Vec<Option<TetBound>>,
+    /// Vertices relumped at every activation: fixed, or massless with every particle embedded.
+    always: Vec<u32>,
+    /// Live particles after the last activation, ascending.
+    live: Vec<u32>,
+    /// Tets that hosted stress-set particles at the last activation.
+    weighted_tets: Vec<u32>,
+    /// Vertices that hosted force-set or released particles at the last activation.
+    coupled_vertices: Vec<u32>,
+    /// The sets describe the current state; false: the next activation is a full pass.
+    primed: bool,
+}
+
+/// Sort and remove repeats.
+fn sorted(mut v: Vec<u32>) -> Vec<u32> {
+    v.sort_unstable();
+    v.dedup();
+    v
+}
+
+/// The particle arrays the mode machine writes.
+pub struct ModeArrays<'a> {
+    /// Displacements, xyz.
+    pub displacements: &'a mut [f32],
+    /// Velocities, xyz.
+    pub velocities: &'a mut [f32],
+    /// Mode bits.
+    pub mode: &'a mut [u32],
+    /// Timers, s.
+    pub timer: &'a mut [f32],
+    /// Release offsets, xyz.
+    pub offset: &'a mut [f32],
+}
+
+/// One particle after the mode machine: displacement, velocity, mode, timer, offset.
+type UpdatedParticle = ([f32; 3], [f32; 3], u32, f32, [f32; 3]);
+
+/// The static data [`ActiveRegion::new`] reads.
+pub struct RegionStatics<'a> {
+    /// Particle rest positions, xyz.
+    pub rest: &'a [f32],
+    /// Barycentric weights, 4 per particle.
+    pub weights: &'a [f32],
+    /// Per tet, its particles' range (particles are numbered by host tet).
+    pub tet_offsets: &'a [u32],
+    /// CSR vertex → particle slots.
+    pub slot_offsets: &'a [u32],
+    /// Particle slots p·4 + corner.
+    pub slots: &'a [u32],
+    /// The particle mass.
+    pub particle_mass: f32,
+    /// Per vertex, the core mass.
+    pub core_mass: &'a [f32],
+    /// Per vertex, 1 when fixed.
+    pub node_fixed: &'a [u32],
+}
+
+impl ActiveRegion {
+    /// Bounds of every tet's particles and the always-relumped vertices; not primed.
+    pub fn new(s: &RegionStatics) -> ActiveRegion {
+        let n_tets = s.tet_offsets.len() - 1;
+        let bounds = (0..n_tets)
+            .map(|e| {
+                let (first, last) = (s.tet_offsets[e] as usize, s.tet_offsets[e + 1] as usize);
+                if first == last {
+                    return None;
+                }
+                let x = |p: usize| {
+                    DVec3::new(
+                        s.rest[3 * p] as f64,
+                        s.rest[3 * p + 1] as f64,
+                        s.rest[3 * p + 2] as f64,
+                    )
+                };
+                let (lo, hi) = (first..last).fold(
+                    (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+                    |(a, b), p| (a.min(x(p)), b.max(x(p))),
+                );
+                let centre = 0.5 * (lo + hi);
+                let radius = (first..last)
+                    .map(|p| (x(p) - centre).length())
+                    .fold(0.0, f64::max);
+                let reach = (first..last)
+                    .map(|p| {
+                        s.weights[4 * p..4 * p + 4]
+                            .iter()
+                            .map(|w| w.abs() as f64)
+                            .sum::<f64>()
+                    })
+                    .fold(0.0, f64::max);
+                Some(TetBound {
+                    centre,
+                    radius,
+                    reach,
+                })
+            })
+            .collect();
+        // The all-embedded mass, summed as the relump sums it.
+        let always = (0..s.node_fixed.len())
+            .filter(|&i| {
+                let mut m = s.core_mass[i];
+                for k in s.slot_offsets[i]..s.slot_offsets[i + 1] {
+                    m += s.weights[s.slots[k as usize] as usize] * s.particle_mass;
+                }
+                s.node_fixed[i] != 0 || m <= 0.0
+            })
+            .map(|i| i as u32)
+            .collect();
+        ActiveRegion {
+            bounds,
+            always,
+            ..ActiveRegion::default()
+        }
+    }
+
+    /// True when the next activation may visit the region alone.
+    pub fn primed(&self) -> bool {
+        self.primed
+    }
+
+    /// Forget the sets (after the particle state was replaced): the next activation is a
+    /// full pass.
+    pub fn forget(&mut self) {
+        self.primed = false;
+    }
+
+    /// Particles the mode machine must visit: the live ones and those of every tet whose
+    /// particles the tool may reach (|C − c| − ρ − reach·max|u| − R < activation radius plus a
+    /// margin twice the per-particle skip's, so every particle left out would be skipped
+    /// there too), ascending.
+    pub fn candidates(&self, inp: &ModeInputs, tet_offsets: &[u32]) -> Vec<u32> {
+        let c = inp.centre.as_dvec3();
+        let c_scale = c.abs().max_element();
+        let radius = inp.tool_params.radius as f64;
+        let limit = inp.pp.activation_radius as f64;
+        let u_max = inp.u_max as f64;
+        let mut out = self.live.clone();
+        for (e, b) in self.bounds.iter().enumerate() {
+            let Some(b) = b else { continue };
+            let to_centre = (b.centre - c).length();
+            let scale = b.centre.abs().max_element() + b.radius + c_scale;
+            let margin = 2e-4 * (to_centre + b.radius + scale + radius + 1.0);
+            if to_centre - b.radius - b.reach * u_max - radius < limit + margin {
+                out.extend(tet_offsets[e]..tet_offsets[e + 1]);
+            }
+        }
+        sorted(out)
+    }
+
+    /// The mode machine over `candidates` (in parallel; each particle is independent, so the
+    /// result is that of the full pass over them).
+    pub fn update(inp: &ModeInputs, candidates: &[u32], state: ModeArrays) {
+        use rayon::prelude::*;
+        let updated: Vec<UpdatedParticle> = candidates
+            .par_iter()
+            .with_min_len(64)
+            .map(|&p| {
+                let p = p as usize;
+                let mut u: [f32; 3] = state.displacements[3 * p..3 * p + 3].try_into().unwrap();
+                let mut v: [f32; 3] = state.velocities[3 * p..3 * p + 3].try_into().unwrap();
+                let mut o: [f32; 3] = state.offset[3 * p..3 * p + 3].try_into().unwrap();
+                let (mut m, mut t) = (state.mode[p], state.timer[p]);
+                update_particle(
+                    inp,
+                    p,
+                    ModeState {
+                        u: &mut u,
+                        v: &mut v,
+                        mode: &mut m,
+                        timer: &mut t,
+                        offset: &mut o,
+                    },
+                );
+                (u, v, m, t, o)
+            })
+            .collect();
+        for (&p, (u, v, m, t, o)) in candidates.iter().zip(updated) {
+            let p = p as usize;
+            state.displacements[3 * p..3 * p + 3].copy_from_slice(&u);
+            state.velocities[3 * p..3 * p + 3].copy_from_slice(&v);
+            state.mode[p] = m;
+            state.timer[p] = t;
+            state.offset[3 * p..3 * p + 3].copy_from_slice(&o);
+        }
+    }
+
+    /// Mark `bit` on every particle of `sources` and on its neighbours; the particles that
+    /// carry it now, ascending (the same set as [`super::activate::mark_set`] over all).
+    pub fn mark(
+        sources: &[u32],
+        bit: u32,
+        neighbour_offsets: &[u32],
+        neighbours: &[u32],
+        particle_mode: &mut [u32],
+    ) -> Vec<u32> {
+        let mut marked = Vec::new();
+        let mut set = |p: usize, marked: &mut Vec<u32>| {
+            if particle_mode[p] & bit == 0 {
+                particle_mode[p] |= bit;
+                marked.push(p as u32);
+            }
+        };
+        for &p in sources {
+            set(p as usize, &mut marked);
+            for k in neighbour_offsets[p as usize]..neighbour_offsets[p as usize + 1] {
+                set(neighbours[k as usize] as usize, &mut marked);
+            }
+        }
+        sorted(marked)
+    }
+
+    /// Tets whose weight must be recomputed (hosts of `stress` now, or weighted at the last
+    /// activation); remembers the hosts of `stress` for the next one.
+    pub fn tets_to_weigh(&mut self, stress: &[u32], host: &[u32]) -> Vec<u32> {
+        let now = sorted(stress.iter().map(|&p| host[p as usize]).collect());
+        let mut all = std::mem::replace(&mut self.weighted_tets, now.clone());
+        all.extend(now);
+        sorted(all)
+    }
+
+    /// Vertices to relump: corners of the hosts of `coupled` (force-set or released
+    /// particles) now or at the last activation, and the always-relumped ones; remembers the
+    /// current corners for the next one.
+    pub fn vertices_to_relump(
+        &mut self,
+        coupled: &[u32],
+        host: &[u32],
+        tets: &[[u32; 4]],
+    ) -> Vec<u32> {
+        let now = sorted(
+            coupled
+                .iter()
+                .flat_map(|&p| tets[host[p as usize] as usize])
+                .collect(),
+        );
+        let mut all = std::mem::replace(&mut self.coupled_vertices, now.clone());
+        all.extend(now);
+        all.extend_from_slice(&self.always);
+        sorted(all)
+    }
+
+    /// After an activation: remember the live particles (force set ∪ blending) and mark the
+    /// sets as describing the state.
+    pub fn settle(&mut self, force_list: &[u32], blending: &[u32]) {
+        let mut live = force_list.to_vec();
+        live.extend_from_slice(blending);
+        self.live = sorted(live);
+        self.primed = true;
+    }
+
+    /// After a full pass: rebuild every set from the modes.
+    pub fn prime(
+        &mut self,
+        particle_mode: &[u32],
+        force_list: &[u32],
+        stress_list: &[u32],
+        host: &[u32],
+        tets: &[[u32; 4]],
+    ) {
+        let blending: Vec<u32> = (0..particle_mode.len())
+            .filter(|&p| particle_mode[p] & mode::BLENDING != 0)
+            .map(|p| p as u32)
+            .collect();
+        let released: Vec<u32> = blending
+            .iter()
+            .copied()
+            .filter(|&p| particle_mode[p as usize] & mode::RELEASED != 0)
+            .collect();
+        self.weighted_tets = sorted(stress_list.iter().map(|&p| host[p as usize]).collect());
+        let mut coupled = force_list.to_vec();
+        coupled.extend(released);
+        self.coupled_vertices = sorted(
+            coupled
+                .iter()
+                .flat_map(|&p| tets[host[p as usize] as usize])
+                .collect(),
+        );
+        self.settle(force_list, &blending);
+    }
+}
