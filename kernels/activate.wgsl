@@ -223,6 +223,7 @@ fn activate_relump(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_w
     var m_dynamic = 0.0;
     var p_dynamic = vec3<f32>(0.0);
     var coupled = false;
+    var released = false;
     for (var k = particle_slot_offsets[i]; k < particle_slot_offsets[i + 1u]; k++) {
         let slot = particle_slots[k];
         let p = slot / 4u;
@@ -231,6 +232,7 @@ fn activate_relump(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_w
         if (mode & MODE_DYNAMIC) == 0u {
             m += w * mp;
             if (mode & MODE_RELEASED) != 0u {
+                released = true;
                 m_released += w * mp;
                 p_released += particle_v(p) * (w * mp);
             }
@@ -250,7 +252,7 @@ fn activate_relump(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_w
     } else if m > 0.0 {
         w_inv = 1.0 / m;
         // Without released particles v stays exactly (v (m - 0)/m would round it).
-        if m_released > 0.0 {
+        if released {
             v = (v * (m - m_released) + p_released) / m;
         }
     } else {

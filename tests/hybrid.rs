@@ -484,10 +484,13 @@ fn the_cpu_activation_over_its_region_equals_the_activation_over_everything() {
                 tool.position_at(t + interval as f64 * dt),
             )),
         };
+        let mut counts = Vec::new();
         for s in [&mut region, &mut everything] {
             s.submit(interval, &input).unwrap();
-            s.wait().unwrap();
+            let r = s.wait().unwrap().particles.unwrap();
+            counts.push((r.dynamic, r.stress, r.force));
         }
+        assert_eq!(counts[0], counts[1], "batch {batch}: particle counts");
         batch += 1;
         t += interval as f64 * dt;
         let (a, b) = (
@@ -545,6 +548,90 @@ fn the_cpu_activation_over_its_region_equals_the_activation_over_everything() {
     assert!(dynamic_max > 100, "{dynamic_max} dynamic");
     assert!(released > 100, "{released} releases");
     assert_eq!(left, 0);
+}
+
+/// The tet-level bound that picks the particles an activation visits
+/// (`ActiveRegion::candidates`) must hold every particle the tool can reach. On hm1, with the
+/// tool at 12 places around the epicardium and every vertex displaced up to 0.75 straight
+/// towards the tool's centre (so the particles approach it as far as the bound allows), every
+/// particle left out lies farther than the activation radius from the tool's surface.
+#[test]
+fn the_activation_region_holds_every_particle_the_tool_can_reach() {
+    use palpate::cpu::activate::{ModeInputs, ParticleStatic};
+    use palpate::cpu::active_region::{ActiveRegion, RegionStatics};
+    let scene = Scene::load("hm1").unwrap();
+    let m = Model::from_scene(&scene);
+    let pd = m.particles.as_ref().unwrap();
+    let params = m.step_params(scene.solver.dt.unwrap(), 0.0);
+    let pp = m.particle_params(&params).unwrap();
+    let tp = m.tool_params();
+    let st = ParticleStatic::of(&m).unwrap();
+    let node_fixed: Vec<u32> = m.inv_mass.iter().map(|&w| (w == 0.0) as u32).collect();
+    let region = ActiveRegion::new(&RegionStatics {
+        rest: &pd.rest,
+        weights: &pd.weights,
+        tet_offsets: &pd.tet_offsets,
+        slot_offsets: &pd.slot_offsets,
+        slots: &pd.slots,
+        particle_mass: pp.mass,
+        core_mass: &pd.core_mass,
+        node_fixed: &node_fixed,
+    });
+    let (n, nv) = (pd.len(), m.n_vertices());
+    let rest =
+        |a: &[f32], i: usize| DVec3::new(a[3 * i] as f64, a[3 * i + 1] as f64, a[3 * i + 2] as f64);
+    let (mut closest, mut visited, mut reachable) = (f64::INFINITY, 0usize, 0usize);
+    for k in 0..12 {
+        let theta = 0.5 * k as f64;
+        let c = DVec3::new(
+            11.0 * theta.cos(),
+            11.0 * theta.sin(),
+            -10.0 + 1.2 * k as f64,
+        );
+        let reach = 0.25 * (k % 4) as f64;
+        let u: Vec<f32> = (0..nv)
+            .flat_map(|i| {
+                let x = rest(&m.rest, i);
+                ((c - x).normalize() * reach).as_vec3().to_array()
+            })
+            .collect();
+        let v = vec![0.0f32; 3 * nv];
+        let state = palpate::contact::ToolState {
+            position: c.as_vec3().to_array(),
+            step: 0,
+        };
+        let inp = ModeInputs::new(&pp, &tp, &state, true, &st, &u, &v);
+        let candidates = region.candidates(&inp, &pd.tet_offsets);
+        let mut listed = vec![false; n];
+        for &p in &candidates {
+            listed[p as usize] = true;
+        }
+        for (p, &listed) in listed.iter().enumerate() {
+            let x = rest(&pd.rest, p) + st.embed(&u, p).as_dvec3();
+            let gap = (x - c).length() - tp.radius as f64 - pp.activation_radius as f64;
+            if gap < 0.0 {
+                reachable += 1;
+            }
+            if !listed {
+                closest = closest.min(gap);
+            }
+        }
+        visited += candidates.len();
+    }
+    eprintln!(
+        "activation region: {visited} particle visits of {} over 12 tool places ({reachable} within reach); the nearest particle left out is {closest:.3} beyond the activation radius",
+        12 * n
+    );
+    assert!(reachable > 100, "the tool never came near: {reachable}");
+    assert!(
+        closest > 0.0,
+        "a particle within reach was left out ({closest})"
+    );
+    assert!(
+        visited < 12 * n / 5,
+        "the region is no region: {visited} of {} visits",
+        12 * n
+    );
 }
 
 /// The zig-zag (hourglass) measure of a particle layer: for each particle a, the least-squares

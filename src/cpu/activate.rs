@@ -331,7 +331,7 @@ pub fn relump_vertex(inp: &RelumpInputs, i: usize, v: Vec3) -> VertexLump {
     let mut m = inp.core_mass[i];
     let (mut m_released, mut p_released) = (0.0f32, Vec3::ZERO);
     let (mut m_dynamic, mut p_dynamic) = (0.0f32, Vec3::ZERO);
-    let mut coupled = false;
+    let (mut coupled, mut released) = (false, false);
     for k in inp.slot_offsets[i]..inp.slot_offsets[i + 1] {
         let slot = inp.slots[k as usize] as usize;
         let p = slot / 4;
@@ -340,6 +340,7 @@ pub fn relump_vertex(inp: &RelumpInputs, i: usize, v: Vec3) -> VertexLump {
         if md & mode::DYNAMIC == 0 {
             m += w * mp;
             if md & mode::RELEASED != 0 {
+                released = true;
                 m_released += w * mp;
                 p_released += load3(inp.particle_velocities, p) * (w * mp);
             }
@@ -358,7 +359,7 @@ pub fn relump_vertex(inp: &RelumpInputs, i: usize, v: Vec3) -> VertexLump {
         w_inv = 0.0;
     } else if m > 0.0 {
         w_inv = 1.0 / m;
-        if m_released > 0.0 {
+        if released {
             v = (v * (m - m_released) + p_released) / m;
         }
     } else {

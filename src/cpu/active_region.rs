@@ -9,15 +9,16 @@
 //! full pass, each activation visits: the live particles and those of tets near the tool; the
 //! tets that host stress-set particles now or did at the last activation; the vertices that
 //! host force-set or released particles now or did, plus the fixed and massless ones. The
-//! results are bit-equal to the full pass (`tests/particles.rs` compares them along hm1's
-//! press and release).
+//! results are bit-equal to the full pass (`tests/hybrid.rs` compares them along hm1's
+//! press and release, and checks the tet bound against the particles' own distances). Scenes
+//! without a tool, or with `activation = "all"`, take the full pass at every activation.
 
 use super::activate::{update_particle, ModeInputs, ModeState};
 use crate::particles::params::mode;
 use glam::DVec3;
 
 /// A tet's particles at rest: the centre and radius of a sphere holding them, and their
-/// largest Σ|wᵢ| (1 inside the host, more when extrapolated).
+/// largest Σ|wᵢ| (1 for a particle inside its host; kept general rather than assumed).
 #[derive(Clone, Copy, Debug)]
 struct TetBound {
     centre: DVec3,
@@ -133,7 +134,8 @@ impl ActiveRegion {
                 for k in s.slot_offsets[i]..s.slot_offsets[i + 1] {
                     m += s.weights[s.slots[k as usize] as usize] * s.particle_mass;
                 }
-                s.node_fixed[i] != 0 || m <= 0.0
+                // (a NaN mass takes the relump's massless branch too)
+                s.node_fixed[i] != 0 || m <= 0.0 || m.is_nan()
             })
             .map(|i| i as u32)
             .collect();
