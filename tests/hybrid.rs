@@ -558,7 +558,7 @@ fn the_cpu_activation_over_its_region_equals_the_activation_over_everything() {
 #[test]
 fn the_activation_region_holds_every_particle_the_tool_can_reach() {
     use palpate::cpu::activate::{ModeInputs, ParticleStatic};
-    use palpate::cpu::active_region::{ActiveRegion, RegionStatics};
+    use palpate::cpu::active_region::ActiveRegion;
     let scene = Scene::load("hm1").unwrap();
     let m = Model::from_scene(&scene);
     let pd = m.particles.as_ref().unwrap();
@@ -567,16 +567,7 @@ fn the_activation_region_holds_every_particle_the_tool_can_reach() {
     let tp = m.tool_params();
     let st = ParticleStatic::of(&m).unwrap();
     let node_fixed: Vec<u32> = m.inv_mass.iter().map(|&w| (w == 0.0) as u32).collect();
-    let region = ActiveRegion::new(&RegionStatics {
-        rest: &pd.rest,
-        weights: &pd.weights,
-        tet_offsets: &pd.tet_offsets,
-        slot_offsets: &pd.slot_offsets,
-        slots: &pd.slots,
-        particle_mass: pp.mass,
-        core_mass: &pd.core_mass,
-        node_fixed: &node_fixed,
-    });
+    let region = ActiveRegion::new(pd, &node_fixed);
     let (n, nv) = (pd.len(), m.n_vertices());
     let rest =
         |a: &[f32], i: usize| DVec3::new(a[3 * i] as f64, a[3 * i + 1] as f64, a[3 * i + 2] as f64);

@@ -225,19 +225,16 @@ impl ActivateIo {
         state: &palpate::contact::ToolState,
         st: &ParticleStatic,
     ) {
+        let inp = cpu::activate::ModeInputs::new(pp, tp, state, true, st, &self.u, &self.v);
         cpu::activate::activate(
-            pp,
-            tp,
-            state,
-            true,
-            st,
-            &self.u,
-            &self.v,
-            &mut self.pu,
-            &mut self.pv,
-            &mut self.pmode,
-            &mut self.ptimer,
-            &mut self.poffset,
+            &inp,
+            cpu::activate::ModeArrays {
+                displacements: &mut self.pu,
+                velocities: &mut self.pv,
+                mode: &mut self.pmode,
+                timer: &mut self.ptimer,
+                offset: &mut self.poffset,
+            },
         );
     }
 }

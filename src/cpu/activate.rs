@@ -186,41 +186,32 @@ pub fn update_particle(inp: &ModeInputs, p: usize, st: ModeState) {
     *st.mode = m;
 }
 
+/// The particle arrays the mode machine writes.
+pub struct ModeArrays<'a> {
+    /// Displacements, xyz.
+    pub displacements: &'a mut [f32],
+    /// Velocities, xyz.
+    pub velocities: &'a mut [f32],
+    /// Mode bits.
+    pub mode: &'a mut [u32],
+    /// Timers, s.
+    pub timer: &'a mut [f32],
+    /// Release offsets, xyz.
+    pub offset: &'a mut [f32],
+}
+
 /// Per particle: the mode machine (twin of entry `activate`, see [`update_particle`]), in
 /// parallel over blocks of particles, so the result is the same for any thread count.
-#[allow(clippy::too_many_arguments)]
-pub fn activate(
-    pp: &ParticleParams,
-    tool_params: &ToolParams,
-    tool_state: &ToolState,
-    tool: bool,
-    s: &ParticleStatic,
-    displacements: &[f32],
-    velocities: &[f32],
-    particle_displacements: &mut [f32],
-    particle_velocities: &mut [f32],
-    particle_mode: &mut [u32],
-    particle_timer: &mut [f32],
-    particle_offset: &mut [f32],
-) {
+pub fn activate(inp: &ModeInputs, state: ModeArrays) {
     use rayon::prelude::*;
-    let inp = ModeInputs::new(
-        pp,
-        tool_params,
-        tool_state,
-        tool,
-        s,
-        displacements,
-        velocities,
-    );
-    let n = pp.n_particles as usize;
+    let n = inp.pp.n_particles as usize;
     const BLOCK: usize = 256;
-    particle_displacements[..3 * n]
+    state.displacements[..3 * n]
         .par_chunks_mut(3 * BLOCK)
-        .zip(particle_velocities[..3 * n].par_chunks_mut(3 * BLOCK))
-        .zip(particle_mode[..n].par_chunks_mut(BLOCK))
-        .zip(particle_timer[..n].par_chunks_mut(BLOCK))
-        .zip(particle_offset[..3 * n].par_chunks_mut(3 * BLOCK))
+        .zip(state.velocities[..3 * n].par_chunks_mut(3 * BLOCK))
+        .zip(state.mode[..n].par_chunks_mut(BLOCK))
+        .zip(state.timer[..n].par_chunks_mut(BLOCK))
+        .zip(state.offset[..3 * n].par_chunks_mut(3 * BLOCK))
         .enumerate()
         .for_each(|(block, ((((pd, pv), pm), pt), po))| {
             for j in 0..pm.len() {
@@ -231,7 +222,7 @@ pub fn activate(
                     timer: &mut pt[j],
                     offset: &mut po[3 * j..3 * j + 3],
                 };
-                update_particle(&inp, block * BLOCK + j, st);
+                update_particle(inp, block * BLOCK + j, st);
             }
         });
 }

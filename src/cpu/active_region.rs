@@ -13,8 +13,9 @@
 //! press and release, and checks the tet bound against the particles' own distances). Scenes
 //! without a tool, or with `activation = "all"`, take the full pass at every activation.
 
-use super::activate::{update_particle, ModeInputs, ModeState};
+use super::activate::{update_particle, ModeArrays, ModeInputs, ModeState};
 use crate::particles::params::mode;
+use crate::particles::Particles;
 use glam::DVec3;
 
 /// A tet's particles at rest: the centre and radius of a sphere holding them, and their
@@ -50,46 +51,13 @@ fn sorted(mut v: Vec<u32>) -> Vec<u32> {
     v
 }
 
-/// The particle arrays the mode machine writes.
-pub struct ModeArrays<'a> {
-    /// Displacements, xyz.
-    pub displacements: &'a mut [f32],
-    /// Velocities, xyz.
-    pub velocities: &'a mut [f32],
-    /// Mode bits.
-    pub mode: &'a mut [u32],
-    /// Timers, s.
-    pub timer: &'a mut [f32],
-    /// Release offsets, xyz.
-    pub offset: &'a mut [f32],
-}
-
 /// One particle after the mode machine: displacement, velocity, mode, timer, offset.
 type UpdatedParticle = ([f32; 3], [f32; 3], u32, f32, [f32; 3]);
 
-/// The static data [`ActiveRegion::new`] reads.
-pub struct RegionStatics<'a> {
-    /// Particle rest positions, xyz.
-    pub rest: &'a [f32],
-    /// Barycentric weights, 4 per particle.
-    pub weights: &'a [f32],
-    /// Per tet, its particles' range (particles are numbered by host tet).
-    pub tet_offsets: &'a [u32],
-    /// CSR vertex → particle slots.
-    pub slot_offsets: &'a [u32],
-    /// Particle slots p·4 + corner.
-    pub slots: &'a [u32],
-    /// The particle mass.
-    pub particle_mass: f32,
-    /// Per vertex, the core mass.
-    pub core_mass: &'a [f32],
-    /// Per vertex, 1 when fixed.
-    pub node_fixed: &'a [u32],
-}
-
 impl ActiveRegion {
-    /// Bounds of every tet's particles and the always-relumped vertices; not primed.
-    pub fn new(s: &RegionStatics) -> ActiveRegion {
+    /// Bounds of every tet's particles and the always-relumped vertices (`node_fixed`: 1 per
+    /// fixed vertex); not primed.
+    pub fn new(s: &Particles, node_fixed: &[u32]) -> ActiveRegion {
         let n_tets = s.tet_offsets.len() - 1;
         let bounds = (0..n_tets)
             .map(|e| {
@@ -128,14 +96,14 @@ impl ActiveRegion {
             })
             .collect();
         // The all-embedded mass, summed as the relump sums it.
-        let always = (0..s.node_fixed.len())
+        let always = (0..node_fixed.len())
             .filter(|&i| {
                 let mut m = s.core_mass[i];
                 for k in s.slot_offsets[i]..s.slot_offsets[i + 1] {
-                    m += s.weights[s.slots[k as usize] as usize] * s.particle_mass;
+                    m += s.weights[s.slots[k as usize] as usize] * s.mass;
                 }
                 // (a NaN mass takes the relump's massless branch too)
-                s.node_fixed[i] != 0 || m <= 0.0 || m.is_nan()
+                node_fixed[i] != 0 || m <= 0.0 || m.is_nan()
             })
             .map(|i| i as u32)
             .collect();
@@ -189,9 +157,12 @@ impl ActiveRegion {
             .with_min_len(64)
             .map(|&p| {
                 let p = p as usize;
-                let mut u: [f32; 3] = state.displacements[3 * p..3 * p + 3].try_into().unwrap();
-                let mut v: [f32; 3] = state.velocities[3 * p..3 * p + 3].try_into().unwrap();
-                let mut o: [f32; 3] = state.offset[3 * p..3 * p + 3].try_into().unwrap();
+                let xyz = |a: &[f32]| [a[3 * p], a[3 * p + 1], a[3 * p + 2]];
+                let (mut u, mut v, mut o) = (
+                    xyz(state.displacements),
+                    xyz(state.velocities),
+                    xyz(state.offset),
+                );
                 let (mut m, mut t) = (state.mode[p], state.timer[p]);
                 update_particle(
                     inp,

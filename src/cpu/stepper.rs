@@ -3,9 +3,9 @@
 //! for any thread count; the reductions sum in the GPU's fixed tree order.
 
 use super::activate::{
-    mark_set, relump_vertex, ModeInputs, ParticleStatic, RelumpInputs, VertexLump,
+    mark_set, relump_vertex, ModeArrays, ModeInputs, ParticleStatic, RelumpInputs, VertexLump,
 };
-use super::active_region::{ActiveRegion, ModeArrays, RegionStatics};
+use super::active_region::ActiveRegion;
 use super::gather::Coupling;
 use super::{
     contact, fem_forces, gather, integrate, reduce_final, reduce_partial, tool_force_final,
@@ -79,6 +79,19 @@ struct ParticleState {
     offset: Vec<f32>,
     mass: Vec<f32>,
     inv_mass: Vec<f32>,
+}
+
+impl ParticleState {
+    /// The arrays the mode machine writes.
+    fn mode_arrays(&mut self) -> ModeArrays<'_> {
+        ModeArrays {
+            displacements: &mut self.displacements,
+            velocities: &mut self.velocities,
+            mode: &mut self.mode,
+            timer: &mut self.timer,
+            offset: &mut self.offset,
+        }
+    }
 }
 
 impl Clone for ParticleState {
@@ -161,16 +174,7 @@ impl ParticleArrays {
         let pairs =
             super::sph::PairTable::new(&pp, &p.rest, &lists.neighbour_offsets, &lists.neighbours);
         let node_fixed: Vec<u32> = model.inv_mass.iter().map(|&w| (w == 0.0) as u32).collect();
-        let region = ActiveRegion::new(&RegionStatics {
-            rest: &p.rest,
-            weights: &p.weights,
-            tet_offsets: &p.tet_offsets,
-            slot_offsets: &p.slot_offsets,
-            slots: &p.slots,
-            particle_mass: pp.mass,
-            core_mass: &p.core_mass,
-            node_fixed: &node_fixed,
-        });
+        let region = ActiveRegion::new(p, &node_fixed);
         Some(ParticleArrays {
             params: pp,
             lists,
@@ -619,7 +623,7 @@ impl CpuStepper {
         let pp = pa.params;
         let n = pd.len();
         let (noff, nbrs) = (&pa.lists.neighbour_offsets, &pa.lists.neighbours);
-        super::activate::activate(
+        let inp = ModeInputs::new(
             &pp,
             &self.tool.params,
             &self.tool.state,
@@ -627,12 +631,8 @@ impl CpuStepper {
             &st,
             &self.state.displacements,
             &self.state.velocities,
-            &mut pa.state.displacements,
-            &mut pa.state.velocities,
-            &mut pa.state.mode,
-            &mut pa.state.timer,
-            &mut pa.state.offset,
         );
+        super::activate::activate(&inp, pa.state.mode_arrays());
         mark_set(n, mode::DYNAMIC, mode::IN_S, noff, nbrs, &mut pa.state.mode);
         mark_set(n, mode::IN_S, mode::IN_F, noff, nbrs, &mut pa.state.mode);
         super::compact::compact(
@@ -721,17 +721,7 @@ impl CpuStepper {
                     return;
                 }
                 let candidates = pa.region.candidates(&inp, &pd.tet_offsets);
-                ActiveRegion::update(
-                    &inp,
-                    &candidates,
-                    ModeArrays {
-                        displacements: &mut pa.state.displacements,
-                        velocities: &mut pa.state.velocities,
-                        mode: &mut pa.state.mode,
-                        timer: &mut pa.state.timer,
-                        offset: &mut pa.state.offset,
-                    },
-                );
+                ActiveRegion::update(&inp, &candidates, pa.state.mode_arrays());
                 let with = |bit: u32, modes: &[u32]| -> Vec<u32> {
                     candidates
                         .iter()
