@@ -91,3 +91,46 @@ pub fn gather_coupled(
         store3(out, 0, f);
     });
 }
+
+/// The CPU path's short list of what `gather_coupled` adds per coupled vertex: for each
+/// vertex with `NODE_COUPLED`, its slots (in CSR order) whose particle is in the force set
+/// and not dynamic, built once per activation. Modes change only at an activation, so until
+/// the particle state is replaced the filter in [`gather_coupled`] passes exactly these
+/// slots, in the same order: summing over them gives the same bits as walking every slot.
+#[derive(Clone, Debug, Default)]
+pub struct CoupledSlots {
+    /// CSR offsets per vertex (n_vertices + 1).
+    pub offsets: Vec<u32>,
+    /// Slots p·4 + corner.
+    pub slots: Vec<u32>,
+    /// Built from the current modes; false after the particle state was replaced.
+    pub valid: bool,
+}
+
+impl CoupledSlots {
+    /// Rebuild from the vertex flags and particle modes an activation left.
+    pub fn rebuild(
+        &mut self,
+        node_flags: &[u32],
+        slot_offsets: &[u32],
+        slots: &[u32],
+        particle_mode: &[u32],
+    ) {
+        use crate::particles::params::{mode, NODE_COUPLED};
+        self.offsets.clear();
+        self.slots.clear();
+        self.offsets.push(0);
+        for (i, &flags) in node_flags.iter().enumerate() {
+            if flags & NODE_COUPLED != 0 {
+                let range = slot_offsets[i] as usize..slot_offsets[i + 1] as usize;
+                self.slots
+                    .extend(slots[range].iter().copied().filter(|&slot| {
+                        let m = particle_mode[slot as usize / 4];
+                        m & mode::IN_F != 0 && m & mode::DYNAMIC == 0
+                    }));
+            }
+            self.offsets.push(self.slots.len() as u32);
+        }
+        self.valid = true;
+    }
+}

@@ -149,6 +149,42 @@ struct ParticleArrays {
     region: ActiveRegion,
     /// Run every activation over all particles, tets and vertices (tests compare the two).
     full_activation: bool,
+    /// Tets whose energy weight is not 1, ascending (the rest keep their whole energy).
+    weighted_tets: Vec<u32>,
+    /// Per coupled vertex, the slots `gather_coupled` adds (valid until the state is replaced).
+    coupled_slots: super::gather::CoupledSlots,
+}
+
+impl ParticleArrays {
+    /// The particle state was replaced: the next activation is a full pass, and until then
+    /// `gather_coupled` walks every slot.
+    fn forget_region(&mut self) {
+        self.region.forget();
+        self.coupled_slots.valid = false;
+    }
+
+    /// After an activation: the weighted tets among `reweighed` (every tet whose weight may
+    /// differ from 1) and the coupled vertices' slots. With `full_activation` (the reference
+    /// the tests compare against) every tet is weighted and `gather_coupled` walks every slot.
+    fn after_activation(
+        &mut self,
+        reweighed: impl Iterator<Item = u32>,
+        pd: &crate::particles::Particles,
+    ) {
+        if self.full_activation {
+            self.weighted_tets = (0..self.tet_weight.len() as u32).collect();
+            self.coupled_slots.valid = false;
+            return;
+        }
+        let w = &self.tet_weight;
+        self.weighted_tets = reweighed.filter(|&e| w[e as usize] != 1.0).collect();
+        self.coupled_slots.rebuild(
+            &self.node_flags,
+            &pd.slot_offsets,
+            &pd.slots,
+            &self.state.mode,
+        );
+    }
 }
 
 impl ParticleArrays {
@@ -211,6 +247,8 @@ impl ParticleArrays {
             stats: vec![0.0; 8],
             region,
             full_activation: false,
+            weighted_tets: Vec::new(),
+            coupled_slots: Default::default(),
         })
     }
 }
@@ -443,18 +481,16 @@ impl CpuStepper {
                     &mut self.tet_energy,
                     self.variant,
                 );
-                // The PARTICLES variant of fem_forces: each tet keeps 1 − φₑ of its energy.
+                // The PARTICLES variant of fem_forces: each tet keeps 1 − φₑ of its energy
+                // (only the weighted tets: × 1 changes nothing).
                 if let Some(pa) = &self.particles {
-                    super::par::for_each_chunk2::<12, 1>(
-                        &mut self.corner_forces,
-                        &mut self.tet_energy,
-                        m.n_tets(),
-                        |e, corner, energy| {
-                            let w = pa.tet_weight[e];
-                            corner.iter_mut().for_each(|c| *c *= w);
-                            energy[0] *= w;
-                        },
-                    );
+                    for &e in &pa.weighted_tets {
+                        let (e, w) = (e as usize, pa.tet_weight[e as usize]);
+                        self.corner_forces[12 * e..12 * e + 12]
+                            .iter_mut()
+                            .for_each(|c| *c *= w);
+                        self.tet_energy[e] *= w;
+                    }
                 }
             }
             Stage::FollowerPressure => {
@@ -542,6 +578,14 @@ impl CpuStepper {
                 let empty: CouplingSlices = (&[], &[], &[], &[], &[], &[]);
                 let (node_flags, slot_offsets, slots, weights, pmode, force_sum) =
                     match (&self.particles, pdata) {
+                        (Some(pa), Some(pd)) if pa.coupled_slots.valid => (
+                            pa.node_flags.as_slice(),
+                            pa.coupled_slots.offsets.as_slice(),
+                            pa.coupled_slots.slots.as_slice(),
+                            pd.weights.as_slice(),
+                            pa.state.mode.as_slice(),
+                            pa.force_sum.as_slice(),
+                        ),
                         (Some(pa), Some(pd)) => (
                             pa.node_flags.as_slice(),
                             pd.slot_offsets.as_slice(),
@@ -670,6 +714,7 @@ impl CpuStepper {
             &pd.host,
             &m.tets,
         );
+        pa.after_activation(0..m.n_tets() as u32, pd);
     }
 
     /// What the last activation left besides the particle state: the tets' energy weights,
@@ -684,8 +729,10 @@ impl CpuStepper {
         })
     }
 
-    /// Run every activation over all particles, tets and vertices (`true`), or over the
-    /// region it can change (`false`, the default; the results are the same).
+    /// The reference path (`true`): every activation runs over all particles, tets and
+    /// vertices, every tet's forces are weighted and `gather_coupled` walks every slot. The
+    /// default (`false`) does each only where it can change anything; the results are
+    /// bit-equal.
     pub fn set_full_activation(&mut self, full: bool) {
         if let Some(pa) = &mut self.particles {
             pa.full_activation = full;
@@ -739,7 +786,8 @@ impl CpuStepper {
                     &mut pa.counts,
                     &mut pa.dispatch,
                 );
-                for e in pa.region.tets_to_weigh(&stress, &pd.host) {
+                let reweighed = pa.region.tets_to_weigh(&stress, &pd.host);
+                for &e in &reweighed {
                     pa.tet_weight[e as usize] =
                         super::activate::tet_weight_of(e as usize, &pd.tet_offsets, &pa.state.mode);
                 }
@@ -781,6 +829,7 @@ impl CpuStepper {
                     pa.contact_weight[i] = lump.contact_weight;
                 }
                 pa.region.settle(&force, &blending);
+                pa.after_activation(reweighed.into_iter(), pd);
                 pa.dynamic_list = dynamic;
                 pa.stress_list = stress;
                 pa.force_list = force;
@@ -965,7 +1014,7 @@ impl CpuStepper {
         if let Some(pa) = &mut self.particles {
             pa.state.displacements.clone_from(&state.displacements);
             pa.state.velocities.clone_from(&state.velocities);
-            pa.region.forget();
+            pa.forget_region();
         }
     }
 
@@ -1085,7 +1134,7 @@ impl Stepper for CpuStepper {
                 self.state = state.clone();
                 if let (Some(pa), Some(ps)) = (&mut self.particles, particles) {
                     pa.state = ps.clone();
-                    pa.region.forget();
+                    pa.forget_region();
                 }
             }
             None => {
@@ -1105,7 +1154,7 @@ impl Stepper for CpuStepper {
     fn write_state(&mut self, state: &State) -> Result<()> {
         self.state = state.clone();
         if let Some(pa) = &mut self.particles {
-            pa.region.forget();
+            pa.forget_region();
         }
         self.stats.iter_mut().for_each(|s| *s = 0.0);
         Ok(())
