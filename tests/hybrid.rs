@@ -476,7 +476,9 @@ fn the_cpu_activation_over_its_region_equals_the_activation_over_everything() {
     let tool = scene.tool.clone().unwrap();
     let interval = scene.particles.as_ref().unwrap().activation_interval;
     let (mut t, mut batch) = (0.0, 0u32);
-    let (mut dynamic_max, mut released, mut restored) = (0u32, 0usize, false);
+    let (mut dynamic_max, mut released) = (0u32, 0usize);
+    // (checkpoint, restore) batches: while pressing (t ≈ 2.1–2.3) and while releasing (6.4–6.65).
+    let mut replays = [(30u32, 33u32), (92, 95)].into_iter().peekable();
     let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
     // Press (t 1–3), hold, withdraw (6–7) and let the particles settle and blend back.
     while t < 7.8 {
@@ -525,17 +527,20 @@ fn the_cpu_activation_over_its_region_equals_the_activation_over_everything() {
         dynamic_max =
             dynamic_max.max(a.modes.iter().filter(|&&x| x & mode::DYNAMIC != 0).count() as u32);
         released += a.modes.iter().filter(|&&x| x & mode::RELEASED != 0).count();
-        if batch == 30 {
+        let Some(&(saved, replay)) = replays.peek() else {
+            continue;
+        };
+        if batch == saved {
             for s in [&mut region, &mut everything] {
                 s.checkpoint().unwrap();
             }
         }
-        // While pressing (t ≈ 2.3), both run 3 more steps and go back to their checkpoint three
-        // batches earlier and replay: the activations now fall 3 steps into each batch, so the
-        // first 7 steps after the restore run on the restored modes with what the last
-        // activation left (the coupled vertices' slot lists must not be used then).
-        if batch == 33 && !restored {
-            restored = true;
+        // Both run a few more steps and go back to their checkpoint three batches earlier and
+        // replay: the activations then fall 3 steps later into each batch, so the first steps
+        // after the restore run on the restored modes with what the last activation left (the
+        // coupled vertices' slot lists must not be used then).
+        if batch == replay {
+            replays.next();
             let input = palpate::stepper::BatchInput {
                 tool: Some((tool.position_at(t), tool.position_at(t + 3.0 * dt))),
             };
@@ -544,8 +549,8 @@ fn the_cpu_activation_over_its_region_equals_the_activation_over_everything() {
                 s.wait().unwrap();
                 s.restore().unwrap();
             }
-            batch = 30;
-            t = 30.0 * interval as f64 * dt;
+            batch = saved;
+            t = saved as f64 * interval as f64 * dt;
         }
     }
     let left = region

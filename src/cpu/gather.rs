@@ -98,7 +98,7 @@ pub fn gather_coupled(
 /// the particle state is replaced the filter in [`gather_coupled`] passes exactly these
 /// slots, in the same order: summing over them gives the same bits as walking every slot.
 #[derive(Clone, Debug, Default)]
-pub struct CoupledSlots {
+pub(crate) struct CoupledSlots {
     /// CSR offsets per vertex (n_vertices + 1).
     pub offsets: Vec<u32>,
     /// Slots p·4 + corner.

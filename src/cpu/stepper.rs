@@ -149,7 +149,8 @@ struct ParticleArrays {
     region: ActiveRegion,
     /// Run every activation over all particles, tets and vertices (tests compare the two).
     full_activation: bool,
-    /// Tets whose energy weight is not 1, ascending (the rest keep their whole energy).
+    /// Tets whose energy weight is not 1, ascending (the rest keep their whole energy); every
+    /// tet on the reference path.
     weighted_tets: Vec<u32>,
     /// Per coupled vertex, the slots `gather_coupled` adds (valid until the state is replaced).
     coupled_slots: super::gather::CoupledSlots,
@@ -482,8 +483,24 @@ impl CpuStepper {
                     self.variant,
                 );
                 // The PARTICLES variant of fem_forces: each tet keeps 1 − φₑ of its energy
-                // (only the weighted tets: × 1 changes nothing).
-                if let Some(pa) = &self.particles {
+                // (only the weighted tets: × 1 changes nothing), in parallel over every tet
+                // when most are weighted.
+                if let Some(pa) = self
+                    .particles
+                    .as_ref()
+                    .filter(|pa| 4 * pa.weighted_tets.len() > m.n_tets())
+                {
+                    super::par::for_each_chunk2::<12, 1>(
+                        &mut self.corner_forces,
+                        &mut self.tet_energy,
+                        m.n_tets(),
+                        |e, corner, energy| {
+                            let w = pa.tet_weight[e];
+                            corner.iter_mut().for_each(|c| *c *= w);
+                            energy[0] *= w;
+                        },
+                    );
+                } else if let Some(pa) = &self.particles {
                     for &e in &pa.weighted_tets {
                         let (e, w) = (e as usize, pa.tet_weight[e as usize]);
                         self.corner_forces[12 * e..12 * e + 12]
@@ -732,7 +749,7 @@ impl CpuStepper {
     /// The reference path (`true`): every activation runs over all particles, tets and
     /// vertices, every tet's forces are weighted and `gather_coupled` walks every slot. The
     /// default (`false`) does each only where it can change anything; the results are
-    /// bit-equal.
+    /// bit-equal. Takes effect at the next activation.
     pub fn set_full_activation(&mut self, full: bool) {
         if let Some(pa) = &mut self.particles {
             pa.full_activation = full;
