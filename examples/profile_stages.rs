@@ -1,50 +1,77 @@
-//! Where a CPU step's time goes: run a built-in scene on the CPU stepper with its tool moved
-//! along its path to time `t`, hold it there, then time every stage of the plan
-//! (`CpuStepper::profile_stages`) and print µs per step.
+//! Where a step's time goes: run a built-in scene with its tool moved along its path to time
+//! `t`, hold it there, then time every stage of the plan and print µs per step: on the CPU
+//! stepper (`CpuStepper::profile_stages`), or with `gpu` for the threads argument on the GPU
+//! stepper (`GpuStepper::profile_stages`: timestamp queries, one compute pass per stage, at
+//! most 100 runs; every stage runs once per run, including those planned every k steps).
 //!
-//! `cargo run --release --example profile_stages -- [scene] [t] [steps] [threads]`
+//! `cargo run --release --example profile_stages -- [scene] [t] [steps] [threads | gpu]`
 //! (defaults: hm1 3.5 200 1).
 
 use palpate::cpu::CpuStepper;
+use palpate::gpu::stepper::{GpuStepper, StageTimes};
 use palpate::sim::{Backend, SimOptions, Simulation};
 use palpate::stepper::{BatchInput, Stepper};
 use palpate::Scene;
 use std::sync::Arc;
+
+/// Move the scene's tool along its path to `hold_time` in batches of 10 steps.
+fn press(
+    stepper: &mut dyn Stepper,
+    scene: &Scene,
+    dt: f64,
+    hold_time: f64,
+) -> palpate::error::Result<()> {
+    let tool = scene.tool.as_ref();
+    let batch = 10u32;
+    let mut t = 0.0;
+    let mut from = tool.map(|t| t.position_at(0.0));
+    while t < hold_time {
+        let to = tool.map(|tl| tl.position_at((t + batch as f64 * dt).min(hold_time)));
+        stepper.submit(batch, &BatchInput { tool: from.zip(to) })?;
+        stepper.wait()?;
+        from = to;
+        t += batch as f64 * dt;
+    }
+    Ok(())
+}
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let name = args.first().map_or("hm1", |s| s.as_str());
     let hold_time: f64 = args.get(1).map_or(Ok(3.5), |s| s.parse())?;
     let steps: u32 = args.get(2).map_or(Ok(200), |s| s.parse())?;
-    let threads: usize = args.get(3).map_or(Ok(1), |s| s.parse())?;
+    let on_gpu = args.get(3).is_some_and(|s| s == "gpu");
     let scene = Scene::load(name)?;
     let sim = Simulation::new(&scene, Backend::Cpu, SimOptions::default())?;
     let model: Arc<_> = sim.model.clone();
     let params = model.step_params(sim.dt, sim.damping);
-    let mut stepper = CpuStepper::with_threads(model.clone(), params, threads)?;
-    let tool = scene.tool.as_ref();
-    let batch = 10u32;
-    let mut t = 0.0;
-    let mut from = tool.map(|t| t.position_at(0.0));
-    while t < hold_time {
-        let to = tool.map(|tl| tl.position_at((t + batch as f64 * sim.dt).min(hold_time)));
-        stepper.submit(batch, &BatchInput { tool: from.zip(to) })?;
-        stepper.wait()?;
-        from = to;
-        t += batch as f64 * sim.dt;
-    }
-    let times = stepper.profile_stages(steps);
+    let (times, modes, on): (StageTimes, Option<Vec<u32>>, String) = if on_gpu {
+        let ctx = Arc::new(palpate::gpu::GpuContext::new()?);
+        let mut g = GpuStepper::new(ctx, &model, params)?;
+        press(&mut g, &scene, sim.dt, hold_time)?;
+        let times = g
+            .profile_stages(steps)?
+            .ok_or("the adapter has no timestamp queries")?;
+        let modes = g.read_particle_state()?.map(|s| s.modes);
+        (times, modes, g.name())
+    } else {
+        let threads: usize = args.get(3).map_or(Ok(1), |s| s.parse())?;
+        let mut c = CpuStepper::with_threads(model.clone(), params, threads)?;
+        press(&mut c, &scene, sim.dt, hold_time)?;
+        let times = c.profile_stages(steps);
+        let modes = c.particle_modes().map(|m| m.to_vec());
+        (times, modes, format!("{threads} threads"))
+    };
     let total: f64 = times.per_stage.iter().map(|(_, ns)| ns).sum();
     println!(
-        "{name}: {} tets, {} threads, tool held at t = {hold_time}; µs per step over {steps} steps",
+        "{name}: {} tets, {on}, tool held at t = {hold_time}; µs per step over {steps} steps",
         model.n_tets(),
-        threads
     );
     for (stage, ns) in &times.per_stage {
         println!("  {:<24} {:>9.1}", format!("{stage:?}"), ns / 1e3);
     }
     println!("  {:<24} {:>9.1}", "total", total / 1e3);
-    if let Some(modes) = stepper.particle_modes() {
+    if let Some(modes) = modes {
         use palpate::particles::params::mode;
         let count = |bit: u32| modes.iter().filter(|&&m| m & bit != 0).count();
         println!(

@@ -1,7 +1,10 @@
 // Stage (last step of a batch): the particles' diagnostics, a two-level tree reduction like
-// reduce.wgsl: kinetic energy of dynamic particles, SPH strain energy of particles in S,
-// largest dynamic speed, sum |f|^2 over dynamic particles and sum m |u|^2 over dynamic
-// particles -> particle_stats. CPU twin: src/cpu/particle_reduce.rs.
+// reduce.wgsl over the stress list S (which holds every dynamic particle): kinetic energy of
+// dynamic particles, SPH strain energy of particles in S, largest dynamic speed, sum |f|^2
+// over dynamic particles and sum m |u|^2 over dynamic particles -> particle_stats.
+// particle_reduce_partial runs indirect over S's arguments (64-thread workgroups, so up to 4x
+// the 256-entry blocks needed run; those past the buffer's blocks write nothing);
+// particle_reduce_final combines the ceil(|S|/256) blocks. CPU twin: src/cpu/particle_reduce.rs.
 #import index
 #import particles
 
@@ -13,6 +16,8 @@
 @group(0) @binding(5) var<storage, read> particle_energy: array<f32>;
 @group(0) @binding(6) var<storage, read_write> particle_partials: array<f32>;
 @group(0) @binding(7) var<storage, read_write> particle_stats: array<f32>;
+@group(0) @binding(8) var<storage, read> particle_counts: array<u32>;
+@group(0) @binding(9) var<storage, read> stress_list: array<u32>;
 
 const WORKGROUP: u32 = 256u;
 const LANE: u32 = 5u;
@@ -53,9 +58,10 @@ fn particle_reduce_partial(
     @builtin(local_invocation_index) l: u32,
     @builtin(workgroup_id) wid: vec3<u32>,
 ) {
-    let p = linear_index(gid, nwg, WORKGROUP);
+    let s = linear_index(gid, nwg, WORKGROUP);
     var lane = array<f32, 5>(0.0, 0.0, 0.0, 0.0, 0.0);
-    if p < particle_params.n_particles {
+    if s < particle_counts[1] {
+        let p = stress_list[s];
         let mode = particle_mode[p];
         let m = particle_params.mass;
         if (mode & MODE_DYNAMIC) != 0u {
@@ -73,8 +79,8 @@ fn particle_reduce_partial(
     }
     lanes[l] = lane;
     tree(l);
-    if l == 0u {
-        let block = wid.y * nwg.x + wid.x;
+    let block = wid.y * nwg.x + wid.x;
+    if l == 0u && block < (particle_params.n_particles + WORKGROUP - 1u) / WORKGROUP {
         for (var k = 0u; k < LANE; k++) {
             particle_partials[LANE * block + k] = lanes[0][k];
         }
@@ -83,7 +89,7 @@ fn particle_reduce_partial(
 
 @compute @workgroup_size(256)
 fn particle_reduce_final(@builtin(local_invocation_index) l: u32) {
-    let n = (particle_params.n_particles + WORKGROUP - 1u) / WORKGROUP;
+    let n = (particle_counts[1] + WORKGROUP - 1u) / WORKGROUP;
     var lane = array<f32, 5>(0.0, 0.0, 0.0, 0.0, 0.0);
     for (var k = l; k < n; k += WORKGROUP) {
         let b = LANE * k;

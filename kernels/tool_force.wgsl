@@ -3,8 +3,11 @@
 // at the batch's end position `end` and the vertices where the batch left them; also the
 // largest penetration, the number of contacts and their rest area. Two-level tree reduction
 // like reduce.wgsl: tool_force_partial (128 surface vertices per workgroup),
-// tool_force_particles (128 particles per workgroup, blocks after the vertices'; scenes with
-// particles), tool_force_final (one workgroup) -> tool_report. CPU twin: src/cpu/tool_force.rs.
+// tool_force_particles (128 entries of the dynamic list per workgroup, blocks after the
+// vertices'; scenes with particles; indirect over the dynamic list's arguments, which count
+// 64-thread workgroups, so up to twice the blocks needed run and those past the buffer's
+// blocks write nothing), tool_force_final (one workgroup: the vertices' blocks and the
+// ceil(|D|/128) blocks of the dynamic list) -> tool_report. CPU twin: src/cpu/tool_force.rs.
 #import params
 #import tool
 #import index
@@ -20,18 +23,18 @@
 @group(0) @binding(8) var<storage, read_write> tool_partials: array<f32>;
 @group(0) @binding(9) var<storage, read_write> tool_report: array<f32>;
 @group(0) @binding(10) var<storage, read> contact_weight: array<f32>;
-@group(0) @binding(11) var<storage, read> particle_mode: array<u32>;
 @group(0) @binding(12) var<storage, read> particle_rest: array<f32>;
 @group(0) @binding(13) var<storage, read> particle_displacements: array<f32>;
 @group(0) @binding(14) var<storage, read> particle_velocities: array<f32>;
 @group(0) @binding(15) var<storage, read> particle_area: array<f32>;
 @group(0) @binding(16) var<storage, read> particle_gradient: array<f32>;
 @group(0) @binding(17) var<storage, read> particle_contact_offset: array<f32>;
+@group(0) @binding(18) var<storage, read> particle_counts: array<u32>;
+@group(0) @binding(19) var<storage, read> dynamic_list: array<u32>;
 
 // Pipeline constant: the scene has particles (vertex contacts are weighted as in contact.wgsl;
 // tool_force_particles adds the dynamic particles' contacts in blocks after the vertices').
 override PARTICLES: bool = false;
-const MODE_DYNAMIC: u32 = 1u;
 
 const WORKGROUP: u32 = 128u;
 const LANE: u32 = 15u;
@@ -140,12 +143,18 @@ fn tool_force_particles(
     @builtin(local_invocation_index) l: u32,
     @builtin(workgroup_id) wid: vec3<u32>,
 ) {
-    let p = linear_index(gid, nwg, WORKGROUP);
+    let d = linear_index(gid, nwg, WORKGROUP);
     var lane: array<f32, 15>;
     for (var k = 0u; k < LANE; k++) {
         lane[k] = 0.0;
     }
-    if p < tool_params.n_particles && (particle_mode[p] & MODE_DYNAMIC) != 0u && particle_area[p] > 0.0 {
+    var p = 0u;
+    var touches = false;
+    if d < particle_counts[0] {
+        p = dynamic_list[d];
+        touches = particle_area[p] > 0.0;
+    }
+    if touches {
         let g = 9u * p;
         let f = mat3x3<f32>(
             vec3<f32>(1.0 + particle_gradient[g], particle_gradient[g + 1u], particle_gradient[g + 2u]),
@@ -160,14 +169,22 @@ fn tool_force_particles(
         lane = contact_lane(x, v, particle_area[p]);
     }
     lanes[l] = lane;
-    let vertex_blocks = (tool_params.n_surface + WORKGROUP - 1u) / WORKGROUP;
-    finish_block(l, vertex_blocks + wid.y * nwg.x + wid.x);
+    tree(l);
+    let block = wid.y * nwg.x + wid.x;
+    if l == 0u && block < (tool_params.n_particles + WORKGROUP - 1u) / WORKGROUP {
+        let at = (tool_params.n_surface + WORKGROUP - 1u) / WORKGROUP + block;
+        for (var k = 0u; k < LANE; k++) {
+            tool_partials[LANE * at + k] = lanes[0][k];
+        }
+    }
 }
 
 @compute @workgroup_size(128)
 fn tool_force_final(@builtin(local_invocation_index) l: u32) {
-    let n = (tool_params.n_surface + WORKGROUP - 1u) / WORKGROUP
-        + (tool_params.n_particles + WORKGROUP - 1u) / WORKGROUP;
+    var n = (tool_params.n_surface + WORKGROUP - 1u) / WORKGROUP;
+    if PARTICLES {
+        n += (particle_counts[0] + WORKGROUP - 1u) / WORKGROUP;
+    }
     var lane: array<f32, 15>;
     for (var k = 0u; k < LANE; k++) {
         lane[k] = 0.0;

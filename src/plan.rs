@@ -72,6 +72,9 @@ pub enum Domain {
     Particles,
     /// One thread per particle and one more (prefix sums over n + 1 marks).
     ParticlesPlusOne,
+    /// One thread per entry of the dynamic list: indirect over its arguments (64-thread
+    /// workgroups) when the model has particles, else a single idle workgroup.
+    DynamicParticles,
     /// A single workgroup.
     OneWorkgroup,
     /// Workgroup counts read from an indirect-argument buffer written by an earlier kernel:
@@ -170,7 +173,7 @@ impl Stage {
                 Entry {
                     file: "particle_reduce",
                     entry: "particle_reduce_partial",
-                    domain: Domain::Particles,
+                    domain: Domain::Indirect("particle_dispatch", 12),
                     aliases: &[],
                 },
                 Entry {
@@ -196,7 +199,7 @@ impl Stage {
                 Entry {
                     file: "tool_force",
                     entry: "tool_force_particles",
-                    domain: Domain::Particles,
+                    domain: Domain::DynamicParticles,
                     aliases: &[],
                 },
                 Entry {

@@ -138,7 +138,7 @@ fn contact_kernels_match_their_cpu_twins() {
         &mut partials,
         None,
     );
-    cpu::tool_force_final(&tp, &partials, &mut report);
+    cpu::tool_force_final(&tp, 0, &partials, &mut report);
     let gr = g.read_f32("tool_report").unwrap();
     let e = rel_err(&gr[..15], &report[..15]);
     eprintln!("tool_force: report {:?}, rel err {e:.2e}", &report[..3]);
@@ -170,7 +170,7 @@ fn frozen_stiffness_is_the_derivative_of_the_tool_force() {
             &mut partials,
             None,
         );
-        cpu::tool_force_final(&tp, &partials, &mut report);
+        cpu::tool_force_final(&tp, 0, &partials, &mut report);
         report
     };
     let c = DVec3::new(0.0803, 0.0104, 0.0232);

@@ -591,7 +591,8 @@ fn backends_agree(label: &str, c: &[Snapshot], g: &[Snapshot]) {
     }
 }
 
-/// The CPU twin of `particle_reduce` on the GPU's current particle buffers: (partials, stats).
+/// The CPU twin of `particle_reduce` on the GPU's current particle buffers and stress list:
+/// (the partials of the list's blocks, stats).
 fn particle_reduce_twin(
     g: &GpuStepper,
     pp: &palpate::particles::params::ParticleParams,
@@ -599,8 +600,11 @@ fn particle_reduce_twin(
     let mut partials =
         vec![0.0f32; cpu::particle_reduce::LANE * cpu::particle_reduce::n_partials(pp)];
     let mut stats = vec![0.0f32; 8];
+    let stress = bits_u32(g, "particle_counts")[1] as usize;
+    let stress_list = bits_u32(g, "stress_list")[..stress].to_vec();
     cpu::particle_reduce::particle_reduce(
         pp,
+        &stress_list,
         &bits_u32(g, "particle_mode"),
         &g.read_f32("particle_displacements").unwrap(),
         &g.read_f32("particle_velocities").unwrap(),
@@ -609,6 +613,8 @@ fn particle_reduce_twin(
         &mut partials,
         &mut stats,
     );
+    let blocks = stress_list.len().div_ceil(cpu::particle_reduce::WORKGROUP);
+    partials.truncate(cpu::particle_reduce::LANE * blocks);
     (partials, stats)
 }
 

@@ -1,5 +1,6 @@
-//! CPU twin of `kernels/particle_reduce.wgsl`: the particles' diagnostics reduced in the
-//! GPU's tree order (blocks of 256, then one block over the partials).
+//! CPU twin of `kernels/particle_reduce.wgsl`: the particles' diagnostics reduced over the
+//! stress list in the GPU's tree order (blocks of 256 list entries, then one block over the
+//! partials).
 
 use super::load3;
 use crate::particles::params::{mode, ParticleParams};
@@ -9,7 +10,7 @@ pub const WORKGROUP: usize = 256;
 /// Floats per lane: kinetic, elastic, max speed, residual², Σ m|u|².
 pub const LANE: usize = 5;
 
-/// Number of partials.
+/// The most partials (the buffer's size: every particle in the stress set).
 pub fn n_partials(pp: &ParticleParams) -> usize {
     (pp.n_particles as usize).div_ceil(WORKGROUP)
 }
@@ -31,10 +32,12 @@ fn tree(lanes: &mut [[f32; LANE]; WORKGROUP]) -> [f32; LANE] {
     lanes[0]
 }
 
-/// Both passes: writes `particle_stats[..5]`.
+/// Both passes over `stress_list` (which holds every dynamic particle): writes
+/// `particle_stats[..5]`.
 #[allow(clippy::too_many_arguments)]
 pub fn particle_reduce(
     pp: &ParticleParams,
+    stress_list: &[u32],
     particle_mode: &[u32],
     particle_displacements: &[f32],
     particle_velocities: &[f32],
@@ -43,12 +46,13 @@ pub fn particle_reduce(
     particle_partials: &mut [f32],
     particle_stats: &mut [f32],
 ) {
-    let n = pp.n_particles as usize;
-    super::par::for_each_chunk::<LANE>(particle_partials, n_partials(pp), |block, out| {
+    let n = stress_list.len();
+    let blocks = n.div_ceil(WORKGROUP);
+    super::par::for_each_chunk::<LANE>(particle_partials, blocks, |block, out| {
         let mut lanes = [[0.0f32; LANE]; WORKGROUP];
         for (l, lane) in lanes.iter_mut().enumerate() {
-            let p = block * WORKGROUP + l;
-            if p < n {
+            if let Some(&p) = stress_list.get(block * WORKGROUP + l) {
+                let p = p as usize;
                 let m = particle_mode[p];
                 if m & mode::DYNAMIC != 0 {
                     let v = load3(particle_velocities, p);
@@ -69,7 +73,7 @@ pub fn particle_reduce(
     let mut lanes = [[0.0f32; LANE]; WORKGROUP];
     for (l, lane) in lanes.iter_mut().enumerate() {
         let mut k = l;
-        while k < n_partials(pp) {
+        while k < blocks {
             let b = &particle_partials[LANE * k..LANE * k + LANE];
             lane[0] += b[0];
             lane[1] += b[1];

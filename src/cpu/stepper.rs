@@ -458,17 +458,21 @@ impl CpuStepper {
                         p,
                         &t.params,
                         &t.input,
-                        &pa.state.mode,
                         &pd.rest,
                         &pa.state.displacements,
                         &pa.state.velocities,
                         &pd.contact_area,
                         &pa.gradient,
                         &pd.contact_offset,
+                        &pa.dynamic_list,
                         &mut t.partials,
                     );
                 }
-                tool_force_final(&t.params, &t.partials, &mut t.report);
+                let dynamic = self
+                    .particles
+                    .as_ref()
+                    .map_or(0, |pa| pa.dynamic_list.len());
+                tool_force_final(&t.params, dynamic, &t.partials, &mut t.report);
             }
             Stage::FemForces => {
                 fem_forces(
@@ -917,6 +921,7 @@ impl CpuStepper {
             ),
             Stage::ParticleReduce => super::particle_reduce::particle_reduce(
                 &pp,
+                &pa.stress_list,
                 &pa.state.mode,
                 &pa.state.displacements,
                 &pa.state.velocities,

@@ -1,6 +1,7 @@
 //! CPU twin of `kernels/tool_force.wgsl`: the force on the tool and its frozen-tissue
-//! stiffness, reduced over surface vertices in the GPU's fixed tree order (blocks of 128,
-//! then one block over the partials).
+//! stiffness, reduced over surface vertices and the dynamic particles in the GPU's fixed tree
+//! order (blocks of 128 surface vertices, then blocks of 128 entries of the dynamic list, then
+//! one block over the partials).
 
 use super::contact::{contact_force, tool_velocity};
 use super::load3;
@@ -14,7 +15,8 @@ pub const TOOL_WORKGROUP: usize = 128;
 pub const LANE: usize = 15;
 const MAX_SLOT: usize = 12;
 
-/// Number of partials `tool_force_partial` and `tool_force_particles` write.
+/// The most partials `tool_force_partial` and `tool_force_particles` write (the buffer's
+/// size: every particle dynamic).
 pub fn n_partials(tool_params: &ToolParams) -> usize {
     (tool_params.n_surface as usize).div_ceil(TOOL_WORKGROUP)
         + (tool_params.n_particles as usize).div_ceil(TOOL_WORKGROUP)
@@ -105,25 +107,25 @@ pub fn tool_force_partial(
     });
 }
 
-/// Per block of 128 particles (after the vertices' blocks): the dynamic surface particles'
-/// contact lanes (twin of `tool_force_particles`).
+/// Per block of 128 entries of `dynamic_list` (after the vertices' blocks): the dynamic
+/// surface particles' contact lanes (twin of `tool_force_particles`).
 #[allow(clippy::too_many_arguments)]
 pub fn tool_force_particles(
     params: &StepParams,
     tool_params: &ToolParams,
     tool_input: &ToolInput,
-    particle_mode: &[u32],
     particle_rest: &[f32],
     particle_displacements: &[f32],
     particle_velocities: &[f32],
     particle_area: &[f32],
     particle_gradient: &[f32],
     particle_contact_offset: &[f32],
+    dynamic_list: &[u32],
     tool_partials: &mut [f32],
 ) {
     let vc = tool_velocity(params, tool_input);
     let c = Vec3::from_array(tool_input.end);
-    let n = tool_params.n_particles as usize;
+    let n = dynamic_list.len();
     let first = (tool_params.n_surface as usize).div_ceil(TOOL_WORKGROUP);
     super::par::for_each_chunk::<LANE>(
         &mut tool_partials[LANE * first..],
@@ -131,11 +133,9 @@ pub fn tool_force_particles(
         |block, out| {
             let mut lanes = [[0.0f32; LANE]; TOOL_WORKGROUP];
             for (l, slot) in lanes.iter_mut().enumerate() {
-                let p = block * TOOL_WORKGROUP + l;
-                if p < n
-                    && particle_mode[p] & crate::particles::params::mode::DYNAMIC != 0
-                    && particle_area[p] > 0.0
-                {
+                let d = block * TOOL_WORKGROUP + l;
+                let p = dynamic_list.get(d).map_or(0, |&p| p as usize);
+                if d < n && particle_area[p] > 0.0 {
                     let f =
                         glam::Mat3::IDENTITY + super::fem_forces::load_dm_inv(particle_gradient, p);
                     let x = load3(particle_rest, p)
@@ -156,9 +156,16 @@ pub fn tool_force_particles(
     );
 }
 
-/// One block: lane l combines partials l, l+128, …; then the tree. Writes `tool_report`.
-pub fn tool_force_final(tool_params: &ToolParams, tool_partials: &[f32], tool_report: &mut [f32]) {
-    let n = n_partials(tool_params);
+/// One block: lane l combines partials l, l+128, … of the vertices' blocks and the
+/// ceil(`dynamic`/128) blocks of the dynamic list; then the tree. Writes `tool_report`.
+pub fn tool_force_final(
+    tool_params: &ToolParams,
+    dynamic: usize,
+    tool_partials: &[f32],
+    tool_report: &mut [f32],
+) {
+    let n = (tool_params.n_surface as usize).div_ceil(TOOL_WORKGROUP)
+        + dynamic.div_ceil(TOOL_WORKGROUP);
     let mut lanes = [[0.0f32; LANE]; TOOL_WORKGROUP];
     for (l, lane) in lanes.iter_mut().enumerate() {
         let mut b = l;

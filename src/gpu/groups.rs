@@ -244,7 +244,8 @@ pub fn particle_step<'a>(model: &'a Model, t: &'a ParticleTables) -> BufferGroup
 }
 
 /// Without particles: 4-byte stand-ins for the bindings of the kernels' `PARTICLES = false`
-/// variants (fem_forces, contact, gather_coupled, tool_force), which never read them.
+/// variants (fem_forces, contact, gather_coupled, tool_force), which never read them (the
+/// idle workgroup of tool_force_particles reads a zero count).
 pub fn particle_stubs() -> BufferGroup<'static> {
     let names = [
         "tet_weight",
@@ -261,6 +262,8 @@ pub fn particle_stubs() -> BufferGroup<'static> {
         "particle_area",
         "particle_gradient",
         "particle_contact_offset",
+        "particle_counts",
+        "dynamic_list",
     ];
     BufferGroup {
         name: "particle stand-ins",

@@ -295,6 +295,10 @@ impl GpuStepper {
             Domain::FollowerFaces => Dispatch::Items(self.follower_load.map_or(0, |f| f.n_faces)),
             Domain::Particles => Dispatch::Items(self.n_particles),
             Domain::ParticlesPlusOne => Dispatch::Items(self.n_particles + 1),
+            Domain::DynamicParticles if self.n_particles > 0 => {
+                Dispatch::Indirect(self.buffers.require("particle_dispatch")?, 0)
+            }
+            Domain::DynamicParticles => Dispatch::Items(0),
             Domain::OneWorkgroup => Dispatch::One,
             Domain::Indirect(name, offset) => {
                 Dispatch::Indirect(self.buffers.require(name)?, offset)
