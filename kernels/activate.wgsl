@@ -7,7 +7,9 @@
 //   activate_tet_weights      per tet: 1 - phi_e, phi_e = (its particles in S)/(its particles)
 //   activate_relump           per vertex: mass = core + sum w_i m_p over non-dynamic hosted
 //                             particles; velocity keeps the momentum of released particles;
-//                             vertices with no mass left follow their dynamic particles
+//                             vertices with no mass left follow their dynamic particles; the
+//                             short list of its force-set embedded particles' slots for
+//                             gather_coupled (coupled_slots from its CSR offset, coupled_count)
 // Mode machine (a particle at distance d from the tool's surface; PINNED never moves):
 //   embedded or blending, d < activation radius -> DYNAMIC at its embedded position and
 //     velocity (its momentum leaves the host vertices exactly);
@@ -50,6 +52,9 @@
 @group(0) @binding(26) var<storage, read> incidence_offsets: array<u32>;
 @group(0) @binding(27) var<storage, read> incidence: array<u32>;
 @group(0) @binding(28) var<storage, read_write> contact_weight: array<f32>;
+@group(0) @binding(29) var<storage, read_write> coupled_slots: array<u32>;
+@group(0) @binding(30) var<storage, read_write> coupled_count: array<u32>;
+@group(0) @binding(31) var<storage, read_write> coupled_valid: array<u32>;
 
 // Pipeline constant: the scene has a tool (else only activation = "all" runs particles).
 override TOOL: bool = false;
@@ -224,7 +229,9 @@ fn activate_relump(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_w
     var p_dynamic = vec3<f32>(0.0);
     var coupled = false;
     var released = false;
-    for (var k = particle_slot_offsets[i]; k < particle_slot_offsets[i + 1u]; k++) {
+    let first = particle_slot_offsets[i];
+    var listed = 0u;
+    for (var k = first; k < particle_slot_offsets[i + 1u]; k++) {
         let slot = particle_slots[k];
         let p = slot / 4u;
         let w = particle_weights[slot];
@@ -238,12 +245,16 @@ fn activate_relump(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_w
             }
             if (mode & MODE_IN_F) != 0u {
                 coupled = true;
+                coupled_slots[first + listed] = slot;
+                listed += 1u;
             }
         } else {
             m_dynamic += w * mp;
             p_dynamic += particle_v(p) * (w * mp);
         }
     }
+    coupled_count[i] = listed;
+    coupled_valid[0] = 1u;
     mass[i] = m;
     var v = node_v(i);
     var w_inv = 0.0;

@@ -2,7 +2,10 @@
 // (vertex -> tet*4 + corner). No float atomics: deterministic. CPU twin: src/cpu/gather.rs.
 // `gather` is the plain FEM sum; `gather_coupled` (scenes with a tool or particles) adds the
 // tool's contact force on a surface vertex (CONTACT) and the forces on the embedded particles
-// the vertex hosts, w_i f_p, over the CSR vertex -> particle slots (PARTICLES).
+// the vertex hosts, w_i f_p, over the CSR vertex -> particle slots (PARTICLES): over the short
+// list of its force-set embedded particles' slots that activate_relump wrote at
+// coupled_slots[offset_i ..] (coupled_count[i] of them, in CSR order) while coupled_valid[0] is
+// set, else (after a restore, until the next activation) over every slot.
 #import params
 #import index
 #import tool
@@ -23,6 +26,9 @@
 @group(0) @binding(12) var<storage, read> particle_weights: array<f32>;
 @group(0) @binding(13) var<storage, read> particle_mode: array<u32>;
 @group(0) @binding(14) var<storage, read> particle_force_sum: array<f32>;
+@group(0) @binding(15) var<storage, read> coupled_slots: array<u32>;
+@group(0) @binding(16) var<storage, read> coupled_count: array<u32>;
+@group(0) @binding(17) var<storage, read> coupled_valid: array<u32>;
 
 // Pipeline constants of gather_coupled: the scene has a tool / particles.
 override CONTACT: bool = false;
@@ -69,8 +75,17 @@ fn gather_coupled(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_wo
         }
     }
     if PARTICLES && (node_flags[i] & NODE_COUPLED) != 0u {
-        for (var k = particle_slot_offsets[i]; k < particle_slot_offsets[i + 1u]; k++) {
-            let slot = particle_slots[k];
+        let first = particle_slot_offsets[i];
+        let short = coupled_valid[0] != 0u;
+        var last = particle_slot_offsets[i + 1u];
+        if short {
+            last = first + coupled_count[i];
+        }
+        for (var k = first; k < last; k++) {
+            var slot = particle_slots[k];
+            if short {
+                slot = coupled_slots[k];
+            }
             let p = slot / 4u;
             let mode = particle_mode[p];
             if (mode & MODE_IN_F) != 0u && (mode & MODE_DYNAMIC) == 0u {

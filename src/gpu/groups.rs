@@ -197,6 +197,7 @@ pub fn particle_step<'a>(model: &'a Model, t: &'a ParticleTables) -> BufferGroup
     let nv = model.n_vertices() as u64;
     let blocks = |k: u64| 4 * (k.div_ceil(256) + 1);
     let partial_blocks = n.div_ceil(crate::cpu::particle_reduce::WORKGROUP as u64);
+    let n_slots = model.particles.as_ref().map_or(0, |p| p.slots.len()) as u64;
     BufferGroup {
         name: "particle step",
         specs: vec![
@@ -233,6 +234,9 @@ pub fn particle_step<'a>(model: &'a Model, t: &'a ParticleTables) -> BufferGroup
             BufferSpec::data("node_fixed", Usage::Storage, &t.node_fixed),
             BufferSpec::zeroed("node_flags", Usage::Storage, 4 * nv),
             BufferSpec::data("contact_weight", Usage::Storage, &t.ones_vertices),
+            BufferSpec::zeroed("coupled_slots", Usage::Storage, 4 * n_slots.max(1)),
+            BufferSpec::zeroed("coupled_count", Usage::Storage, 4 * nv),
+            BufferSpec::zeroed("coupled_valid", Usage::Storage, 4),
             BufferSpec::zeroed(
                 "particle_partials",
                 Usage::Storage,
@@ -264,6 +268,9 @@ pub fn particle_stubs() -> BufferGroup<'static> {
         "particle_contact_offset",
         "particle_counts",
         "dynamic_list",
+        "coupled_slots",
+        "coupled_count",
+        "coupled_valid",
     ];
     BufferGroup {
         name: "particle stand-ins",

@@ -749,6 +749,11 @@ impl Stepper for GpuStepper {
             }
         }
         enc.clear_buffer(self.buffers.require("stats")?, 0, None);
+        // The restored modes may differ from those gather_coupled's short lists were built
+        // from: it walks every slot until the next activation rebuilds them.
+        if self.n_particles > 0 {
+            enc.clear_buffer(self.buffers.require("coupled_valid")?, 0, None);
+        }
         self.ctx.queue.submit([enc.finish()]);
         self.ctx.wait()
     }
