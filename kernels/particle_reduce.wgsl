@@ -1,5 +1,6 @@
 // Stage (last step of a batch): the particles' diagnostics, a two-level tree reduction like
-// reduce.wgsl over the stress list S (which holds every dynamic particle): kinetic energy of
+// reduce.wgsl over the stress list S of the last activation (which holds every particle then
+// dynamic; the modes are checked, as after a restore they may differ): kinetic energy of
 // dynamic particles, SPH strain energy of particles in S, largest dynamic speed, sum |f|^2
 // over dynamic particles and sum m |u|^2 over dynamic particles -> particle_stats.
 // particle_reduce_partial runs indirect over S's arguments (64-thread workgroups, so up to 4x

@@ -23,6 +23,7 @@
 @group(0) @binding(8) var<storage, read_write> tool_partials: array<f32>;
 @group(0) @binding(9) var<storage, read_write> tool_report: array<f32>;
 @group(0) @binding(10) var<storage, read> contact_weight: array<f32>;
+@group(0) @binding(11) var<storage, read> particle_mode: array<u32>;
 @group(0) @binding(12) var<storage, read> particle_rest: array<f32>;
 @group(0) @binding(13) var<storage, read> particle_displacements: array<f32>;
 @group(0) @binding(14) var<storage, read> particle_velocities: array<f32>;
@@ -35,6 +36,7 @@
 // Pipeline constant: the scene has particles (vertex contacts are weighted as in contact.wgsl;
 // tool_force_particles adds the dynamic particles' contacts in blocks after the vertices').
 override PARTICLES: bool = false;
+const MODE_DYNAMIC: u32 = 1u;
 
 const WORKGROUP: u32 = 128u;
 const LANE: u32 = 15u;
@@ -151,8 +153,10 @@ fn tool_force_particles(
     var p = 0u;
     var touches = false;
     if d < particle_counts[0] {
+        // (the list is the last activation's: after a restore a listed particle may be
+        // embedded again until the next one)
         p = dynamic_list[d];
-        touches = particle_area[p] > 0.0;
+        touches = (particle_mode[p] & MODE_DYNAMIC) != 0u && particle_area[p] > 0.0;
     }
     if touches {
         let g = 9u * p;

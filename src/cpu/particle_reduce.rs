@@ -32,8 +32,8 @@ fn tree(lanes: &mut [[f32; LANE]; WORKGROUP]) -> [f32; LANE] {
     lanes[0]
 }
 
-/// Both passes over `stress_list` (which holds every dynamic particle): writes
-/// `particle_stats[..5]`.
+/// Both passes over `stress_list` (the last activation's, which holds every particle then
+/// dynamic; the modes are checked): writes `particle_stats[..5]`.
 #[allow(clippy::too_many_arguments)]
 pub fn particle_reduce(
     pp: &ParticleParams,

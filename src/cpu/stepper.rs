@@ -458,6 +458,7 @@ impl CpuStepper {
                         p,
                         &t.params,
                         &t.input,
+                        &pa.state.mode,
                         &pd.rest,
                         &pa.state.displacements,
                         &pa.state.velocities,

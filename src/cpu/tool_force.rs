@@ -108,12 +108,15 @@ pub fn tool_force_partial(
 }
 
 /// Per block of 128 entries of `dynamic_list` (after the vertices' blocks): the dynamic
-/// surface particles' contact lanes (twin of `tool_force_particles`).
+/// surface particles' contact lanes (twin of `tool_force_particles`; the list is the last
+/// activation's, so the mode is checked too: after a restore a listed particle may be
+/// embedded again until the next activation).
 #[allow(clippy::too_many_arguments)]
 pub fn tool_force_particles(
     params: &StepParams,
     tool_params: &ToolParams,
     tool_input: &ToolInput,
+    particle_mode: &[u32],
     particle_rest: &[f32],
     particle_displacements: &[f32],
     particle_velocities: &[f32],
@@ -135,7 +138,10 @@ pub fn tool_force_particles(
             for (l, slot) in lanes.iter_mut().enumerate() {
                 let d = block * TOOL_WORKGROUP + l;
                 let p = dynamic_list.get(d).map_or(0, |&p| p as usize);
-                if d < n && particle_area[p] > 0.0 {
+                if d < n
+                    && particle_mode[p] & crate::particles::params::mode::DYNAMIC != 0
+                    && particle_area[p] > 0.0
+                {
                     let f =
                         glam::Mat3::IDENTITY + super::fem_forces::load_dm_inv(particle_gradient, p);
                     let x = load3(particle_rest, p)

@@ -790,6 +790,7 @@ impl Stepper for GpuStepper {
     }
 
     fn write_state(&mut self, state: &State) -> Result<()> {
+        // (the particle modes stay, so gather_coupled's short lists stay valid)
         self.drain()?;
         let q = &self.ctx.queue;
         q.write_buffer(
