@@ -1271,3 +1271,80 @@ fn a_restore_between_activations_gives_both_backends_the_same_trajectory() {
         "vertices {eu:.2e}, particles {ep:.2e}"
     );
 }
+
+/// `restore` without a checkpoint goes back to the state at rest on both backends: after a
+/// press that made particles dynamic and moved vertex mass onto them, every vertex and
+/// particle is at rest, the particles have their initial modes (only PINNED bits) and the
+/// vertices the all-embedded masses; pressing again from there, the GPU matches the CPU.
+#[test]
+fn a_restore_without_a_checkpoint_returns_both_backends_to_rest() {
+    let scene = pressed_block();
+    let m = Arc::new(Model::from_scene(&scene));
+    let pd = m.particles.as_ref().unwrap();
+    let initial: Vec<u32> = pd
+        .pinned
+        .iter()
+        .map(|&p| if p { mode::PINNED } else { 0 })
+        .collect();
+    let params = m.step_params(0.5 * m.bounds.dt_bound, 50.0);
+    let (a, b) = (
+        DVec3::new(0.01, 0.01, 0.0135),
+        DVec3::new(0.01, 0.01, 0.0118),
+    );
+    let mut c = cpu::CpuStepper::new(m.clone(), params);
+    let mut g = GpuStepper::new(gpu(), &m, params).unwrap();
+    let mut ends = Vec::new();
+    for (name, s) in [("cpu", &mut c as &mut dyn Stepper), ("gpu", &mut g)] {
+        s.submit(150, &BatchInput { tool: Some((a, b)) }).unwrap();
+        s.wait().unwrap();
+        let p = s.read_particle_state().unwrap().unwrap();
+        let dynamic = p.modes.iter().filter(|&&x| x & mode::DYNAMIC != 0).count();
+        assert!(dynamic > 0, "{name}: no particle became dynamic");
+        s.restore().unwrap();
+        let st = s.read_state().unwrap();
+        let p = s.read_particle_state().unwrap().unwrap();
+        assert!(
+            st.displacements
+                .iter()
+                .chain(&st.velocities)
+                .all(|&x| x == 0.0),
+            "{name}: vertices not at rest"
+        );
+        assert!(
+            p.displacements
+                .iter()
+                .chain(&p.velocities)
+                .all(|&x| x == 0.0),
+            "{name}: particles not at rest"
+        );
+        assert_eq!(p.modes, initial, "{name}: particle modes");
+        s.submit(150, &BatchInput { tool: Some((a, b)) }).unwrap();
+        s.wait().unwrap();
+        ends.push((
+            s.read_state().unwrap().displacements,
+            s.read_particle_state().unwrap().unwrap().displacements,
+        ));
+    }
+    // The all-embedded masses after the restore (before the next activation relumps them).
+    c.restore().unwrap();
+    g.restore().unwrap();
+    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
+    assert_eq!(
+        bits(c.vertex_masses().0),
+        bits(&m.mass),
+        "cpu: vertex masses"
+    );
+    assert_eq!(
+        bits(&g.read_f32("mass").unwrap()[..m.n_vertices()]),
+        bits(&m.mass),
+        "gpu: vertex masses"
+    );
+    let (eu, ep) = (rel(&ends[1].0, &ends[0].0), rel(&ends[1].1, &ends[0].1));
+    eprintln!(
+        "pressed again after a restore to rest: rel err vertices {eu:.2e}, particles {ep:.2e}"
+    );
+    assert!(
+        eu <= 1e-4 && ep <= 1e-4,
+        "vertices {eu:.2e}, particles {ep:.2e}"
+    );
+}

@@ -1163,6 +1163,25 @@ impl Stepper for CpuStepper {
             None => {
                 self.state.displacements.iter_mut().for_each(|x| *x = 0.0);
                 self.state.velocities.iter_mut().for_each(|x| *x = 0.0);
+                // At rest the particles are embedded with their initial modes and the
+                // vertices carry the all-embedded masses.
+                if let (Some(pa), Some(pd)) = (&mut self.particles, self.model.particles.as_ref()) {
+                    let st = &mut pa.state;
+                    for a in [
+                        &mut st.displacements,
+                        &mut st.velocities,
+                        &mut st.timer,
+                        &mut st.offset,
+                    ] {
+                        a.iter_mut().for_each(|x| *x = 0.0);
+                    }
+                    for (m, &pin) in st.mode.iter_mut().zip(&pd.pinned) {
+                        *m = if pin { mode::PINNED } else { 0 };
+                    }
+                    st.mass.clone_from(&self.model.mass);
+                    st.inv_mass.clone_from(&self.model.inv_mass);
+                    pa.forget_region();
+                }
             }
         }
         // A restored state has no reduction yet (as on the GPU).

@@ -146,6 +146,9 @@ pub struct ParticleTables {
     pub list_scan: [ScanParams; 1],
     /// Initial modes (PINNED bits).
     pub modes: Vec<u32>,
+    /// The all-embedded vertex masses and their inverses (the model's; the particle layer
+    /// checkpoints the relumped ones, so a restore to rest writes these back).
+    pub rest_mass: [Vec<f32>; 2],
     /// Per vertex, 1 for a fixed vertex.
     pub node_fixed: Vec<u32>,
     /// Initial tet weights and contact weights (all 1).
@@ -181,6 +184,7 @@ impl ParticleTables {
                     }
                 })
                 .collect(),
+            rest_mass: [model.mass.clone(), model.inv_mass.clone()],
             node_fixed: model.inv_mass.iter().map(|&w| (w == 0.0) as u32).collect(),
             ones_tets: vec![1.0; model.n_tets()],
             ones_vertices: vec![1.0; model.n_vertices()],

@@ -755,6 +755,19 @@ impl Stepper for GpuStepper {
             enc.clear_buffer(self.buffers.require("coupled_valid")?, 0, None);
         }
         self.ctx.queue.submit([enc.finish()]);
+        // At rest, the particles are embedded with their initial modes and the vertices carry
+        // the all-embedded masses (written before the next submission's commands).
+        if let (true, Some(t)) = (self.checkpoint.is_empty(), &self.model_particles) {
+            let q = &self.ctx.queue;
+            q.write_buffer(
+                self.buffers.require("particle_mode")?,
+                0,
+                bytemuck::cast_slice(&t.modes),
+            );
+            for (name, values) in [("mass", &t.rest_mass[0]), ("inv_mass", &t.rest_mass[1])] {
+                q.write_buffer(self.buffers.require(name)?, 0, bytemuck::cast_slice(values));
+            }
+        }
         self.ctx.wait()
     }
 
