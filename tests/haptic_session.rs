@@ -108,6 +108,10 @@ fn press_and_hold(
         scene,
         &HapticOptions {
             backend: Backend::Cpu,
+            // Two physics threads beside the servo thread: about 2.1× real time on `lv`
+            // against 1.26× with one (BENCHMARKS.md), so a host slowed by up to 2× still
+            // keeps up; a physics thread that falls behind the hand never settles the hold.
+            threads: Some(2),
             device: format!("scripted:{}", csv.display()),
             out: dir,
             ..Default::default()
