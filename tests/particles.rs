@@ -1281,11 +1281,7 @@ fn a_restore_without_a_checkpoint_returns_both_backends_to_rest() {
     let scene = pressed_block();
     let m = Arc::new(Model::from_scene(&scene));
     let pd = m.particles.as_ref().unwrap();
-    let initial: Vec<u32> = pd
-        .pinned
-        .iter()
-        .map(|&p| if p { mode::PINNED } else { 0 })
-        .collect();
+    let initial = pd.initial_modes();
     let params = m.step_params(0.5 * m.bounds.dt_bound, 50.0);
     let (a, b) = (
         DVec3::new(0.01, 0.01, 0.0135),

@@ -70,6 +70,25 @@ struct ToolArrays {
     report: Vec<f32>,
 }
 
+/// The mode machine's inputs from the stepper's tool and vertex state.
+fn mode_inputs<'a>(
+    m: &Model,
+    pp: &'a ParticleParams,
+    st: &'a ParticleStatic<'a>,
+    tool: &'a ToolArrays,
+    state: &'a State,
+) -> ModeInputs<'a> {
+    ModeInputs::new(
+        pp,
+        &tool.params,
+        &tool.state,
+        m.tool.is_some(),
+        st,
+        &state.displacements,
+        &state.velocities,
+    )
+}
+
 /// The particles' state (checkpointed with the vertices').
 struct ParticleState {
     displacements: Vec<f32>,
@@ -203,11 +222,7 @@ impl ParticleArrays {
             &lists.neighbours,
             &mut correction,
         );
-        let modes = p
-            .pinned
-            .iter()
-            .map(|&pin| if pin { mode::PINNED } else { 0 })
-            .collect();
+        let modes = p.initial_modes();
         let pairs =
             super::sph::PairTable::new(&pp, &p.rest, &lists.neighbour_offsets, &lists.neighbours);
         let node_fixed: Vec<u32> = model.inv_mass.iter().map(|&w| (w == 0.0) as u32).collect();
@@ -689,15 +704,7 @@ impl CpuStepper {
         let pp = pa.params;
         let n = pd.len();
         let (noff, nbrs) = (&pa.lists.neighbour_offsets, &pa.lists.neighbours);
-        let inp = ModeInputs::new(
-            &pp,
-            &self.tool.params,
-            &self.tool.state,
-            m.tool.is_some(),
-            &st,
-            &self.state.displacements,
-            &self.state.velocities,
-        );
+        let inp = mode_inputs(m, &pp, &st, &self.tool, &self.state);
         super::activate::activate(&inp, pa.state.mode_arrays());
         mark_set(n, mode::DYNAMIC, mode::IN_S, noff, nbrs, &mut pa.state.mode);
         mark_set(n, mode::IN_S, mode::IN_F, noff, nbrs, &mut pa.state.mode);
@@ -776,15 +783,7 @@ impl CpuStepper {
         match stage {
             Stage::Activate => {
                 let incremental = pa.region.primed() && !pa.full_activation;
-                let inp = ModeInputs::new(
-                    &pp,
-                    &self.tool.params,
-                    &self.tool.state,
-                    m.tool.is_some(),
-                    &st,
-                    &self.state.displacements,
-                    &self.state.velocities,
-                );
+                let inp = mode_inputs(m, &pp, &st, &self.tool, &self.state);
                 if !(incremental && inp.tool_active) {
                     self.activate_everywhere();
                     return;
@@ -1175,9 +1174,7 @@ impl Stepper for CpuStepper {
                     ] {
                         a.iter_mut().for_each(|x| *x = 0.0);
                     }
-                    for (m, &pin) in st.mode.iter_mut().zip(&pd.pinned) {
-                        *m = if pin { mode::PINNED } else { 0 };
-                    }
+                    st.mode = pd.initial_modes();
                     st.mass.clone_from(&self.model.mass);
                     st.inv_mass.clone_from(&self.model.inv_mass);
                     pa.forget_region();

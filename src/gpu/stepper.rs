@@ -764,7 +764,7 @@ impl Stepper for GpuStepper {
                 0,
                 bytemuck::cast_slice(&t.modes),
             );
-            for (name, values) in [("mass", &t.rest_mass[0]), ("inv_mass", &t.rest_mass[1])] {
+            for (name, values) in [("mass", &t.rest_mass), ("inv_mass", &t.rest_inv_mass)] {
                 q.write_buffer(self.buffers.require(name)?, 0, bytemuck::cast_slice(values));
             }
         }

@@ -90,6 +90,14 @@ impl Particles {
         m.into_iter().map(|x| x as f32).collect()
     }
 
+    /// The modes at rest: `PINNED` for the pinned particles, nothing else.
+    pub fn initial_modes(&self) -> Vec<u32> {
+        self.pinned
+            .iter()
+            .map(|&pin| if pin { params::mode::PINNED } else { 0 })
+            .collect()
+    }
+
     /// The rest position of particle p.
     pub fn rest_position(&self, p: usize) -> glam::Vec3 {
         glam::Vec3::new(self.rest[3 * p], self.rest[3 * p + 1], self.rest[3 * p + 2])
