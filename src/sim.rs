@@ -164,9 +164,9 @@ pub struct Simulation {
     pub last_particles: Option<crate::stepper::ParticleReport>,
     /// The most dynamic particles any batch ended with.
     pub active_particles_max: u32,
-    /// State, step count, time and tool position at the start of the batch that last
-    /// diverged.
-    checkpoint: Option<(State, u64, f64, DVec3)>,
+    /// Step count, time and tool position at the start of the batch that diverged in the
+    /// last [`Simulation::advance`] (the stepper's checkpoint holds its state).
+    checkpoint: Option<(u64, f64, DVec3)>,
 }
 
 /// The time step a scene runs at: `override_dt`, else the scene's dt, else safety × bound.
@@ -338,15 +338,19 @@ impl Simulation {
     }
 
     /// Run `steps` steps in one batch. The state at the batch start is checkpointed; when a
-    /// vertex becomes non-finite or exceeds the speed limit, roll back to it (kept for
-    /// [`Simulation::rollback_to_checkpoint`]) and replay one step at a time to find the
-    /// failing step; the state is left at the last step before it.
+    /// vertex becomes non-finite or exceeds the speed limit, go back to it and replay one
+    /// step at a time to find the failing step, then go back again and redo the steps before
+    /// it (the backends are deterministic), so the state is left at the last step before it
+    /// and the batch start stays the checkpoint for [`Simulation::rollback_to_checkpoint`].
+    /// The restores bring back the particles, their activation's lists and the step count
+    /// with the vertices, so the replay activates on the same steps as the batch.
     pub fn advance(&mut self, steps: u32) -> Result<Advance> {
         if steps == 0 {
             return Ok(Advance::Done(self.last));
         }
+        self.checkpoint = None;
         self.stepper.checkpoint()?;
-        let start_tool = self.tool_position;
+        let start = (self.steps_done, self.time, self.tool_position);
         let stats = self.run_batch(steps)?.stats;
         if stats.non_finite_vertex.is_none() {
             self.steps_done += steps as u64;
@@ -355,28 +359,35 @@ impl Simulation {
             return Ok(Advance::Done(stats));
         }
         self.stepper.restore()?;
-        self.checkpoint = Some((
-            self.stepper.read_state()?,
-            self.steps_done,
-            self.time,
-            start_tool,
-        ));
-        for _ in 0..steps {
-            self.stepper.checkpoint()?;
+        let last = self.last;
+        let mut good = 0;
+        let vertex = loop {
+            if good == steps {
+                // The replay did not diverge (cannot happen on a deterministic backend).
+                return Ok(Advance::Done(self.last));
+            }
             let one = self.run_batch(1)?.stats;
             if let Some(vertex) = one.non_finite_vertex {
-                self.stepper.restore()?;
-                return Ok(Advance::Diverged {
-                    step: self.steps_done + 1,
-                    vertex,
-                });
+                break vertex;
             }
             self.steps_done += 1;
             self.time += self.dt;
             self.last = one;
+            good += 1;
+        };
+        self.stepper.restore()?;
+        (self.steps_done, self.time, self.tool_position) = start;
+        self.last = last;
+        for _ in 0..good {
+            self.last = self.run_batch(1)?.stats;
+            self.steps_done += 1;
+            self.time += self.dt;
         }
-        // The replay did not diverge (cannot happen on a deterministic backend).
-        Ok(Advance::Done(self.last))
+        self.checkpoint = Some(start);
+        Ok(Advance::Diverged {
+            step: self.steps_done + 1,
+            vertex,
+        })
     }
 
     /// [`Simulation::advance`] under a divergence policy: with `HalveDt` (and fewer than
@@ -399,12 +410,13 @@ impl Simulation {
         }
     }
 
-    /// Go back to the start of the batch that last diverged (before the instability grew).
-    /// Returns false when there is no checkpoint.
+    /// Go back to the start of the batch that diverged in the last [`Simulation::advance`]
+    /// (before the instability grew): vertices, particles and the step count. Returns false
+    /// when the last advance did not diverge.
     pub fn rollback_to_checkpoint(&mut self) -> Result<bool> {
         match self.checkpoint.take() {
-            Some((state, steps, time, tool)) => {
-                self.stepper.write_state(&state)?;
+            Some((steps, time, tool)) => {
+                self.stepper.restore()?;
                 self.steps_done = steps;
                 self.time = time;
                 self.tool_position = tool;

@@ -1211,13 +1211,15 @@ fn the_cpu_activation_skips_only_particles_the_kernel_leaves_unchanged() {
 }
 
 /// Press the pressed block in batches of 7 steps (the activation runs every 10, so batches
-/// end between activations), checkpoint after batch 28 (the tool touches from about step
-/// 150), run 3 more, restore and replay to batch 40: (vertex displacements, particle
-/// displacements, dynamic particles at the end).
+/// end between activations) to batch 40; with `restore`, checkpoint after batch 28 (the tool
+/// touches from about step 150), run 3 more (past the activations of steps 200 and 210),
+/// restore and replay from batch 28: (vertex displacements, particle displacements, dynamic
+/// particles at the end).
 fn press_with_a_restore(
     s: &mut dyn Stepper,
     scene: &Scene,
     dt: f64,
+    restore: bool,
 ) -> (Vec<f32>, Vec<f32>, usize) {
     let tool = scene.tool.as_ref().unwrap();
     let input = |b: u32| BatchInput {
@@ -1227,7 +1229,7 @@ fn press_with_a_restore(
         )),
     };
     let mut b = 0;
-    let mut restored = false;
+    let mut restored = !restore;
     while b < 40 {
         s.submit(7, &input(b)).unwrap();
         s.wait().unwrap();
@@ -1247,11 +1249,11 @@ fn press_with_a_restore(
     (u, p.displacements, dynamic)
 }
 
-/// A checkpoint restored between two activations: until the next activation the restored
-/// modes are not those the coupling's short lists were built from (each backend must then
-/// walk every slot of a coupled vertex). Pressing the block with such a restore, the GPU
-/// matches the CPU within 1e-4 relative (vertices and particles), with the same dynamic
-/// particles (some).
+/// A checkpoint restored between two activations, after the run went on past two more: the
+/// restore brings back the step count (which steps activate) and the lists, weights and flags
+/// the restored modes were built with, so on each backend the replay is bit for bit the run
+/// without the restore. Pressing the block with such a restore, the GPU matches the CPU
+/// within 1e-4 relative (vertices and particles), with the same dynamic particles (some).
 #[test]
 fn a_restore_between_activations_gives_both_backends_the_same_trajectory() {
     let scene = pressed_block();
@@ -1260,8 +1262,31 @@ fn a_restore_between_activations_gives_both_backends_the_same_trajectory() {
     let params = m.step_params(dt, 50.0);
     let mut c = cpu::CpuStepper::new(m.clone(), params);
     let mut g = GpuStepper::new(gpu(), &m, params).unwrap();
-    let (cu, cp, cd) = press_with_a_restore(&mut c, &scene, dt);
-    let (gu, gp, gd) = press_with_a_restore(&mut g, &scene, dt);
+    let (cu, cp, cd) = press_with_a_restore(&mut c, &scene, dt, true);
+    let (gu, gp, gd) = press_with_a_restore(&mut g, &scene, dt, true);
+    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
+    let mut c = cpu::CpuStepper::new(m.clone(), params);
+    let mut g = GpuStepper::new(gpu(), &m, params).unwrap();
+    for (name, s, u, p, d) in [
+        ("cpu", &mut c as &mut dyn Stepper, &cu, &cp, cd),
+        ("gpu", &mut g, &gu, &gp, gd),
+    ] {
+        let (nu, np, nd) = press_with_a_restore(s, &scene, dt, false);
+        assert_eq!(
+            nd, d,
+            "{name}: dynamic particles with and without the restore"
+        );
+        assert_eq!(
+            bits(u),
+            bits(&nu),
+            "{name}: vertices differ after the restore"
+        );
+        assert_eq!(
+            bits(p),
+            bits(&np),
+            "{name}: particles differ after the restore"
+        );
+    }
     let (eu, ep) = (rel(&gu, &cu), rel(&gp, &cp));
     eprintln!("restored press: {cd} dynamic; rel err vertices {eu:.2e}, particles {ep:.2e}");
     assert_eq!(cd, gd, "dynamic particles");
@@ -1275,7 +1300,8 @@ fn a_restore_between_activations_gives_both_backends_the_same_trajectory() {
 /// `restore` without a checkpoint goes back to the state at rest on both backends: after a
 /// press that made particles dynamic and moved vertex mass onto them, every vertex and
 /// particle is at rest, the particles have their initial modes (only PINNED bits) and the
-/// vertices the all-embedded masses; pressing again from there, the GPU matches the CPU.
+/// vertices the all-embedded masses; pressing again from there repeats the first press bit
+/// for bit on each backend (the step count is back at 0), and the GPU matches the CPU.
 #[test]
 fn a_restore_without_a_checkpoint_returns_both_backends_to_rest() {
     let scene = pressed_block();
@@ -1290,9 +1316,14 @@ fn a_restore_without_a_checkpoint_returns_both_backends_to_rest() {
     let mut c = cpu::CpuStepper::new(m.clone(), params);
     let mut g = GpuStepper::new(gpu(), &m, params).unwrap();
     let mut ends = Vec::new();
+    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
     for (name, s) in [("cpu", &mut c as &mut dyn Stepper), ("gpu", &mut g)] {
         s.submit(150, &BatchInput { tool: Some((a, b)) }).unwrap();
         s.wait().unwrap();
+        let first = (
+            s.read_state().unwrap().displacements,
+            s.read_particle_state().unwrap().unwrap().displacements,
+        );
         let p = s.read_particle_state().unwrap().unwrap();
         let dynamic = p.modes.iter().filter(|&&x| x & mode::DYNAMIC != 0).count();
         assert!(dynamic > 0, "{name}: no particle became dynamic");
@@ -1316,15 +1347,25 @@ fn a_restore_without_a_checkpoint_returns_both_backends_to_rest() {
         assert_eq!(p.modes, initial, "{name}: particle modes");
         s.submit(150, &BatchInput { tool: Some((a, b)) }).unwrap();
         s.wait().unwrap();
-        ends.push((
+        let again = (
             s.read_state().unwrap().displacements,
             s.read_particle_state().unwrap().unwrap().displacements,
-        ));
+        );
+        assert_eq!(
+            bits(&first.0),
+            bits(&again.0),
+            "{name}: vertices, pressed again"
+        );
+        assert_eq!(
+            bits(&first.1),
+            bits(&again.1),
+            "{name}: particles, pressed again"
+        );
+        ends.push(again);
     }
     // The all-embedded masses after the restore (before the next activation relumps them).
     c.restore().unwrap();
     g.restore().unwrap();
-    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
     assert_eq!(
         bits(c.vertex_masses().0),
         bits(&m.mass),
@@ -1342,5 +1383,86 @@ fn a_restore_without_a_checkpoint_returns_both_backends_to_rest() {
     assert!(
         eu <= 1e-4 && ep <= 1e-4,
         "vertices {eu:.2e}, particles {ep:.2e}"
+    );
+}
+
+/// A divergence in a particle scene: `Simulation::advance` finds the failing step on a replay
+/// that activates on the same steps as the batch (the step that one-step batches from the same
+/// state find), leaves the state at the step before it (bit for bit that of the one-step run),
+/// and `rollback_to_checkpoint` brings back the batch start, particles and modes included.
+/// The block is pressed at its step until particles are dynamic, then dt is raised to 4× the
+/// bound.
+#[test]
+fn a_divergence_in_a_particle_scene_is_located_and_rolled_back_whole() {
+    use palpate::sim::{Advance, SimOptions, Simulation};
+    let scene = pressed_block();
+    let start = |batch: u32| {
+        let mut sim = Simulation::new(
+            &scene,
+            palpate::Backend::Cpu,
+            SimOptions {
+                threads: Some(1),
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        for _ in 0..250 / batch {
+            assert!(matches!(sim.advance(batch).unwrap(), Advance::Done(_)));
+        }
+        let dt = sim.dt;
+        sim.set_dt(4.0 * dt).unwrap();
+        sim
+    };
+    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
+    let mut batch = start(25);
+    let before = (
+        batch.state().unwrap(),
+        batch.particle_state().unwrap().unwrap(),
+    );
+    let dynamic = before.1.modes.iter().filter(|&&m| m & mode::DYNAMIC != 0);
+    assert!(
+        dynamic.count() > 0,
+        "no particle is dynamic before the jump"
+    );
+    let Advance::Diverged { step, .. } = batch.advance(200).unwrap() else {
+        panic!("200 steps at 4x the bound did not diverge");
+    };
+    let mut single = start(25);
+    let single_step = loop {
+        if let Advance::Diverged { step, .. } = single.advance(1).unwrap() {
+            break step;
+        }
+        assert!(single.steps_done < 450, "the one-step run did not diverge");
+    };
+    eprintln!("diverged at step {step} (one-step batches: {single_step})");
+    assert!(step > 251, "diverged on the first step ({step})");
+    assert_eq!(step, single_step, "the replay found another step");
+    assert_eq!(batch.steps_done, single.steps_done);
+    let (a, b) = (batch.state().unwrap(), single.state().unwrap());
+    assert_eq!(bits(&a.displacements), bits(&b.displacements), "vertices");
+    let (pa, pb) = (
+        batch.particle_state().unwrap().unwrap(),
+        single.particle_state().unwrap().unwrap(),
+    );
+    assert_eq!(
+        bits(&pa.displacements),
+        bits(&pb.displacements),
+        "particles"
+    );
+    assert_eq!(pa.modes, pb.modes, "modes");
+    assert!(batch.rollback_to_checkpoint().unwrap());
+    assert_eq!(batch.steps_done, 250);
+    let after = (
+        batch.state().unwrap(),
+        batch.particle_state().unwrap().unwrap(),
+    );
+    assert_eq!(bits(&after.0.displacements), bits(&before.0.displacements));
+    assert_eq!(bits(&after.0.velocities), bits(&before.0.velocities));
+    assert_eq!(bits(&after.1.displacements), bits(&before.1.displacements));
+    assert_eq!(bits(&after.1.velocities), bits(&before.1.velocities));
+    assert_eq!(after.1.modes, before.1.modes);
+    assert!(
+        !batch.rollback_to_checkpoint().unwrap(),
+        "a second rollback"
     );
 }

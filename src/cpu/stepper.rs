@@ -140,6 +140,63 @@ impl Clone for ParticleState {
     }
 }
 
+/// What an activation leaves for the steps until the next one: its lists, counts, indirect
+/// arguments, tet weights, vertex flags and contact weights, the weighted tets and the coupled
+/// vertices' slots. Saved with a checkpoint, so that a restore resumes with the ones its
+/// modes were built with (the modes change only at an activation).
+#[derive(Clone, Default)]
+struct ActivationProducts {
+    dynamic_list: Vec<u32>,
+    stress_list: Vec<u32>,
+    force_list: Vec<u32>,
+    counts: [u32; 4],
+    dispatch: [u32; 9],
+    tet_weight: Vec<f32>,
+    node_flags: Vec<u32>,
+    contact_weight: Vec<f32>,
+    weighted_tets: Vec<u32>,
+    coupled_slots: super::gather::CoupledSlots,
+}
+
+impl ActivationProducts {
+    /// Copy `pa`'s into `self` (reusing its buffers).
+    fn save(&mut self, pa: &ParticleArrays) {
+        self.dynamic_list.clone_from(&pa.dynamic_list);
+        self.stress_list.clone_from(&pa.stress_list);
+        self.force_list.clone_from(&pa.force_list);
+        self.counts = pa.counts;
+        self.dispatch = pa.dispatch;
+        self.tet_weight.clone_from(&pa.tet_weight);
+        self.node_flags.clone_from(&pa.node_flags);
+        self.contact_weight.clone_from(&pa.contact_weight);
+        self.weighted_tets.clone_from(&pa.weighted_tets);
+        self.coupled_slots.clone_from(&pa.coupled_slots);
+    }
+
+    /// Copy `self` back into `pa`.
+    fn load(&self, pa: &mut ParticleArrays) {
+        pa.dynamic_list.clone_from(&self.dynamic_list);
+        pa.stress_list.clone_from(&self.stress_list);
+        pa.force_list.clone_from(&self.force_list);
+        pa.counts = self.counts;
+        pa.dispatch = self.dispatch;
+        pa.tet_weight.clone_from(&self.tet_weight);
+        pa.node_flags.clone_from(&self.node_flags);
+        pa.contact_weight.clone_from(&self.contact_weight);
+        pa.weighted_tets.clone_from(&self.weighted_tets);
+        pa.coupled_slots.clone_from(&self.coupled_slots);
+    }
+}
+
+/// A saved state: the vertices', the particles' with their activation's products, the step
+/// count (which steps activate) and where the tool is.
+struct Checkpoint {
+    state: State,
+    particles: Option<(ParticleState, ActivationProducts)>,
+    steps_done: u64,
+    tool_at: glam::DVec3,
+}
+
 /// The particles' arrays.
 struct ParticleArrays {
     params: ParticleParams,
@@ -311,7 +368,8 @@ pub struct CpuStepper {
     pool: Arc<rayon::ThreadPool>,
     threads: usize,
     state: State,
-    checkpoint: Option<(State, Option<ParticleState>)>,
+    /// The last checkpoint; the state at rest until the first `checkpoint`.
+    checkpoint: Checkpoint,
     corner_forces: Vec<f32>,
     tet_energy: Vec<f32>,
     forces: Vec<f32>,
@@ -378,6 +436,16 @@ impl CpuStepper {
             report: vec![0.0; REPORT_LEN],
         };
         let particles = pool.install(|| ParticleArrays::new(&model, &params));
+        let checkpoint = Checkpoint {
+            state: state.clone(),
+            particles: particles.as_ref().map(|pa| {
+                let mut act = ActivationProducts::default();
+                act.save(pa);
+                (pa.state.clone(), act)
+            }),
+            steps_done: 0,
+            tool_at: tool.at,
+        };
         CpuStepper {
             tool,
             particles,
@@ -392,7 +460,7 @@ impl CpuStepper {
             partials: vec![0.0; PARTIAL_LEN * n_partials(&params)],
             stats: vec![0.0; stat::LEN],
             status: vec![ALL_FINITE; 4],
-            checkpoint: None,
+            checkpoint,
             state,
             model,
             params,
@@ -1130,57 +1198,31 @@ impl Stepper for CpuStepper {
     }
 
     fn checkpoint(&mut self) -> Result<()> {
-        // Reuse the last checkpoint's buffers (a haptic session checkpoints every batch).
-        match &mut self.checkpoint {
-            Some((state, particles)) => {
-                state.clone_from(&self.state);
-                match (particles, &self.particles) {
-                    (Some(saved), Some(pa)) => saved.clone_from(&pa.state),
-                    (saved, pa) => *saved = pa.as_ref().map(|pa| pa.state.clone()),
-                }
-            }
-            None => {
-                self.checkpoint = Some((
-                    self.state.clone(),
-                    self.particles.as_ref().map(|pa| pa.state.clone()),
-                ))
-            }
+        // Into the last checkpoint's buffers (a haptic session checkpoints every batch).
+        let cp = &mut self.checkpoint;
+        cp.state.clone_from(&self.state);
+        if let (Some((state, act)), Some(pa)) = (&mut cp.particles, &self.particles) {
+            state.clone_from(&pa.state);
+            act.save(pa);
         }
+        cp.steps_done = self.steps_done;
+        cp.tool_at = self.tool.at;
         Ok(())
     }
 
     fn restore(&mut self) -> Result<()> {
         self.reports.clear();
-        match &self.checkpoint {
-            Some((state, particles)) => {
-                self.state = state.clone();
-                if let (Some(pa), Some(ps)) = (&mut self.particles, particles) {
-                    pa.state = ps.clone();
-                    pa.forget_region();
-                }
-            }
-            None => {
-                self.state.displacements.iter_mut().for_each(|x| *x = 0.0);
-                self.state.velocities.iter_mut().for_each(|x| *x = 0.0);
-                // At rest the particles are embedded with their initial modes and the
-                // vertices carry the all-embedded masses.
-                if let (Some(pa), Some(pd)) = (&mut self.particles, self.model.particles.as_ref()) {
-                    let st = &mut pa.state;
-                    for a in [
-                        &mut st.displacements,
-                        &mut st.velocities,
-                        &mut st.timer,
-                        &mut st.offset,
-                    ] {
-                        a.iter_mut().for_each(|x| *x = 0.0);
-                    }
-                    st.mode = pd.initial_modes();
-                    st.mass.clone_from(&self.model.mass);
-                    st.inv_mass.clone_from(&self.model.inv_mass);
-                    pa.forget_region();
-                }
-            }
+        let cp = &self.checkpoint;
+        self.state.clone_from(&cp.state);
+        if let (Some((state, act)), Some(pa)) = (&cp.particles, &mut self.particles) {
+            pa.state.clone_from(state);
+            // The next activation visits everything; until then the restored lists, weights
+            // and flags are those the restored modes were built with.
+            pa.region.forget();
+            act.load(pa);
         }
+        self.steps_done = cp.steps_done;
+        self.tool.at = cp.tool_at;
         // A restored state has no reduction yet (as on the GPU).
         self.stats.iter_mut().for_each(|x| *x = 0.0);
         Ok(())

@@ -146,11 +146,6 @@ pub struct ParticleTables {
     pub list_scan: [ScanParams; 1],
     /// Initial modes (PINNED bits).
     pub modes: Vec<u32>,
-    /// The all-embedded vertex masses (the model's; the particle layer checkpoints the
-    /// relumped ones, so a restore to rest writes these back).
-    pub rest_mass: Vec<f32>,
-    /// Their inverses (0 for fixed vertices).
-    pub rest_inv_mass: Vec<f32>,
     /// Per vertex, 1 for a fixed vertex.
     pub node_fixed: Vec<u32>,
     /// Initial tet weights and contact weights (all 1).
@@ -176,8 +171,6 @@ impl ParticleTables {
             grid,
             list_scan: [ScanParams::new(n + 1)],
             modes: p.initial_modes(),
-            rest_mass: model.mass.clone(),
-            rest_inv_mass: model.inv_mass.clone(),
             node_fixed: model.inv_mass.iter().map(|&w| (w == 0.0) as u32).collect(),
             ones_tets: vec![1.0; model.n_tets()],
             ones_vertices: vec![1.0; model.n_vertices()],

@@ -139,6 +139,24 @@ struct InFlight {
     tool_to: glam::DVec3,
 }
 
+/// The buffers an activation writes for the steps until the next one (lists, counts,
+/// indirect arguments, tet weights, vertex flags, contact weights, the coupled vertices'
+/// slots): checkpointed with the state, so a restore resumes with those its modes were built
+/// with.
+pub const ACTIVATION_PRODUCTS: [&str; 11] = [
+    "dynamic_list",
+    "stress_list",
+    "force_list",
+    "particle_counts",
+    "particle_dispatch",
+    "tet_weight",
+    "node_flags",
+    "contact_weight",
+    "coupled_slots",
+    "coupled_count",
+    "coupled_valid",
+];
+
 /// GPU stepper for one model.
 pub struct GpuStepper {
     ctx: Arc<GpuContext>,
@@ -164,7 +182,10 @@ pub struct GpuStepper {
     next_slot: usize,
     steps_done: u64,
     counts: Vec<(Stage, u32)>,
+    /// The last checkpoint (the state at rest until the first `checkpoint`): a copy of every
+    /// checkpointed buffer, the step count and where the tool was.
     checkpoint: Vec<(&'static str, wgpu::Buffer)>,
+    checkpoint_steps: (u64, glam::DVec3),
     readback_state: Option<wgpu::Buffer>,
 }
 
@@ -243,7 +264,7 @@ impl GpuStepper {
             })
             .collect();
         ctx.check_errors()?;
-        Ok(GpuStepper {
+        let mut stepper = GpuStepper {
             counts: plan.stages.iter().map(|p| (p.stage, 0)).collect(),
             plan,
             stages,
@@ -271,9 +292,13 @@ impl GpuStepper {
             next_slot: 0,
             steps_done: 0,
             checkpoint: Vec::new(),
+            checkpoint_steps: (0, glam::DVec3::ZERO),
             readback_state: None,
             ctx,
-        })
+        };
+        // The state at rest is the first checkpoint.
+        stepper.checkpoint()?;
+        Ok(stepper)
     }
 
     /// The context this stepper runs on.
@@ -567,8 +592,16 @@ impl GpuStepper {
         self.ctx.wait()
     }
 
-    fn state_buffers(&self) -> Vec<(&'static str, &wgpu::Buffer)> {
-        self.buffers.with_usage(Usage::State).collect()
+    /// What a checkpoint saves: the state buffers and, with particles, what the last
+    /// activation left for the steps until the next one ([`ACTIVATION_PRODUCTS`]).
+    fn checkpointed_buffers(&self) -> Result<Vec<(&'static str, &wgpu::Buffer)>> {
+        let mut all: Vec<_> = self.buffers.with_usage(Usage::State).collect();
+        if self.n_particles > 0 {
+            for name in ACTIVATION_PRODUCTS {
+                all.push((name, self.buffers.require(name)?));
+            }
+        }
+        Ok(all)
     }
 }
 
@@ -710,7 +743,7 @@ impl Stepper for GpuStepper {
         if self.checkpoint.is_empty() {
             let d = &self.ctx.device;
             self.checkpoint = self
-                .state_buffers()
+                .checkpointed_buffers()?
                 .into_iter()
                 .map(|(name, b)| {
                     (
@@ -732,42 +765,20 @@ impl Stepper for GpuStepper {
             enc.copy_buffer_to_buffer(b, 0, saved, 0, b.size());
         }
         self.ctx.queue.submit([enc.finish()]);
+        self.checkpoint_steps = (self.steps_done, self.tool_at);
         self.ctx.check_errors()
     }
 
     fn restore(&mut self) -> Result<()> {
         self.drain()?;
         let mut enc = self.ctx.device.create_command_encoder(&Default::default());
-        if self.checkpoint.is_empty() {
-            for (_, b) in self.state_buffers() {
-                enc.clear_buffer(b, 0, None);
-            }
-        } else {
-            for (name, saved) in &self.checkpoint {
-                let b = self.buffers.require(name)?;
-                enc.copy_buffer_to_buffer(saved, 0, b, 0, b.size());
-            }
+        for (name, saved) in &self.checkpoint {
+            let b = self.buffers.require(name)?;
+            enc.copy_buffer_to_buffer(saved, 0, b, 0, b.size());
         }
         enc.clear_buffer(self.buffers.require("stats")?, 0, None);
-        // The restored modes may differ from those gather_coupled's short lists were built
-        // from: it walks every slot until the next activation rebuilds them.
-        if self.n_particles > 0 {
-            enc.clear_buffer(self.buffers.require("coupled_valid")?, 0, None);
-        }
         self.ctx.queue.submit([enc.finish()]);
-        // At rest, the particles are embedded with their initial modes and the vertices carry
-        // the all-embedded masses (written before the next submission's commands).
-        if let (true, Some(t)) = (self.checkpoint.is_empty(), &self.model_particles) {
-            let q = &self.ctx.queue;
-            q.write_buffer(
-                self.buffers.require("particle_mode")?,
-                0,
-                bytemuck::cast_slice(&t.modes),
-            );
-            for (name, values) in [("mass", &t.rest_mass), ("inv_mass", &t.rest_inv_mass)] {
-                q.write_buffer(self.buffers.require(name)?, 0, bytemuck::cast_slice(values));
-            }
-        }
+        (self.steps_done, self.tool_at) = self.checkpoint_steps;
         self.ctx.wait()
     }
 
