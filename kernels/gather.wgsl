@@ -5,7 +5,8 @@
 // the vertex hosts, w_i f_p, over the CSR vertex -> particle slots (PARTICLES): over the short
 // list of its force-set embedded particles' slots that activate_relump wrote at
 // coupled_slots[offset_i ..] (coupled_count[i] of them, in CSR order) while coupled_valid[0] is
-// set, else (after a restore, until the next activation) over every slot.
+// set, else (before the first activation) over every slot. A checkpoint saves the lists with
+// the modes they were built from.
 #import params
 #import index
 #import tool

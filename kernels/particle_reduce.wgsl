@@ -1,8 +1,9 @@
 // Stage (last step of a batch): the particles' diagnostics, a two-level tree reduction like
 // reduce.wgsl over the stress list S of the last activation (which holds every particle then
-// dynamic; the modes are checked, as after a restore they may differ): kinetic energy of
-// dynamic particles, SPH strain energy of particles in S, largest dynamic speed, sum |f|^2
-// over dynamic particles and sum m |u|^2 over dynamic particles -> particle_stats.
+// dynamic; the modes are checked too, though the activation writes both and a checkpoint
+// saves both): kinetic energy of dynamic particles, SPH strain energy of particles in S,
+// largest dynamic speed, sum |f|^2 over dynamic particles and sum m |u|^2 over dynamic
+// particles -> particle_stats.
 // particle_reduce_partial runs indirect over S's arguments (64-thread workgroups, so up to 4x
 // the 256-entry blocks needed run; those past the buffer's blocks write nothing);
 // particle_reduce_final combines the ceil(|S|/256) blocks. CPU twin: src/cpu/particle_reduce.rs.

@@ -153,8 +153,8 @@ fn tool_force_particles(
     var p = 0u;
     var touches = false;
     if d < particle_counts[0] {
-        // (the list is the last activation's: after a restore a listed particle may be
-        // embedded again until the next one)
+        // (the list is the last activation's, written and checkpointed with the modes; the
+        // mode is checked all the same)
         p = dynamic_list[d];
         touches = (particle_mode[p] & MODE_DYNAMIC) != 0u && particle_area[p] > 0.0;
     }

@@ -164,9 +164,20 @@ pub struct Simulation {
     pub last_particles: Option<crate::stepper::ParticleReport>,
     /// The most dynamic particles any batch ended with.
     pub active_particles_max: u32,
-    /// Step count, time and tool position at the start of the batch that diverged in the
-    /// last [`Simulation::advance`] (the stepper's checkpoint holds its state).
-    checkpoint: Option<(u64, f64, DVec3)>,
+    /// The start of the batch that diverged in the last [`Simulation::advance`] (the
+    /// stepper's checkpoint holds its state).
+    checkpoint: Option<BatchStart>,
+}
+
+/// What [`Simulation`] tracks beside the stepper's state, as it was at a batch start.
+#[derive(Clone, Copy, Debug)]
+struct BatchStart {
+    steps_done: u64,
+    time: f64,
+    tool_position: DVec3,
+    last: BatchStats,
+    last_tool: Option<ToolReport>,
+    last_particles: Option<crate::stepper::ParticleReport>,
 }
 
 /// The time step a scene runs at: `override_dt`, else the scene's dt, else safety × bound.
@@ -312,15 +323,18 @@ impl Simulation {
         }
     }
 
-    /// Run one batch and wait for its report.
-    fn run_batch(&mut self, steps: u32) -> Result<crate::stepper::BatchReport> {
-        let input = self.batch_input(steps);
+    /// Run one batch with this input and the follower ramp at `load_time` (the batch's
+    /// mid-time: constant over the batch), and wait for its report.
+    fn run_batch_with(
+        &mut self,
+        steps: u32,
+        input: &BatchInput,
+        load_time: f64,
+    ) -> Result<crate::stepper::BatchReport> {
         if let Some(f) = &self.model.follower {
-            // The follower ramp at the batch's mid-time (constant over the batch).
-            self.stepper
-                .set_load_factor(f.load_factor(self.time + 0.5 * steps as f64 * self.dt))?;
+            self.stepper.set_load_factor(f.load_factor(load_time))?;
         }
-        self.stepper.submit(steps, &input)?;
+        self.stepper.submit(steps, input)?;
         let report = self.stepper.wait()?;
         if report.stats.non_finite_vertex.is_none() {
             if let Some((_, to)) = input.tool {
@@ -338,54 +352,101 @@ impl Simulation {
     }
 
     /// Run `steps` steps in one batch. The state at the batch start is checkpointed; when a
-    /// vertex becomes non-finite or exceeds the speed limit, go back to it and replay one
-    /// step at a time to find the failing step, then go back again and redo the steps before
-    /// it (the backends are deterministic), so the state is left at the last step before it
-    /// and the batch start stays the checkpoint for [`Simulation::rollback_to_checkpoint`].
-    /// The restores bring back the particles, their activation's lists and the step count
-    /// with the vertices, so the replay activates on the same steps as the batch.
+    /// vertex becomes non-finite or exceeds the speed limit, go back to it and replay the
+    /// batch one step at a time (the same tool path, to rounding, and follower load) to find
+    /// the failing step, then go back again and redo the steps before it (the backends are
+    /// deterministic): the state is left at the last step before it, and the batch start
+    /// stays the checkpoint for [`Simulation::rollback_to_checkpoint`] until the next advance.
+    /// A restore brings back the particles, their activation's lists and the step count with
+    /// the vertices, so the replay activates on the same steps as the batch.
     pub fn advance(&mut self, steps: u32) -> Result<Advance> {
+        self.advance_inner(steps, true)
+    }
+
+    fn batch_start(&self) -> BatchStart {
+        BatchStart {
+            steps_done: self.steps_done,
+            time: self.time,
+            tool_position: self.tool_position,
+            last: self.last,
+            last_tool: self.last_tool,
+            last_particles: self.last_particles,
+        }
+    }
+
+    fn go_back_to(&mut self, start: BatchStart) -> Result<()> {
+        self.stepper.restore()?;
+        self.steps_done = start.steps_done;
+        self.time = start.time;
+        self.tool_position = start.tool_position;
+        self.last = start.last;
+        self.last_tool = start.last_tool;
+        self.last_particles = start.last_particles;
+        Ok(())
+    }
+
+    /// [`Simulation::advance`]; without `redo` a divergence leaves the state at the batch
+    /// start (for a caller that rolls back at once).
+    fn advance_inner(&mut self, steps: u32, redo: bool) -> Result<Advance> {
+        self.checkpoint = None;
         if steps == 0 {
             return Ok(Advance::Done(self.last));
         }
-        self.checkpoint = None;
         self.stepper.checkpoint()?;
-        let start = (self.steps_done, self.time, self.tool_position);
-        let stats = self.run_batch(steps)?.stats;
+        let start = self.batch_start();
+        let input = self.batch_input(steps);
+        let load_time = self.time + 0.5 * steps as f64 * self.dt;
+        let stats = self.run_batch_with(steps, &input, load_time)?.stats;
         if stats.non_finite_vertex.is_none() {
             self.steps_done += steps as u64;
             self.time += steps as f64 * self.dt;
             self.last = stats;
             return Ok(Advance::Done(stats));
         }
-        self.stepper.restore()?;
-        let last = self.last;
+        // Step k of the batch alone: the tool's k-th part of the batch's move.
+        let one = |k: u32| BatchInput {
+            tool: input.tool.map(|(a, b)| {
+                let at = |j: u32| a + (b - a) * (j as f64 / steps as f64);
+                (at(k), at(k + 1))
+            }),
+        };
+        self.go_back_to(start)?;
         let mut good = 0;
         let vertex = loop {
             if good == steps {
-                // The replay did not diverge (cannot happen on a deterministic backend).
+                // The replay did not diverge (the tool path differs from the batch's only by
+                // rounding, which may decide a marginal case).
                 return Ok(Advance::Done(self.last));
             }
-            let one = self.run_batch(1)?.stats;
-            if let Some(vertex) = one.non_finite_vertex {
+            let stats = self.run_batch_with(1, &one(good), load_time)?.stats;
+            if let Some(vertex) = stats.non_finite_vertex {
                 break vertex;
             }
             self.steps_done += 1;
             self.time += self.dt;
-            self.last = one;
+            self.last = stats;
             good += 1;
         };
-        self.stepper.restore()?;
-        (self.steps_done, self.time, self.tool_position) = start;
-        self.last = last;
-        for _ in 0..good {
-            self.last = self.run_batch(1)?.stats;
-            self.steps_done += 1;
-            self.time += self.dt;
-        }
+        self.go_back_to(start)?;
         self.checkpoint = Some(start);
+        if redo {
+            for k in 0..good {
+                let stats = self.run_batch_with(1, &one(k), load_time)?.stats;
+                if let Some(vertex) = stats.non_finite_vertex {
+                    // The backend did not repeat itself: report where, from the batch start.
+                    self.go_back_to(start)?;
+                    return Ok(Advance::Diverged {
+                        step: start.steps_done + k as u64 + 1,
+                        vertex,
+                    });
+                }
+                self.steps_done += 1;
+                self.time += self.dt;
+                self.last = stats;
+            }
+        }
         Ok(Advance::Diverged {
-            step: self.steps_done + 1,
+            step: start.steps_done + good as u64 + 1,
             vertex,
         })
     }
@@ -394,7 +455,8 @@ impl Simulation {
     /// `max_halvings` halvings so far) a divergence rolls back to the batch start and
     /// halves dt, and the caller advances again.
     pub fn advance_with(&mut self, steps: u32, policy: DivergencePolicy) -> Result<Guarded> {
-        match self.advance(steps)? {
+        let will_halve = policy == DivergencePolicy::HalveDt && self.halvings < self.max_halvings;
+        match self.advance_inner(steps, !will_halve)? {
             Advance::Done(s) => Ok(Guarded::Done(s)),
             Advance::Diverged { step, vertex } => {
                 if policy == DivergencePolicy::HalveDt && self.halvings < self.max_halvings {
@@ -411,15 +473,12 @@ impl Simulation {
     }
 
     /// Go back to the start of the batch that diverged in the last [`Simulation::advance`]
-    /// (before the instability grew): vertices, particles and the step count. Returns false
-    /// when the last advance did not diverge.
+    /// (before the instability grew): vertices, particles, the step count and the last
+    /// reports. Returns false when the last advance did not diverge.
     pub fn rollback_to_checkpoint(&mut self) -> Result<bool> {
         match self.checkpoint.take() {
-            Some((steps, time, tool)) => {
-                self.stepper.restore()?;
-                self.steps_done = steps;
-                self.time = time;
-                self.tool_position = tool;
+            Some(start) => {
+                self.go_back_to(start)?;
                 Ok(true)
             }
             None => Ok(false),

@@ -206,9 +206,13 @@ pub trait Stepper: Send {
     fn wait(&mut self) -> Result<BatchReport>;
     /// Batches submitted and not yet returned by `poll`/`wait`.
     fn in_flight(&self) -> usize;
-    /// Save the current state (after every batch in flight) as the checkpoint.
+    /// Save the current state (after every batch in flight) as the checkpoint: the vertices'
+    /// and particles' state, what the last activation left (lists, weights, flags), the step
+    /// count and where the tool is. Not the parameters (dt) or the follower load factor.
     fn checkpoint(&mut self) -> Result<()>;
-    /// Go back to the last checkpoint (the state at rest when there is none).
+    /// Go back to the last checkpoint (before the first, the state at rest the stepper was
+    /// built with: step 0, the tool at its start). Drops the batches in flight and zeroes the
+    /// stats. With the same inputs, the run from there repeats the saved run bit for bit.
     fn restore(&mut self) -> Result<()>;
     /// Read the current state (waits for the batches in flight).
     fn read_state(&mut self) -> Result<State>;

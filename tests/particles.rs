@@ -1390,11 +1390,11 @@ fn a_restore_without_a_checkpoint_returns_both_backends_to_rest() {
 /// that activates on the same steps as the batch (the step that one-step batches from the same
 /// state find), leaves the state at the step before it (bit for bit that of the one-step run),
 /// and `rollback_to_checkpoint` brings back the batch start, particles and modes included.
-/// The block is pressed at its step until particles are dynamic, then dt is raised to 4× the
-/// bound.
+/// The block is pressed at its step until particles are dynamic, then the tool is held and
+/// dt raised to 4× the bound.
 #[test]
 fn a_divergence_in_a_particle_scene_is_located_and_rolled_back_whole() {
-    use palpate::sim::{Advance, SimOptions, Simulation};
+    use palpate::sim::{Advance, DivergencePolicy, Guarded, SimOptions, Simulation};
     let scene = pressed_block();
     let start = |batch: u32| {
         let mut sim = Simulation::new(
@@ -1411,6 +1411,8 @@ fn a_divergence_in_a_particle_scene_is_located_and_rolled_back_whole() {
         }
         let dt = sim.dt;
         sim.set_dt(4.0 * dt).unwrap();
+        // Held where it is: a batch and one-step batches give the tool the same inputs.
+        sim.tool_target = Some(sim.tool_position);
         sim
     };
     let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
@@ -1465,4 +1467,24 @@ fn a_divergence_in_a_particle_scene_is_located_and_rolled_back_whole() {
         !batch.rollback_to_checkpoint().unwrap(),
         "a second rollback"
     );
+    // Under HalveDt the same batch comes back at its start with dt halved, without redoing
+    // the steps before the failing one.
+    let mut halving = start(25);
+    let dt = halving.dt;
+    let Guarded::Retry {
+        step: at, dt: half, ..
+    } = halving
+        .advance_with(200, DivergencePolicy::HalveDt)
+        .unwrap()
+    else {
+        panic!("HalveDt did not retry");
+    };
+    assert_eq!((at, half, halving.steps_done), (step, 0.5 * dt, 250));
+    let p = halving.particle_state().unwrap().unwrap();
+    assert_eq!(
+        bits(&halving.state().unwrap().displacements),
+        bits(&before.0.displacements)
+    );
+    assert_eq!(bits(&p.displacements), bits(&before.1.displacements));
+    assert_eq!(p.modes, before.1.modes);
 }

@@ -97,7 +97,7 @@ pub fn gather_coupled(
 /// and not dynamic, built once per activation. Modes change only at an activation, so until
 /// the particle state is replaced the filter in [`gather_coupled`] passes exactly these
 /// slots, in the same order: summing over them gives the same bits as walking every slot.
-#[derive(Clone, Debug, Default)]
+#[derive(Debug, Default)]
 pub(crate) struct CoupledSlots {
     /// CSR offsets per vertex (n_vertices + 1).
     pub offsets: Vec<u32>,
@@ -105,6 +105,21 @@ pub(crate) struct CoupledSlots {
     pub slots: Vec<u32>,
     /// Built from the current modes; false after the particle state was replaced.
     pub valid: bool,
+}
+
+impl Clone for CoupledSlots {
+    fn clone(&self) -> Self {
+        let mut c = CoupledSlots::default();
+        c.clone_from(self);
+        c
+    }
+
+    /// Copies into the existing buffers (a checkpoint every batch allocates nothing).
+    fn clone_from(&mut self, s: &Self) {
+        self.offsets.clone_from(&s.offsets);
+        self.slots.clone_from(&s.slots);
+        self.valid = s.valid;
+    }
 }
 
 impl CoupledSlots {

@@ -109,8 +109,7 @@ pub fn tool_force_partial(
 
 /// Per block of 128 entries of `dynamic_list` (after the vertices' blocks): the dynamic
 /// surface particles' contact lanes (twin of `tool_force_particles`; the list is the last
-/// activation's, so the mode is checked too: after a restore a listed particle may be
-/// embedded again until the next activation).
+/// activation's, written and checkpointed with the modes; the mode is checked all the same).
 #[allow(clippy::too_many_arguments)]
 pub fn tool_force_particles(
     params: &StepParams,

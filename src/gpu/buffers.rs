@@ -18,7 +18,8 @@ pub enum Usage {
     Storage,
     /// Per-run or per-batch uniform.
     Uniform,
-    /// Part of the simulation state: saved by `checkpoint`, read and written by
+    /// Part of the simulation state: saved by `checkpoint` (with the activation's products,
+    /// `gpu::stepper::ACTIVATION_PRODUCTS`); the vertices' read and written by
     /// `read_state`/`write_state`.
     State,
     /// Written by kernels and copied into the readback ring at the end of every batch.

@@ -742,8 +742,10 @@ impl Stepper for GpuStepper {
     fn checkpoint(&mut self) -> Result<()> {
         if self.checkpoint.is_empty() {
             let d = &self.ctx.device;
-            self.checkpoint = self
-                .checkpointed_buffers()?
+            let scope = d.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+            let saved = self.checkpointed_buffers()?;
+            let bytes: u64 = saved.iter().map(|(_, b)| b.size()).sum();
+            self.checkpoint = saved
                 .into_iter()
                 .map(|(name, b)| {
                     (
@@ -757,6 +759,13 @@ impl Stepper for GpuStepper {
                     )
                 })
                 .collect();
+            if let Some(e) = pollster::block_on(scope.pop()) {
+                self.checkpoint.clear();
+                return Err(PalpateError::Gpu(format!(
+                    "out of GPU memory creating the {bytes}-byte checkpoint of the state on '{}': {e}",
+                    self.ctx.info.name
+                )));
+            }
             self.ctx.check_errors()?;
         }
         let mut enc = self.ctx.device.create_command_encoder(&Default::default());
