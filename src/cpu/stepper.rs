@@ -144,7 +144,7 @@ impl Clone for ParticleState {
 /// arguments, tet weights, vertex flags and contact weights, the weighted tets and the coupled
 /// vertices' slots. Saved with a checkpoint, so that a restore resumes with the ones its
 /// modes were built with (the modes change only at an activation).
-#[derive(Clone, Default)]
+#[derive(Default)]
 struct ActivationProducts {
     dynamic_list: Vec<u32>,
     stress_list: Vec<u32>,
@@ -154,37 +154,45 @@ struct ActivationProducts {
     tet_weight: Vec<f32>,
     node_flags: Vec<u32>,
     contact_weight: Vec<f32>,
+    /// Tets whose energy weight is not 1, ascending (the rest keep their whole energy); every
+    /// tet on the reference path.
     weighted_tets: Vec<u32>,
+    /// Per coupled vertex, the slots `gather_coupled` adds (valid until the state is replaced).
     coupled_slots: super::gather::CoupledSlots,
 }
 
 impl ActivationProducts {
-    /// Copy `pa`'s into `self` (reusing its buffers).
-    fn save(&mut self, pa: &ParticleArrays) {
-        self.dynamic_list.clone_from(&pa.dynamic_list);
-        self.stress_list.clone_from(&pa.stress_list);
-        self.force_list.clone_from(&pa.force_list);
-        self.counts = pa.counts;
-        self.dispatch = pa.dispatch;
-        self.tet_weight.clone_from(&pa.tet_weight);
-        self.node_flags.clone_from(&pa.node_flags);
-        self.contact_weight.clone_from(&pa.contact_weight);
-        self.weighted_tets.clone_from(&pa.weighted_tets);
-        self.coupled_slots.clone_from(&pa.coupled_slots);
+    /// Before the first activation: empty lists, no work, every weight 1, no flags.
+    fn at_rest(n_tets: usize, n_vertices: usize) -> ActivationProducts {
+        ActivationProducts {
+            dispatch: [0, 1, 1, 0, 1, 1, 0, 1, 1],
+            tet_weight: vec![1.0; n_tets],
+            node_flags: vec![0; n_vertices],
+            contact_weight: vec![1.0; n_vertices],
+            ..Default::default()
+        }
+    }
+}
+
+impl Clone for ActivationProducts {
+    fn clone(&self) -> Self {
+        let mut c = ActivationProducts::default();
+        c.clone_from(self);
+        c
     }
 
-    /// Copy `self` back into `pa`.
-    fn load(&self, pa: &mut ParticleArrays) {
-        pa.dynamic_list.clone_from(&self.dynamic_list);
-        pa.stress_list.clone_from(&self.stress_list);
-        pa.force_list.clone_from(&self.force_list);
-        pa.counts = self.counts;
-        pa.dispatch = self.dispatch;
-        pa.tet_weight.clone_from(&self.tet_weight);
-        pa.node_flags.clone_from(&self.node_flags);
-        pa.contact_weight.clone_from(&self.contact_weight);
-        pa.weighted_tets.clone_from(&self.weighted_tets);
-        pa.coupled_slots.clone_from(&self.coupled_slots);
+    /// Copies into the existing buffers (a checkpoint every batch allocates nothing).
+    fn clone_from(&mut self, s: &Self) {
+        self.dynamic_list.clone_from(&s.dynamic_list);
+        self.stress_list.clone_from(&s.stress_list);
+        self.force_list.clone_from(&s.force_list);
+        self.counts = s.counts;
+        self.dispatch = s.dispatch;
+        self.tet_weight.clone_from(&s.tet_weight);
+        self.node_flags.clone_from(&s.node_flags);
+        self.contact_weight.clone_from(&s.contact_weight);
+        self.weighted_tets.clone_from(&s.weighted_tets);
+        self.coupled_slots.clone_from(&s.coupled_slots);
     }
 }
 
@@ -210,26 +218,15 @@ struct ParticleArrays {
     forces: Vec<f32>,
     force_sum: Vec<f32>,
     contact: Vec<f32>,
-    dynamic_list: Vec<u32>,
-    stress_list: Vec<u32>,
-    force_list: Vec<u32>,
-    counts: [u32; 4],
-    dispatch: [u32; 9],
-    tet_weight: Vec<f32>,
+    /// What the last activation left (checkpointed).
+    act: ActivationProducts,
     node_fixed: Vec<u32>,
-    node_flags: Vec<u32>,
-    contact_weight: Vec<f32>,
     partials: Vec<f32>,
     stats: Vec<f32>,
     /// What the next activation must visit (see `cpu/active_region.rs`).
     region: ActiveRegion,
     /// Run every activation over all particles, tets and vertices (tests compare the two).
     full_activation: bool,
-    /// Tets whose energy weight is not 1, ascending (the rest keep their whole energy); every
-    /// tet on the reference path.
-    weighted_tets: Vec<u32>,
-    /// Per coupled vertex, the slots `gather_coupled` adds (valid until the state is replaced).
-    coupled_slots: super::gather::CoupledSlots,
 }
 
 impl ParticleArrays {
@@ -237,7 +234,7 @@ impl ParticleArrays {
     /// `gather_coupled` walks every slot.
     fn forget_region(&mut self) {
         self.region.forget();
-        self.coupled_slots.valid = false;
+        self.act.coupled_slots.valid = false;
     }
 
     /// After an activation: the weighted tets among `reweighed` (every tet whose weight may
@@ -249,14 +246,14 @@ impl ParticleArrays {
         pd: &crate::particles::Particles,
     ) {
         if self.full_activation {
-            self.weighted_tets = (0..self.tet_weight.len() as u32).collect();
-            self.coupled_slots.valid = false;
+            self.act.weighted_tets = (0..self.act.tet_weight.len() as u32).collect();
+            self.act.coupled_slots.valid = false;
             return;
         }
-        let w = &self.tet_weight;
-        self.weighted_tets = reweighed.filter(|&e| w[e as usize] != 1.0).collect();
-        self.coupled_slots.rebuild(
-            &self.node_flags,
+        let w = &self.act.tet_weight;
+        self.act.weighted_tets = reweighed.filter(|&e| w[e as usize] != 1.0).collect();
+        self.act.coupled_slots.rebuild(
+            &self.act.node_flags,
             &pd.slot_offsets,
             &pd.slots,
             &self.state.mode,
@@ -304,15 +301,8 @@ impl ParticleArrays {
             forces: vec![0.0; 3 * n],
             force_sum: vec![0.0; 3 * n],
             contact: vec![0.0; 3 * n],
-            dynamic_list: Vec::new(),
-            stress_list: Vec::new(),
-            force_list: Vec::new(),
-            counts: [0; 4],
-            dispatch: [0, 1, 1, 0, 1, 1, 0, 1, 1],
-            tet_weight: vec![1.0; model.n_tets()],
+            act: ActivationProducts::at_rest(model.n_tets(), model.n_vertices()),
             node_fixed,
-            node_flags: vec![0; model.n_vertices()],
-            contact_weight: vec![1.0; model.n_vertices()],
             partials: vec![
                 0.0;
                 super::particle_reduce::LANE * super::particle_reduce::n_partials(&pp)
@@ -320,8 +310,6 @@ impl ParticleArrays {
             stats: vec![0.0; 8],
             region,
             full_activation: false,
-            weighted_tets: Vec::new(),
-            coupled_slots: Default::default(),
         })
     }
 }
@@ -438,11 +426,9 @@ impl CpuStepper {
         let particles = pool.install(|| ParticleArrays::new(&model, &params));
         let checkpoint = Checkpoint {
             state: state.clone(),
-            particles: particles.as_ref().map(|pa| {
-                let mut act = ActivationProducts::default();
-                act.save(pa);
-                (pa.state.clone(), act)
-            }),
+            particles: particles
+                .as_ref()
+                .map(|pa| (pa.state.clone(), pa.act.clone())),
             steps_done: 0,
             tool_at: tool.at,
         };
@@ -519,7 +505,7 @@ impl CpuStepper {
                 &mut t.contact_forces,
                 self.particles
                     .as_ref()
-                    .map(|pa| pa.contact_weight.as_slice()),
+                    .map(|pa| pa.act.contact_weight.as_slice()),
             ),
             Stage::ToolForce => {
                 tool_force_partial(
@@ -534,7 +520,7 @@ impl CpuStepper {
                     &mut t.partials,
                     self.particles
                         .as_ref()
-                        .map(|pa| pa.contact_weight.as_slice()),
+                        .map(|pa| pa.act.contact_weight.as_slice()),
                 );
                 if let (Some(pa), Some(pd)) = (&self.particles, pdata) {
                     super::tool_force::tool_force_particles(
@@ -548,14 +534,14 @@ impl CpuStepper {
                         &pd.contact_area,
                         &pa.gradient,
                         &pd.contact_offset,
-                        &pa.dynamic_list,
+                        &pa.act.dynamic_list,
                         &mut t.partials,
                     );
                 }
                 let dynamic = self
                     .particles
                     .as_ref()
-                    .map_or(0, |pa| pa.dynamic_list.len());
+                    .map_or(0, |pa| pa.act.dynamic_list.len());
                 tool_force_final(&t.params, dynamic, &t.partials, &mut t.report);
             }
             Stage::FemForces => {
@@ -576,21 +562,21 @@ impl CpuStepper {
                 if let Some(pa) = self
                     .particles
                     .as_ref()
-                    .filter(|pa| 4 * pa.weighted_tets.len() > m.n_tets())
+                    .filter(|pa| 4 * pa.act.weighted_tets.len() > m.n_tets())
                 {
                     super::par::for_each_chunk2::<12, 1>(
                         &mut self.corner_forces,
                         &mut self.tet_energy,
                         m.n_tets(),
                         |e, corner, energy| {
-                            let w = pa.tet_weight[e];
+                            let w = pa.act.tet_weight[e];
                             corner.iter_mut().for_each(|c| *c *= w);
                             energy[0] *= w;
                         },
                     );
                 } else if let Some(pa) = &self.particles {
-                    for &e in &pa.weighted_tets {
-                        let (e, w) = (e as usize, pa.tet_weight[e as usize]);
+                    for &e in &pa.act.weighted_tets {
+                        let (e, w) = (e as usize, pa.act.tet_weight[e as usize]);
                         self.corner_forces[12 * e..12 * e + 12]
                             .iter_mut()
                             .for_each(|c| *c *= w);
@@ -683,16 +669,16 @@ impl CpuStepper {
                 let empty: CouplingSlices = (&[], &[], &[], &[], &[], &[]);
                 let (node_flags, slot_offsets, slots, weights, pmode, force_sum) =
                     match (&self.particles, pdata) {
-                        (Some(pa), Some(pd)) if pa.coupled_slots.valid => (
-                            pa.node_flags.as_slice(),
-                            pa.coupled_slots.offsets.as_slice(),
-                            pa.coupled_slots.slots.as_slice(),
+                        (Some(pa), Some(pd)) if pa.act.coupled_slots.valid => (
+                            pa.act.node_flags.as_slice(),
+                            pa.act.coupled_slots.offsets.as_slice(),
+                            pa.act.coupled_slots.slots.as_slice(),
                             pd.weights.as_slice(),
                             pa.state.mode.as_slice(),
                             pa.force_sum.as_slice(),
                         ),
                         (Some(pa), Some(pd)) => (
-                            pa.node_flags.as_slice(),
+                            pa.act.node_flags.as_slice(),
                             pd.slot_offsets.as_slice(),
                             pd.slots.as_slice(),
                             pd.weights.as_slice(),
@@ -778,13 +764,13 @@ impl CpuStepper {
         mark_set(n, mode::IN_S, mode::IN_F, noff, nbrs, &mut pa.state.mode);
         super::compact::compact(
             &pa.state.mode,
-            &mut pa.dynamic_list,
-            &mut pa.stress_list,
-            &mut pa.force_list,
-            &mut pa.counts,
-            &mut pa.dispatch,
+            &mut pa.act.dynamic_list,
+            &mut pa.act.stress_list,
+            &mut pa.act.force_list,
+            &mut pa.act.counts,
+            &mut pa.act.dispatch,
         );
-        super::activate::tet_weights(p, &pd.tet_offsets, &pa.state.mode, &mut pa.tet_weight);
+        super::activate::tet_weights(p, &pd.tet_offsets, &pa.state.mode, &mut pa.act.tet_weight);
         super::activate::relump(
             p,
             &pp,
@@ -797,17 +783,17 @@ impl CpuStepper {
             &pa.node_fixed,
             &m.incidence_offsets,
             &m.incidence,
-            &pa.tet_weight,
+            &pa.act.tet_weight,
             &mut pa.state.mass,
             &mut pa.state.inv_mass,
             &mut self.state.velocities,
-            &mut pa.node_flags,
-            &mut pa.contact_weight,
+            &mut pa.act.node_flags,
+            &mut pa.act.contact_weight,
         );
         pa.region.prime(
             &pa.state.mode,
-            &pa.force_list,
-            &pa.stress_list,
+            &pa.act.force_list,
+            &pa.act.stress_list,
             &pd.host,
             &m.tets,
         );
@@ -819,9 +805,9 @@ impl CpuStepper {
     pub fn activation_outputs(&self) -> Option<(&[f32], &[u32], &[f32])> {
         self.particles.as_ref().map(|pa| {
             (
-                &pa.tet_weight[..],
-                &pa.node_flags[..],
-                &pa.contact_weight[..],
+                &pa.act.tet_weight[..],
+                &pa.act.node_flags[..],
+                &pa.act.contact_weight[..],
             )
         })
     }
@@ -872,12 +858,12 @@ impl CpuStepper {
                 let force = ActiveRegion::mark(&stress, mode::IN_F, noff, nbrs, &mut pa.state.mode);
                 super::compact::counts_and_dispatch(
                     [&dynamic, &stress, &force],
-                    &mut pa.counts,
-                    &mut pa.dispatch,
+                    &mut pa.act.counts,
+                    &mut pa.act.dispatch,
                 );
                 let reweighed = pa.region.tets_to_weigh(&stress, &pd.host);
                 for &e in &reweighed {
-                    pa.tet_weight[e as usize] =
+                    pa.act.tet_weight[e as usize] =
                         super::activate::tet_weight_of(e as usize, &pd.tet_offsets, &pa.state.mode);
                 }
                 let mut coupled = force.clone();
@@ -898,7 +884,7 @@ impl CpuStepper {
                     node_fixed: &pa.node_fixed,
                     incidence_offsets: &m.incidence_offsets,
                     incidence: &m.incidence,
-                    tet_weight: &pa.tet_weight,
+                    tet_weight: &pa.act.tet_weight,
                 };
                 let lumps: Vec<VertexLump> = {
                     use rayon::prelude::*;
@@ -914,18 +900,18 @@ impl CpuStepper {
                     pa.state.mass[i] = lump.mass;
                     pa.state.inv_mass[i] = lump.inv_mass;
                     super::store3(&mut self.state.velocities, i, lump.velocity);
-                    pa.node_flags[i] = lump.flags;
-                    pa.contact_weight[i] = lump.contact_weight;
+                    pa.act.node_flags[i] = lump.flags;
+                    pa.act.contact_weight[i] = lump.contact_weight;
                 }
                 pa.region.settle(&force, &blending);
                 pa.after_activation(reweighed.into_iter(), pd);
-                pa.dynamic_list = dynamic;
-                pa.stress_list = stress;
-                pa.force_list = force;
+                pa.act.dynamic_list = dynamic;
+                pa.act.stress_list = stress;
+                pa.act.force_list = force;
             }
             Stage::Follow => super::follow::follow(
                 &pp,
-                &pa.force_list,
+                &pa.act.force_list,
                 &pa.state.mode,
                 &st,
                 &self.state.displacements,
@@ -937,7 +923,7 @@ impl CpuStepper {
                 p,
                 &pp,
                 self.variant.model,
-                &pa.stress_list,
+                &pa.act.stress_list,
                 &pd.rest,
                 &pa.state.displacements,
                 noff,
@@ -971,7 +957,7 @@ impl CpuStepper {
                 };
                 super::sph_forces::sph_forces(
                     &inp,
-                    &pa.force_list,
+                    &pa.act.force_list,
                     stage == Stage::SphForcesAccumulate,
                     &mut pa.forces,
                     &mut pa.force_sum,
@@ -981,7 +967,7 @@ impl CpuStepper {
             Stage::IntegrateParticles => super::integrate_particles::integrate_particles(
                 p,
                 &pp,
-                &pa.dynamic_list,
+                &pa.act.dynamic_list,
                 &pa.forces,
                 &mut pa.state.displacements,
                 &mut pa.state.velocities,
@@ -989,7 +975,7 @@ impl CpuStepper {
             ),
             Stage::ParticleReduce => super::particle_reduce::particle_reduce(
                 &pp,
-                &pa.stress_list,
+                &pa.act.stress_list,
                 &pa.state.mode,
                 &pa.state.displacements,
                 &pa.state.velocities,
@@ -1173,7 +1159,7 @@ impl Stepper for CpuStepper {
         let particles = self
             .particles
             .as_ref()
-            .map(|pa| ParticleReport::from_parts(&pa.counts, &pa.stats));
+            .map(|pa| ParticleReport::from_parts(&pa.act.counts, &pa.stats));
         self.reports.push_back(BatchReport {
             steps,
             stats,
@@ -1203,7 +1189,7 @@ impl Stepper for CpuStepper {
         cp.state.clone_from(&self.state);
         if let (Some((state, act)), Some(pa)) = (&mut cp.particles, &self.particles) {
             state.clone_from(&pa.state);
-            act.save(pa);
+            act.clone_from(&pa.act);
         }
         cp.steps_done = self.steps_done;
         cp.tool_at = self.tool.at;
@@ -1219,7 +1205,7 @@ impl Stepper for CpuStepper {
             // The next activation visits everything; until then the restored lists, weights
             // and flags are those the restored modes were built with.
             pa.region.forget();
-            act.load(pa);
+            pa.act.clone_from(act);
         }
         self.steps_done = cp.steps_done;
         self.tool.at = cp.tool_at;
