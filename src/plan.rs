@@ -72,6 +72,9 @@ pub enum Domain {
     Particles,
     /// One thread per particle and one more (prefix sums over n + 1 marks).
     ParticlesPlusOne,
+    /// One thread per run of `cpu::scan::SCAN_BLOCK` of the n + 1 marks (a prefix sum's
+    /// `scan_local`).
+    ParticleScanRuns,
     /// One thread per entry of the dynamic list: indirect over its arguments (64-thread
     /// workgroups) when the model has particles, else a single idle workgroup.
     DynamicParticles,
@@ -318,18 +321,19 @@ const ACTIVATE: &[Entry] = {
         ("scan_blocks", "force_scan_blocks"),
     ];
     const P1: Domain = Domain::ParticlesPlusOne;
+    const RUNS: Domain = Domain::ParticleScanRuns;
     &[
         e("activate", "activate", Domain::Particles),
         e("activate", "activate_stress_set", Domain::Particles),
         e("activate", "activate_force_set", Domain::Particles),
         e("compact", "compact_mark", P1),
-        scan("scan_local", P1, D),
+        scan("scan_local", RUNS, D),
         scan("scan_totals", Domain::OneWorkgroup, D),
         scan("scan_apply", P1, D),
-        scan("scan_local", P1, S),
+        scan("scan_local", RUNS, S),
         scan("scan_totals", Domain::OneWorkgroup, S),
         scan("scan_apply", P1, S),
-        scan("scan_local", P1, F),
+        scan("scan_local", RUNS, F),
         scan("scan_totals", Domain::OneWorkgroup, F),
         scan("scan_apply", P1, F),
         e("compact", "compact_scatter", Domain::Particles),

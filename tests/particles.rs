@@ -70,7 +70,7 @@ fn sampling_fills_the_zone_with_embedded_particles_of_the_right_volume_and_mass(
 fn prefix_sum_kernel_matches_its_twin() {
     let ctx = gpu();
     let mut rng = Rng(3);
-    for n in [1u32, 255, 256, 257, 70_001] {
+    for n in [1u32, 255, 256, 257, 2047, 2048, 2049, 70_001] {
         let data: Vec<u32> = (0..n).map(|_| (rng.next() * 100.0) as u32).collect();
         let params = [ScanParams::new(n)];
         let buffers = GpuBuffers::new(
@@ -95,7 +95,7 @@ fn prefix_sum_kernel_matches_its_twin() {
             &ctx,
             &buffers,
             &[
-                pass("scan_local", SetupDispatch::Items(n)),
+                pass("scan_local", SetupDispatch::Items(cpu::scan::n_runs(n))),
                 pass("scan_totals", SetupDispatch::One),
                 pass("scan_apply", SetupDispatch::Items(n)),
             ],

@@ -1,8 +1,13 @@
-//! CPU twin of `kernels/scan.wgsl`: an exclusive prefix sum of u32 values in place, by blocks
-//! of 256 like the GPU (integers, so the result is exact and identical).
+//! CPU twin of `kernels/scan.wgsl`: an exclusive prefix sum of u32 values in place, by runs
+//! of 64 like the GPU (integers, so the result is exact and identical).
 
-/// Values per block.
-pub const SCAN_BLOCK: usize = 256;
+/// Values per block (one run of `scan_local`, one GPU thread).
+pub const SCAN_BLOCK: usize = 64;
+
+/// `scan_local` threads for `n` values (one per run).
+pub fn n_runs(n: u32) -> u32 {
+    n.div_ceil(SCAN_BLOCK as u32)
+}
 
 /// Number of blocks for `n` values (the totals array holds one more: the grand total).
 pub fn n_blocks(n: usize) -> usize {

@@ -185,7 +185,7 @@ impl ParticleTables {
 pub fn particle_step<'a>(model: &'a Model, t: &'a ParticleTables) -> BufferGroup<'a> {
     let n = t.params.n_particles as u64;
     let nv = model.n_vertices() as u64;
-    let blocks = |k: u64| 4 * (k.div_ceil(256) + 1);
+    let blocks = |k: u64| ScanParams::blocks_bytes(k as u32);
     let partial_blocks = n.div_ceil(crate::cpu::particle_reduce::WORKGROUP as u64);
     let n_slots = model.particles.as_ref().map_or(0, |p| p.slots.len()) as u64;
     BufferGroup {

@@ -107,6 +107,7 @@ pub fn build_neighbour_lists(
     let n = grid.n_particles;
     let nc = grid.n_cells;
     let items = SetupDispatch::Items;
+    let runs = crate::cpu::scan::n_runs;
     let pass = |file, entry, dispatch, aliases| SetupPass {
         file,
         entry,
@@ -118,13 +119,13 @@ pub fn build_neighbour_lists(
         buffers,
         &[
             pass("neighbours", "neighbours_bin", items(n), &[]),
-            pass("scan", "scan_local", items(nc + 1), CELL_SCAN),
+            pass("scan", "scan_local", items(runs(nc + 1)), CELL_SCAN),
             pass("scan", "scan_totals", SetupDispatch::One, CELL_SCAN),
             pass("scan", "scan_apply", items(nc + 1), CELL_SCAN),
             pass("neighbours", "neighbours_place", items(n), &[]),
             pass("neighbours", "neighbours_sort", items(nc), &[]),
             pass("neighbours", "neighbours_count", items(n), &[]),
-            pass("scan", "scan_local", items(n + 1), NEIGHBOUR_SCAN),
+            pass("scan", "scan_local", items(runs(n + 1)), NEIGHBOUR_SCAN),
             pass("scan", "scan_totals", SetupDispatch::One, NEIGHBOUR_SCAN),
             pass("scan", "scan_apply", items(n + 1), NEIGHBOUR_SCAN),
         ],

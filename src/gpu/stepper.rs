@@ -320,6 +320,9 @@ impl GpuStepper {
             Domain::FollowerFaces => Dispatch::Items(self.follower_load.map_or(0, |f| f.n_faces)),
             Domain::Particles => Dispatch::Items(self.n_particles),
             Domain::ParticlesPlusOne => Dispatch::Items(self.n_particles + 1),
+            Domain::ParticleScanRuns => {
+                Dispatch::Items(crate::cpu::scan::n_runs(self.n_particles + 1))
+            }
             Domain::DynamicParticles if self.n_particles > 0 => {
                 Dispatch::Indirect(self.buffers.require("particle_dispatch")?, 0)
             }
