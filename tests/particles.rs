@@ -70,7 +70,8 @@ fn sampling_fills_the_zone_with_embedded_particles_of_the_right_volume_and_mass(
 fn prefix_sum_kernel_matches_its_twin() {
     let ctx = gpu();
     let mut rng = Rng(3);
-    for n in [1u32, 255, 256, 257, 2047, 2048, 2049, 70_001] {
+    // Run (64 values) and run-total (256 runs per scan_totals round) boundaries.
+    for n in [1u32, 63, 64, 65, 255, 256, 257, 16_384, 16_385, 70_001] {
         let data: Vec<u32> = (0..n).map(|_| (rng.next() * 100.0) as u32).collect();
         let params = [ScanParams::new(n)];
         let buffers = GpuBuffers::new(
