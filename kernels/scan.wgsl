@@ -4,8 +4,9 @@
 // barrier; scan_totals (one workgroup) scans the run totals and writes the grand total to
 // scan_blocks[n_runs]; scan_apply (one thread per value) adds each run's offset. (A
 // Hillis-Steele scan of 256-value blocks took 3.2 ms per 27,752 values on lavapipe, where a
-// workgroup with barriers costs ~80 us; this takes a fraction.) Exact (integers), so the result is the same on every
-// device. Bound to different arrays through binding aliases (neighbour counts, flags, ...).
+// workgroup with barriers costs ~80 us; this takes a fraction.) Exact (integers), so the
+// result is the same on every device. Bound to different arrays through binding aliases
+// (neighbour counts, flags, ...).
 // CPU twin: src/cpu/scan.rs.
 #import index
 
@@ -23,10 +24,13 @@ struct ScanParams {
 const WORKGROUP: u32 = 256u;
 // Values per scan_local thread (one run), as `cpu::scan::SCAN_BLOCK`.
 const RUN: u32 = 64u;
+// scan_local's workgroup size.
+const LOCAL_WORKGROUP: u32 = 64u;
 
 var<workgroup> lanes: array<u32, 256>;
 
-// Hillis-Steele inclusive scan of `lanes` within the workgroup.
+// Hillis-Steele inclusive scan of `lanes` within the workgroup (scan_totals only). A variant
+// with 4 barriers (16 threads scanning 16 lanes each) made scan_totals slower on lavapipe.
 fn scan_lanes(l: u32) {
     for (var s = 1u; s < WORKGROUP; s = s * 2u) {
         workgroupBarrier();
@@ -40,9 +44,12 @@ fn scan_lanes(l: u32) {
     workgroupBarrier();
 }
 
-@compute @workgroup_size(64)
-fn scan_local(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
-    let run = linear_index(gid, nwg, 64u);
+@compute @workgroup_size(LOCAL_WORKGROUP)
+fn scan_local(
+    @builtin(global_invocation_id) gid: vec3<u32>,
+    @builtin(num_workgroups) nwg: vec3<u32>,
+) {
+    let run = linear_index(gid, nwg, LOCAL_WORKGROUP);
     let n = scan_params.n;
     let first = run * RUN;
     if first >= n {
