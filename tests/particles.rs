@@ -182,12 +182,13 @@ fn pressed_block() -> Scene {
     Scene::from_toml(PRESSED_BLOCK, "hybrid block", "hybrid_block", None).unwrap()
 }
 
+/// The bit patterns of f32 values (for bit-for-bit comparisons).
+fn bits(v: &[f32]) -> Vec<u32> {
+    v.iter().map(|x| x.to_bits()).collect()
+}
+
 fn bits_u32(g: &GpuStepper, name: &str) -> Vec<u32> {
-    g.read_f32(name)
-        .unwrap()
-        .iter()
-        .map(|x| x.to_bits())
-        .collect()
+    bits(&g.read_f32(name).unwrap())
 }
 
 fn rel(a: &[f32], b: &[f32]) -> f64 {
@@ -1191,7 +1192,6 @@ fn the_cpu_activation_skips_only_particles_the_kernel_leaves_unchanged() {
             ("particle_displacements", &pu),
             ("particle_velocities", &pv),
         ] {
-            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
             if let Some(d) = differ(&bits(&g.read_f32(name).unwrap()), &bits(c)) {
                 panic!("tool position {k}: {name}: {d}");
             }
@@ -1265,7 +1265,6 @@ fn a_restore_between_activations_gives_both_backends_the_same_trajectory() {
     let mut g = GpuStepper::new(gpu(), &m, params).unwrap();
     let (cu, cp, cd) = press_with_a_restore(&mut c, &scene, dt, true);
     let (gu, gp, gd) = press_with_a_restore(&mut g, &scene, dt, true);
-    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
     let mut c = cpu::CpuStepper::new(m.clone(), params);
     let mut g = GpuStepper::new(gpu(), &m, params).unwrap();
     for (name, s, u, p, d) in [
@@ -1317,7 +1316,6 @@ fn a_restore_without_a_checkpoint_returns_both_backends_to_rest() {
     let mut c = cpu::CpuStepper::new(m.clone(), params);
     let mut g = GpuStepper::new(gpu(), &m, params).unwrap();
     let mut ends = Vec::new();
-    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
     for (name, s) in [("cpu", &mut c as &mut dyn Stepper), ("gpu", &mut g)] {
         s.submit(150, &BatchInput { tool: Some((a, b)) }).unwrap();
         s.wait().unwrap();
@@ -1416,7 +1414,6 @@ fn a_divergence_in_a_particle_scene_is_located_and_rolled_back_whole() {
         sim.tool_target = Some(sim.tool_position);
         sim
     };
-    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
     let mut batch = start(25);
     let before = (
         batch.state().unwrap(),
