@@ -18,7 +18,8 @@
 //! particles are the dynamic ones and the embedded ones within a kernel support of them (so
 //! every dynamic particle sees a full neighbourhood). The zone's mass is carried once: by
 //! the particles (lumped or their own), never by the zone tets — except zone tets too small
-//! to hold a particle, which keep their own.
+//! to hold a particle, which keep their own. Where S ends this split leaves a ghost force
+//! under an affine stretch, first order in Δx/h (docs/hybrid_coupling.md).
 //!
 //! Volumes are uniform, V = (volume of the particle-holding zone tets)/N, so the interior of
 //! the lattice is symmetric and a uniform stress leaves no residual force on interior
