@@ -1,5 +1,5 @@
 // Setup stage: the particles' reference neighbour lists, built once on a uniform grid of
-// cells the size of the kernel support, in CSR form and in a fixed order (cells z, y, x
+// cells a hair wider than the kernel support (1.001 R), in CSR form and in a fixed order (cells z, y, x
 // ascending, then particles ascending), so every device builds the same lists.
 //   neighbours_bin    per particle: its cell, and an (integer) atomic count per cell, in
 //                     cell_offsets (counts until the scan turns them into offsets)
@@ -30,7 +30,8 @@ fn rest(p: u32) -> vec3<f32> {
 }
 
 fn cell_coords(x: vec3<f32>) -> vec3<i32> {
-    let c = vec3<i32>(floor((x - grid_params.origin) / grid_params.cell));
+    // A product, not a quotient: WGSL rounds it exactly, so every device bins alike.
+    let c = vec3<i32>(floor((x - grid_params.origin) * grid_params.inv_cell));
     return clamp(c, vec3<i32>(0), vec3<i32>(grid_params.dims) - vec3<i32>(1));
 }
 

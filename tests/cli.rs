@@ -634,6 +634,10 @@ fn bad_particle_sections_are_one_line_errors_naming_the_key() {
             "region = 0\nspacing = 0.002\nactivation_radius = 0.004\nkernel_radius = 9.0",
             &["particles.kernel_radius"],
         ),
+        (
+            "region = 0\nspacing = 0.002\nactivation_radius = 0.004\nkernel_radius = 2.0",
+            &["particles.kernel_radius", "√4", "1.95"],
+        ),
     ];
     for (i, (body, want)) in cases.iter().enumerate() {
         let path = scene_file(&d, &format!("p{i}.toml"), &with(body));

@@ -66,8 +66,56 @@ fn sampling_fills_the_zone_with_embedded_particles_of_the_right_volume_and_mass(
     assert_eq!(surface, 2000 - 18 * 8 * 8);
 }
 
+/// A zone of two small tets 3 m apart at 1 mm spacing: few particles, but a neighbour grid
+/// of about 2e9 cells over their bounding box (it would wrap a u32 cell count). Sampling
+/// refuses it with an error naming the spacing; a compact zone's grid is counted exactly.
+#[test]
+fn a_particle_zone_too_spread_out_for_its_grid_is_an_error_naming_the_spacing() {
+    let tet = |o: DVec3| {
+        [
+            o,
+            o + DVec3::new(0.01, 0.0, 0.0),
+            o + DVec3::new(0.0, 0.01, 0.0),
+            o + DVec3::new(0.0, 0.0, 0.01),
+        ]
+    };
+    let positions: Vec<DVec3> = tet(DVec3::ZERO)
+        .into_iter()
+        .chain(tet(DVec3::splat(3.0)))
+        .collect();
+    let (mesh, _) = palpate::mesh::TetMesh::new(
+        "two tets",
+        positions,
+        vec![[0, 1, 2, 3], [4, 5, 6, 7]],
+        None,
+    )
+    .unwrap();
+    let settings = block_scene(1e-3, "").particles.unwrap();
+    let err = palpate::particles::Particles::sample(&mesh, &settings, 1000.0, "two tets")
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("particles.spacing") && err.contains("cells") && !err.contains('\n'),
+        "{err}"
+    );
+    // The compact block: the grid spans its lattice plus a cell of margin on each side.
+    let m = Model::from_scene(&block_scene(1e-3, ""));
+    let p = m.particles.as_ref().unwrap();
+    let (grid, cells) = GridParams::layout(&p.rest, p.support);
+    assert_eq!(cells, grid.n_cells as u64);
+    assert!(
+        grid.dims.iter().all(|&d| (5..=14).contains(&d)),
+        "{:?}",
+        grid.dims
+    );
+}
+
 #[test]
 fn prefix_sum_kernel_matches_its_twin() {
+    // The twin's blocks are the kernel's runs: one constant on each side, kept equal.
+    let source = palpate::gpu::kernel_source("scan").unwrap();
+    let run = format!("const RUN: u32 = {}u;", cpu::scan::SCAN_BLOCK);
+    assert!(source.contains(&run), "scan.wgsl must say `{run}`");
     let ctx = gpu();
     let mut rng = Rng(3);
     // Run (64 values) and run-total (256 runs per scan_totals round) boundaries.

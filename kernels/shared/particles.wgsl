@@ -4,7 +4,7 @@
 // The reference grid the neighbour lists are built on (cells of the kernel support).
 struct GridParams {
     origin: vec3<f32>,    // m, lower corner
-    cell: f32,            // m, cell edge (= the support radius)
+    inv_cell: f32,        // 1/m, 1 / cell edge (the edge is 1.001 R)
     dims: vec3<u32>,      // cells per axis
     n_cells: u32,
     n_particles: u32,

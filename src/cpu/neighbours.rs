@@ -7,7 +7,7 @@ use crate::particles::params::GridParams;
 use glam::{IVec3, UVec3, Vec3};
 
 fn cell_coords(g: &GridParams, x: Vec3) -> IVec3 {
-    let c = ((x - Vec3::from_array(g.origin)) / g.cell)
+    let c = ((x - Vec3::from_array(g.origin)) * g.inv_cell)
         .floor()
         .as_ivec3();
     c.clamp(

@@ -9,8 +9,10 @@ use bytemuck::{Pod, Zeroable};
 pub struct GridParams {
     /// Lower corner, m.
     pub origin: [f32; 3],
-    /// Cell edge (the support radius), m.
-    pub cell: f32,
+    /// 1 / cell edge, 1/m. A particle's cell is ⌊(x − origin)·inv_cell⌋: a product, which
+    /// WGSL rounds exactly, where a quotient may be off by 2.5 ulp on a GPU, so every device
+    /// bins a particle on a cell boundary alike (the lists' order depends on the bins).
+    pub inv_cell: f32,
     /// Cells per axis.
     pub dims: [u32; 3],
     /// Number of cells.
@@ -23,10 +25,20 @@ pub struct GridParams {
     pub _pad: [u32; 2],
 }
 
+/// The cell edge over the support radius: a hair wider than the support, so two particles
+/// closer than R always fall in the same or adjacent cells, whatever the rounding of their
+/// cell coordinates.
+pub const CELL_OVER_SUPPORT: f32 = 1.001;
+
+/// The most cells a neighbour grid may have (its offsets take 4 bytes a cell, on both
+/// backends): 2²⁷, 512 MiB.
+pub const MAX_GRID_CELLS: u64 = 1 << 27;
+
 impl GridParams {
-    /// The grid over `rest` (packed xyz) with cells of the support radius, one cell of
-    /// margin on every side.
-    pub fn over(rest: &[f32], support: f32) -> GridParams {
+    /// The grid over `rest` (packed xyz) with cells of [`CELL_OVER_SUPPORT`]·R, one cell of
+    /// margin on every side, and its number of cells (unbounded: [`GridParams::over`] needs
+    /// it ≤ [`MAX_GRID_CELLS`], which sampling checks).
+    pub fn layout(rest: &[f32], support: f32) -> (GridParams, u64) {
         let n = rest.len() / 3;
         let mut lo = [f32::INFINITY; 3];
         let mut hi = [f32::NEG_INFINITY; 3];
@@ -40,17 +52,26 @@ impl GridParams {
             lo = [0.0; 3];
             hi = [0.0; 3];
         }
+        let inv_cell = 1.0 / (CELL_OVER_SUPPORT * support);
         let origin = [lo[0] - support, lo[1] - support, lo[2] - support];
-        let dims = [0, 1, 2].map(|k| ((hi[k] - origin[k]) / support).floor() as u32 + 2);
-        GridParams {
+        let dims = [0, 1, 2].map(|k| ((hi[k] - origin[k]) * inv_cell).floor() as u64 + 2);
+        let n_cells = dims[0].saturating_mul(dims[1]).saturating_mul(dims[2]);
+        let grid = GridParams {
             origin,
-            cell: support,
-            dims,
-            n_cells: dims[0] * dims[1] * dims[2],
+            inv_cell,
+            dims: dims.map(|d| d.min(u32::MAX as u64) as u32),
+            n_cells: n_cells.min(u32::MAX as u64) as u32,
             n_particles: n as u32,
             support,
             _pad: [0; 2],
-        }
+        };
+        (grid, n_cells)
+    }
+
+    /// The grid over `rest` (see [`GridParams::layout`]); `rest` has passed sampling, which
+    /// bounds the cell count by [`MAX_GRID_CELLS`].
+    pub fn over(rest: &[f32], support: f32) -> GridParams {
+        Self::layout(rest, support).0
     }
 }
 

@@ -161,6 +161,18 @@ pub fn sample(
             core_mass[v as usize] += m;
         }
     }
+    let support = (settings.kernel_radius * dx) as f32;
+    let (_, n_cells) = super::params::GridParams::layout(&rest, support);
+    if n_cells > super::params::MAX_GRID_CELLS {
+        return Err(bad(
+            "particles.spacing",
+            format!(
+                "the neighbour grid over region {}'s particles would have {n_cells} cells (kernel-support cells over the zone's bounding box), more than {}: the zone is too spread out for a spacing of {dx} m",
+                settings.region,
+                super::params::MAX_GRID_CELLS
+            ),
+        ));
+    }
     Ok(Particles {
         settings: settings.clone(),
         rest,
@@ -173,7 +185,7 @@ pub fn sample(
         slots,
         contact_area,
         contact_offset,
-        support: (settings.kernel_radius * dx) as f32,
+        support,
         pinned: vec![false; n],
         core_mass: core_mass.into_iter().map(|m| m as f32).collect(),
     })

@@ -155,6 +155,16 @@ pub(super) fn resolve_particles(
             format!("must be in [1.5, 4] spacings, got {kernel_radius}"),
         ));
     }
+    if let Some(k) = lattice_shell_on_support(kernel_radius) {
+        return Err(bad(
+            "particles.kernel_radius",
+            format!(
+                "{kernel_radius} puts the lattice's neighbours at √{k} spacings on the support's edge, where rounding decides on each device which of them count; use a value at least 0.1 % away from √{k} (e.g. {:.2} or {:.2})",
+                (k as f64).sqrt() - 0.05,
+                (k as f64).sqrt() + 0.05
+            ),
+        ));
+    }
     let hourglass = spec.hourglass.unwrap_or(0.1);
     if !(hourglass.is_finite() && hourglass >= 0.0) {
         return Err(bad(
@@ -206,4 +216,15 @@ pub(super) fn resolve_particles(
         blend,
         activation_interval,
     })
+}
+
+/// The lattice shell (k = i² + j² + l², neighbours at √k spacings) that lies within 0.1 % of
+/// a support of `kernel_radius` spacings, if any: pairs there sit on the support's edge, where
+/// f32 rounding of the rest positions (and a GPU's fused multiply-adds) decides which count.
+fn lattice_shell_on_support(kernel_radius: f64) -> Option<u32> {
+    let r2 = kernel_radius * kernel_radius;
+    let k = r2.round() as u32;
+    let is_shell =
+        (0..=4u32).any(|i| (0..=4u32).any(|j| (0..=4u32).any(|l| i * i + j * j + l * l == k)));
+    (is_shell && (r2 - k as f64).abs() <= 1e-3 * r2).then_some(k)
 }
