@@ -27,7 +27,13 @@ fn press(
     let mut from = tool.map(|t| t.position_at(0.0));
     while t < hold_time {
         let to = tool.map(|tl| tl.position_at((t + batch as f64 * dt).min(hold_time)));
-        stepper.submit(batch, &BatchInput { tool: from.zip(to) })?;
+        stepper.submit(
+            batch,
+            &BatchInput {
+                tool: from.zip(to),
+                tool_slice: None,
+            },
+        )?;
         stepper.wait()?;
         from = to;
         t += batch as f64 * dt;

@@ -86,6 +86,9 @@ pub enum PalpateError {
     /// A command-line argument is invalid.
     #[error("{0}")]
     Usage(String),
+    /// Something the engine relies on did not hold (a bug; the message says what).
+    #[error("internal error: {0}")]
+    Internal(String),
     /// Writing an output file failed.
     #[error("{path}: cannot write: {source}")]
     OutputIo {

@@ -442,6 +442,7 @@ pub(crate) fn diverged_status(sim: &Simulation, step: u64, vertex: u32, dt: f64)
     RunStatus::Diverged {
         step,
         vertex,
+        n_vertices: m.n_vertices() as u32,
         speed_limit: crate::model::SPEED_LIMIT_WAVE_SPEEDS * m.material.p_wave_speed(),
         wave_speeds: crate::model::SPEED_LIMIT_WAVE_SPEEDS,
         dt,

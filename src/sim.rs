@@ -178,6 +178,7 @@ struct BatchStart {
     last: BatchStats,
     last_tool: Option<ToolReport>,
     last_particles: Option<crate::stepper::ParticleReport>,
+    active_particles_max: u32,
 }
 
 /// The time step a scene runs at: `override_dt`, else the scene's dt, else safety × bound.
@@ -316,9 +317,7 @@ impl Simulation {
                 let to = self
                     .tool_target
                     .unwrap_or_else(|| t.tool.position_at(self.time + steps as f64 * self.dt));
-                BatchInput {
-                    tool: Some((self.tool_position, to)),
-                }
+                BatchInput::moving(self.tool_position, to)
             }
         }
     }
@@ -337,7 +336,7 @@ impl Simulation {
         self.stepper.submit(steps, input)?;
         let report = self.stepper.wait()?;
         if report.stats.non_finite_vertex.is_none() {
-            if let Some((_, to)) = input.tool {
+            if let Some(to) = input.tool_after(steps) {
                 self.tool_position = to;
             }
             if report.tool.is_some() {
@@ -353,7 +352,8 @@ impl Simulation {
 
     /// Run `steps` steps in one batch. The state at the batch start is checkpointed; when a
     /// vertex becomes non-finite or exceeds the speed limit, go back to it and replay the
-    /// batch one step at a time (the same tool path, to rounding, and follower load) to find
+    /// batch one step at a time (the batch's own tool positions and velocity, and its follower
+    /// load) to find
     /// the failing step, then go back again and redo the steps before it (the backends are
     /// deterministic): the state is left at the last step before it, and the batch start
     /// stays the checkpoint for [`Simulation::rollback_to_checkpoint`] until the next advance.
@@ -371,6 +371,7 @@ impl Simulation {
             last: self.last,
             last_tool: self.last_tool,
             last_particles: self.last_particles,
+            active_particles_max: self.active_particles_max,
         }
     }
 
@@ -382,6 +383,7 @@ impl Simulation {
         self.last = start.last;
         self.last_tool = start.last_tool;
         self.last_particles = start.last_particles;
+        self.active_particles_max = start.active_particles_max;
         Ok(())
     }
 
@@ -403,19 +405,17 @@ impl Simulation {
             self.last = stats;
             return Ok(Advance::Done(stats));
         }
-        // Step k of the batch alone: the tool's k-th part of the batch's move.
+        // Step k of the batch alone: the batch's own tool input, from its step k.
         let one = |k: u32| BatchInput {
-            tool: input.tool.map(|(a, b)| {
-                let at = |j: u32| a + (b - a) * (j as f64 / steps as f64);
-                (at(k), at(k + 1))
-            }),
+            tool_slice: input.tool.map(|_| (k, steps)),
+            ..input
         };
         self.go_back_to(start)?;
         let mut good = 0;
         let vertex = loop {
             if good == steps {
-                // The replay did not diverge (the tool path differs from the batch's only by
-                // rounding, which may decide a marginal case).
+                // The replay did not diverge (it repeats the batch's inputs exactly, so only a
+                // backend that does not repeat itself gets here): its state is finite.
                 return Ok(Advance::Done(self.last));
             }
             let stats = self.run_batch_with(1, &one(good), load_time)?.stats;
@@ -433,12 +433,14 @@ impl Simulation {
             for k in 0..good {
                 let stats = self.run_batch_with(1, &one(k), load_time)?.stats;
                 if let Some(vertex) = stats.non_finite_vertex {
-                    // The backend did not repeat itself: report where, from the batch start.
+                    // The backend did not repeat itself (a bug: both are deterministic). No
+                    // state after step start + k is kept, so this is not a divergence report.
                     self.go_back_to(start)?;
-                    return Ok(Advance::Diverged {
-                        step: start.steps_done + k as u64 + 1,
-                        vertex,
-                    });
+                    return Err(PalpateError::Internal(format!(
+                        "redoing step {} of a diverged batch diverged (vertex {vertex}) where its replay had not: the backend did not repeat itself; the state is back at step {}",
+                        start.steps_done + k as u64 + 1,
+                        start.steps_done
+                    )));
                 }
                 self.steps_done += 1;
                 self.time += self.dt;

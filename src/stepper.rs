@@ -62,7 +62,8 @@ pub struct ParticleSnapshot {
 pub struct BatchStats {
     /// The stats buffer (see [`crate::params::stat`]).
     pub stats: [f32; stat::LEN],
-    /// Lowest vertex whose position or velocity became non-finite, if any.
+    /// Lowest vertex whose position or velocity became non-finite or too fast, if any;
+    /// n_vertices + p for particle p.
     pub non_finite_vertex: Option<u32>,
 }
 
@@ -101,6 +102,56 @@ pub struct BatchInput {
     /// The tool's centre at the batch start and at its end, m (it moves linearly in
     /// between). None: it stays where the last batch left it.
     pub tool: Option<(glam::DVec3, glam::DVec3)>,
+    /// `Some((first, of))`: the batch runs steps `first..first + steps` of a move of `of`
+    /// steps from `tool.0` to `tool.1` (a diverged batch replayed one step at a time, with
+    /// the batch's own tool positions and velocity, bit for bit). None: the whole move.
+    pub tool_slice: Option<(u32, u32)>,
+}
+
+impl BatchInput {
+    /// A batch that moves the tool from `from` to `to`.
+    pub fn moving(from: glam::DVec3, to: glam::DVec3) -> BatchInput {
+        BatchInput {
+            tool: Some((from, to)),
+            tool_slice: None,
+        }
+    }
+
+    /// The tool's input and its state before the batch's first step, for a batch of `steps`
+    /// steps, and where the tool is after it; `at` is where the last batch left it.
+    pub fn tool_plan(
+        &self,
+        steps: u32,
+        at: glam::DVec3,
+    ) -> (
+        crate::contact::ToolInput,
+        crate::contact::ToolState,
+        glam::DVec3,
+    ) {
+        let (from, to) = self.tool.unwrap_or((at, at));
+        let (first, of) = self.tool_slice.unwrap_or((0, steps));
+        let input = crate::contact::batch_input(from, to, of);
+        let mut state = crate::contact::ToolState {
+            position: input.start,
+            step: first,
+        };
+        // The position tool_motion gives step `first` (what the state holds before it runs).
+        crate::cpu::tool_motion::tool_motion(&input, &mut state);
+        state.step = first;
+        let after = self.tool_after(steps).unwrap_or(at);
+        (input, state, after)
+    }
+
+    /// Where the tool is after a batch of `steps` steps (None: it does not move).
+    pub fn tool_after(&self, steps: u32) -> Option<glam::DVec3> {
+        let (from, to) = self.tool?;
+        Some(match self.tool_slice {
+            Some((first, of)) if first + steps < of => {
+                from + (to - from) * ((first + steps) as f64 / of as f64)
+            }
+            _ => to,
+        })
+    }
 }
 
 /// What the `tool_force` stage reports at the end of a batch.

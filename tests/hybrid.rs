@@ -446,11 +446,8 @@ fn hm1_activates_a_few_hundred_particles_under_the_tool_and_releases_them_withou
             tool.position_at(t),
             tool.position_at(t + interval as f64 * dt),
         );
-        s.submit(
-            interval,
-            &palpate::stepper::BatchInput { tool: Some((a, b)) },
-        )
-        .unwrap();
+        s.submit(interval, &palpate::stepper::BatchInput::moving(a, b))
+            .unwrap();
         let r = s.wait().unwrap();
         assert!(
             r.stats.non_finite_vertex.is_none(),
@@ -525,6 +522,7 @@ fn the_cpu_activation_over_its_region_equals_the_activation_over_everything() {
                 tool.position_at(t),
                 tool.position_at(t + interval as f64 * dt),
             )),
+            tool_slice: None,
         };
         let mut counts = Vec::new();
         for s in [&mut region, &mut everything] {
@@ -581,6 +579,7 @@ fn the_cpu_activation_over_its_region_equals_the_activation_over_everything() {
             replays.next();
             let input = palpate::stepper::BatchInput {
                 tool: Some((tool.position_at(t), tool.position_at(t + 3.0 * dt))),
+                tool_slice: None,
             };
             for s in [&mut region, &mut everything] {
                 s.submit(3, &input).unwrap();
@@ -743,7 +742,7 @@ fn pressed_and_released_zigzag(particle_keys: &str) -> (f64, f64, f64) {
     let (mut loaded, mut released, mut strain) = (0.0f64, 0.0f64, 0.0f64);
     while t < 0.12 {
         let (a, b) = (tool.position_at(t), tool.position_at(t + batch as f64 * dt));
-        s.submit(batch, &palpate::stepper::BatchInput { tool: Some((a, b)) })
+        s.submit(batch, &palpate::stepper::BatchInput::moving(a, b))
             .unwrap();
         let r = s.wait().unwrap();
         assert!(r.stats.non_finite_vertex.is_none(), "diverged at t = {t}");

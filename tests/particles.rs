@@ -302,7 +302,7 @@ fn particle_kernels_match_their_cpu_twins() {
         DVec3::new(0.01, 0.01, 0.0135),
         DVec3::new(0.01, 0.01, 0.0118),
     );
-    g.submit(60, &BatchInput { tool: Some((a, b)) }).unwrap();
+    g.submit(60, &BatchInput::moving(a, b)).unwrap();
     g.wait().unwrap();
     let grid = GridParams::over(&pd.rest, pd.support);
     let lists = cpu::neighbours::build(&grid, &pd.rest);
@@ -734,7 +734,7 @@ fn sph_forces_accumulate_and_particle_reduce_match_their_cpu_twins() {
         DVec3::new(0.01, 0.01, 0.0135),
         DVec3::new(0.01, 0.01, 0.0118),
     );
-    g.submit(60, &BatchInput { tool: Some((a, b)) }).unwrap();
+    g.submit(60, &BatchInput::moving(a, b)).unwrap();
     let report = g.wait().unwrap();
     let n = pd.len();
 
@@ -1128,6 +1128,7 @@ fn a_dt_change_gives_both_backends_the_same_particle_parameters_and_trajectory()
                 tool.position_at(t),
                 tool.position_at(t + batch as f64 * smaller.dt as f64),
             )),
+            tool_slice: None,
         };
         for s in [&mut c as &mut dyn Stepper, &mut g] {
             s.submit(batch, &input).unwrap();
@@ -1173,7 +1174,7 @@ fn the_cpu_activation_skips_only_particles_the_kernel_leaves_unchanged() {
     let (batch, mut t) = (50u32, 0.0);
     while t < 3.0 {
         let (a, b) = (tool.position_at(t), tool.position_at(t + batch as f64 * dt));
-        g.submit(batch, &BatchInput { tool: Some((a, b)) }).unwrap();
+        g.submit(batch, &BatchInput::moving(a, b)).unwrap();
         g.wait().unwrap();
         t += batch as f64 * dt;
     }
@@ -1276,6 +1277,7 @@ fn press_with_a_restore(
             tool.position_at(7.0 * b as f64 * dt),
             tool.position_at(7.0 * (b + 1) as f64 * dt),
         )),
+        tool_slice: None,
     };
     let mut b = 0;
     let mut restored = !restore;
@@ -1365,7 +1367,7 @@ fn a_restore_without_a_checkpoint_returns_both_backends_to_rest() {
     let mut g = GpuStepper::new(gpu(), &m, params).unwrap();
     let mut ends = Vec::new();
     for (name, s) in [("cpu", &mut c as &mut dyn Stepper), ("gpu", &mut g)] {
-        s.submit(150, &BatchInput { tool: Some((a, b)) }).unwrap();
+        s.submit(150, &BatchInput::moving(a, b)).unwrap();
         s.wait().unwrap();
         let first = (
             s.read_state().unwrap().displacements,
@@ -1392,7 +1394,7 @@ fn a_restore_without_a_checkpoint_returns_both_backends_to_rest() {
             "{name}: particles not at rest"
         );
         assert_eq!(p.modes, initial, "{name}: particle modes");
-        s.submit(150, &BatchInput { tool: Some((a, b)) }).unwrap();
+        s.submit(150, &BatchInput::moving(a, b)).unwrap();
         s.wait().unwrap();
         let again = (
             s.read_state().unwrap().displacements,
@@ -1433,6 +1435,98 @@ fn a_restore_without_a_checkpoint_returns_both_backends_to_rest() {
     );
 }
 
+/// A batch replayed one step at a time through `tool_slice` (as `Simulation::advance` replays
+/// a diverged batch) repeats the batch bit for bit on both backends: the same tool positions
+/// and velocity (contact damping included), the same activations, the same end. One-step
+/// batches of their own moves (at(k), at(k + 1)) do not: their f32 tool velocity is rounded
+/// over one step instead of the batch's 150.
+#[test]
+fn a_batch_replayed_one_step_at_a_time_repeats_it_bit_for_bit() {
+    let scene = pressed_block();
+    let m = Arc::new(Model::from_scene(&scene));
+    let params = m.step_params(0.5 * m.bounds.dt_bound, 50.0);
+    let (a, b) = (
+        DVec3::new(0.01, 0.01, 0.0135),
+        DVec3::new(0.01, 0.01, 0.0118),
+    );
+    let n = 150u32;
+    let mut c = cpu::CpuStepper::new(m.clone(), params);
+    let mut g = GpuStepper::new(gpu(), &m, params).unwrap();
+    for (name, s) in [("cpu", &mut c as &mut dyn Stepper), ("gpu", &mut g)] {
+        let end = |s: &mut dyn Stepper| {
+            (
+                s.read_state().unwrap(),
+                s.read_particle_state().unwrap().unwrap(),
+            )
+        };
+        s.submit(n, &BatchInput::moving(a, b)).unwrap();
+        let whole = s.wait().unwrap();
+        let batch = end(s);
+        let dynamic = batch.1.modes.iter().filter(|&&x| x & mode::DYNAMIC != 0);
+        assert!(dynamic.count() > 0, "{name}: no particle became dynamic");
+        s.restore().unwrap();
+        let mut last = None;
+        for k in 0..n {
+            let input = BatchInput {
+                tool_slice: Some((k, n)),
+                ..BatchInput::moving(a, b)
+            };
+            assert_eq!(
+                input.tool_after(1).unwrap(),
+                a + (b - a) * ((k + 1) as f64 / n as f64)
+            );
+            s.submit(1, &input).unwrap();
+            last = Some(s.wait().unwrap());
+        }
+        let sliced = end(s);
+        for (what, x, y) in [
+            (
+                "vertex displacements",
+                &batch.0.displacements,
+                &sliced.0.displacements,
+            ),
+            (
+                "vertex velocities",
+                &batch.0.velocities,
+                &sliced.0.velocities,
+            ),
+            (
+                "particle displacements",
+                &batch.1.displacements,
+                &sliced.1.displacements,
+            ),
+            (
+                "particle velocities",
+                &batch.1.velocities,
+                &sliced.1.velocities,
+            ),
+        ] {
+            assert_eq!(bits(x), bits(y), "{name}: {what}");
+        }
+        assert_eq!(batch.1.modes, sliced.1.modes, "{name}: modes");
+        let (t0, t1) = (whole.tool.unwrap(), last.unwrap().tool.unwrap());
+        assert_eq!(t0.position, b);
+        assert_eq!(
+            t0.force.to_array(),
+            t1.force.to_array(),
+            "{name}: tool force"
+        );
+        // One-step batches of their own moves: the tool velocity differs by rounding.
+        s.restore().unwrap();
+        for k in 0..n {
+            let at = |j: u32| a + (b - a) * (j as f64 / n as f64);
+            s.submit(1, &BatchInput::moving(at(k), at(k + 1))).unwrap();
+            s.wait().unwrap();
+        }
+        let own = end(s);
+        assert_ne!(
+            bits(&batch.1.velocities),
+            bits(&own.1.velocities),
+            "{name}: one-step moves repeat the batch too (this test no longer tells them apart)"
+        );
+    }
+}
+
 /// A divergence in a particle scene: `Simulation::advance` finds the failing step on a replay
 /// that activates on the same steps as the batch (the step that one-step batches from the same
 /// state find), leaves the state at the step before it (bit for bit that of the one-step run),
@@ -1463,6 +1557,7 @@ fn a_divergence_in_a_particle_scene_is_located_and_rolled_back_whole() {
         sim
     };
     let mut batch = start(25);
+    let max_at_start = batch.active_particles_max;
     let before = (
         batch.state().unwrap(),
         batch.particle_state().unwrap().unwrap(),
@@ -1498,8 +1593,16 @@ fn a_divergence_in_a_particle_scene_is_located_and_rolled_back_whole() {
         "particles"
     );
     assert_eq!(pa.modes, pb.modes, "modes");
+    let max_diverged = batch.active_particles_max;
     assert!(batch.rollback_to_checkpoint().unwrap());
     assert_eq!(batch.steps_done, 250);
+    eprintln!(
+        "most dynamic particles: {max_at_start} at the batch start, {max_diverged} before the rollback"
+    );
+    assert_eq!(
+        batch.active_particles_max, max_at_start,
+        "active_particles_max"
+    );
     let after = (
         batch.state().unwrap(),
         batch.particle_state().unwrap().unwrap(),
@@ -1533,4 +1636,30 @@ fn a_divergence_in_a_particle_scene_is_located_and_rolled_back_whole() {
     );
     assert_eq!(bits(&p.displacements), bits(&before.1.displacements));
     assert_eq!(p.modes, before.1.modes);
+}
+
+/// A divergence at a particle (flagged as n_vertices + p) is reported as that particle, not
+/// as a vertex past the end of the mesh.
+#[test]
+fn a_diverged_particle_is_reported_as_a_particle() {
+    use palpate::output::summary::RunStatus;
+    let status = |vertex| {
+        RunStatus::Diverged {
+            step: 7,
+            vertex,
+            n_vertices: 100,
+            speed_limit: 1.0,
+            wave_speeds: 10.0,
+            dt: 1e-5,
+            dt_bound: 2e-5,
+        }
+        .divergence()
+        .unwrap()
+    };
+    assert!(status(99).contains("step 7, vertex 99"), "{}", status(99));
+    let particle = status(103);
+    assert!(
+        particle.contains("step 7, particle 3") && !particle.contains("vertex"),
+        "{particle}"
+    );
 }

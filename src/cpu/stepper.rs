@@ -1133,12 +1133,9 @@ impl Stepper for CpuStepper {
                 "{RING} batches are already in flight; poll or wait first"
             )));
         }
-        let (from, to) = input.tool.unwrap_or((self.tool.at, self.tool.at));
-        self.tool.input = crate::contact::batch_input(from, to, steps);
-        self.tool.state = ToolState {
-            position: self.tool.input.start,
-            step: 0,
-        };
+        let (tool_input, tool_state, to) = input.tool_plan(steps, self.tool.at);
+        self.tool.input = tool_input;
+        self.tool.state = tool_state;
         self.tool.at = to;
         self.status[0] = ALL_FINITE;
         self.counts.iter_mut().for_each(|(_, c)| *c = 0);

@@ -658,13 +658,8 @@ impl Stepper for GpuStepper {
             0,
             bytemuck::cast_slice(&[u32::MAX; 4]),
         );
-        let (from, to) = input.tool.unwrap_or((self.tool_at, self.tool_at));
+        let (tool_input, state, to) = input.tool_plan(steps, self.tool_at);
         if self.has_tool {
-            let tool_input = crate::contact::batch_input(from, to, steps);
-            let state = crate::contact::ToolState {
-                position: tool_input.start,
-                step: 0,
-            };
             q.write_buffer(
                 self.buffers.require("tool_input")?,
                 0,

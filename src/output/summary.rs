@@ -15,8 +15,10 @@ pub enum RunStatus {
     Diverged {
         /// Step that diverged (1-based over the run).
         step: u64,
-        /// Lowest vertex that diverged.
+        /// Lowest vertex that diverged; n_vertices + p for particle p.
         vertex: u32,
+        /// Vertices in the mesh (to tell a particle's index from a vertex's).
+        n_vertices: u32,
         /// Speed limit, m/s.
         speed_limit: f64,
         /// Speed limit in P-wave speeds.
@@ -49,13 +51,20 @@ impl RunStatus {
             RunStatus::Diverged {
                 step,
                 vertex,
+                n_vertices,
                 speed_limit,
                 wave_speeds,
                 dt,
                 dt_bound,
-            } => Some(format!(
-                "diverged: non-finite or faster than {speed_limit:.3e} m/s ({wave_speeds} x P-wave speed) at step {step}, vertex {vertex} (dt = {dt:.3e} s, bound {dt_bound:.3e} s)"
-            )),
+            } => {
+                let at = match vertex.checked_sub(*n_vertices) {
+                    Some(p) => format!("particle {p}"),
+                    None => format!("vertex {vertex}"),
+                };
+                Some(format!(
+                    "diverged: non-finite or faster than {speed_limit:.3e} m/s ({wave_speeds} x P-wave speed) at step {step}, {at} (dt = {dt:.3e} s, bound {dt_bound:.3e} s)"
+                ))
+            }
             _ => None,
         }
     }
