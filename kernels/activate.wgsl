@@ -15,7 +15,9 @@
 //     velocity (its momentum leaves the host vertices exactly);
 //   dynamic, d < release radius (activation x hysteresis) -> stays, dwell timer reset;
 //   dynamic, farther for `dwell` s -> BLENDING with offset u_p - embed(u) that fades to zero
-//     over `blend` s (no jump), then embedded.
+//     over `blend` s (no jump), then embedded. The blend clock of a particle in F advances
+//     every sub-step in `follow` (a smooth fade where the SPH sees it); of any other, here,
+//     by the interval.
 // The IN_S/IN_F marks are integer atomic ORs, so the result is the same in any order.
 // CPU twin: src/cpu/activate.rs.
 #import params
@@ -104,7 +106,10 @@ fn activate(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
     if p >= particle_params.n_particles {
         return;
     }
-    var mode = atomicLoad(&particle_mode[p]) & ~PER_UPDATE;
+    let last = atomicLoad(&particle_mode[p]);
+    // In F since the last update: `follow` advanced its blend clock every sub-step.
+    let followed = (last & MODE_IN_F) != 0u;
+    var mode = last & ~PER_UPDATE;
     if (mode & MODE_PINNED) != 0u {
         atomicStore(&particle_mode[p], mode);
         return;
@@ -151,7 +156,9 @@ fn activate(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
         timer = 0.0;
         offset = vec3<f32>(0.0);
     } else if (mode & MODE_BLENDING) != 0u {
-        timer += pp.interval;
+        if !followed {
+            timer += pp.interval;
+        }
         if timer >= pp.blend {
             mode = mode & ~MODE_BLENDING;
             offset = vec3<f32>(0.0);

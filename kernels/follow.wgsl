@@ -1,6 +1,8 @@
 // Stage (every particle sub-step; indirect over the force set F): embedded particles that
 // take part in the SPH sums follow their host, u_p = sum w_i u_i (+ the fading offset of a
-// particle blending back, offset * (1 - t/blend)). Dynamic particles are left alone.
+// particle blending back, offset * (1 - t/blend), its timer t first advanced by a sub-step:
+// the offset fades step by step, and the activation adds nothing for the interval to a
+// particle that was in F). Dynamic particles are left alone.
 // CPU twin: src/cpu/follow.rs.
 #import index
 #import particles
@@ -13,7 +15,7 @@
 @group(0) @binding(5) var<storage, read> particle_weights: array<f32>;
 @group(0) @binding(6) var<storage, read> tets: array<vec4<u32>>;
 @group(0) @binding(7) var<storage, read> displacements: array<f32>;
-@group(0) @binding(8) var<storage, read> particle_timer: array<f32>;
+@group(0) @binding(8) var<storage, read_write> particle_timer: array<f32>;
 @group(0) @binding(9) var<storage, read> particle_offset: array<f32>;
 @group(0) @binding(10) var<storage, read_write> particle_displacements: array<f32>;
 
@@ -39,7 +41,9 @@ fn follow(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups
     var u = node_u(t.x) * particle_weights[w] + node_u(t.y) * particle_weights[w + 1u]
         + node_u(t.z) * particle_weights[w + 2u] + node_u(t.w) * particle_weights[w + 3u];
     if (mode & MODE_BLENDING) != 0u {
-        let b = max(0.0, 1.0 - particle_timer[p] / max(particle_params.blend, 1e-30));
+        let timer = particle_timer[p] + particle_params.sub_dt;
+        particle_timer[p] = timer;
+        let b = max(0.0, 1.0 - timer / max(particle_params.blend, 1e-30));
         u += vec3<f32>(particle_offset[3u * p], particle_offset[3u * p + 1u], particle_offset[3u * p + 2u]) * b;
     }
     particle_displacements[3u * p] = u.x;

@@ -490,6 +490,72 @@ fn hm1_activates_a_few_hundred_particles_under_the_tool_and_releases_them_withou
     );
 }
 
+/// Released particles fade back onto their hosts step by step: on hm1, as the tool withdraws,
+/// particles leave the press up to 1.5 spacings off their hosts' field and blend back over
+/// `blend`. Where the SPH sees them (in the force set), the offset's change from one step to
+/// the next stays below a tenth of a spacing (measured 0.05 of it). The fade used to advance
+/// only at an activation (every 10 steps on hm1): 0.54 spacings at once.
+#[test]
+fn released_particles_fade_back_onto_their_hosts_without_a_jump() {
+    let scene = Scene::load("hm1").unwrap();
+    let spacing = scene.particles.as_ref().unwrap().spacing as f32;
+    let m = Arc::new(Model::from_scene(&scene));
+    let dt = scene.solver.dt.unwrap();
+    let mut s = CpuStepper::new(m.clone(), m.step_params(dt, scene.solver.damping));
+    let tool = scene.tool.clone().unwrap();
+    let interval = scene.particles.as_ref().unwrap().activation_interval;
+    let st = palpate::cpu::activate::ParticleStatic::of(&m).unwrap();
+    // Each particle's place off its host's field (the blend offset as the outputs see it).
+    let off_host = |s: &mut CpuStepper| {
+        let nodes = s.read_state().unwrap();
+        let (placed, modes) = placed(&m, s);
+        let off: Vec<Vec3> = (0..modes.len())
+            .map(|k| Vec3::from_slice(&placed[3 * k..]) - st.embed(&nodes.displacements, k))
+            .collect();
+        (off, modes)
+    };
+    let mut t = 0.0;
+    let mut steps = 0u32;
+    let (mut worst_step, mut largest, mut watched) = (0.0f32, 0.0f32, 0usize);
+    let mut last = off_host(&mut s);
+    while t < 8.0 {
+        // Whole intervals until the tool withdraws (t = 6), then single steps.
+        let n = if t < 6.0 { interval } else { 1 };
+        let (a, b) = (tool.position_at(t), tool.position_at(t + n as f64 * dt));
+        s.submit(n, &palpate::stepper::BatchInput::moving(a, b))
+            .unwrap();
+        assert!(s.wait().unwrap().stats.non_finite_vertex.is_none());
+        t += n as f64 * dt;
+        steps += n;
+        let now = off_host(&mut s);
+        if n == 1 {
+            let seen = mode::BLENDING | mode::IN_F;
+            for k in 0..now.1.len() {
+                if now.1[k] & seen == seen && last.1[k] & seen == seen {
+                    watched += 1;
+                    largest = largest.max(now.0[k].length());
+                    worst_step = worst_step.max((now.0[k] - last.0[k]).length());
+                }
+            }
+        }
+        last = now;
+    }
+    eprintln!(
+        "hm1 release ({steps} steps): largest blend offset {:.2} spacings, largest change in one step {:.3} spacings ({watched} particle-steps watched)",
+        largest / spacing,
+        worst_step / spacing
+    );
+    assert!(
+        watched > 100 && largest > 0.5 * spacing,
+        "too little blending to test"
+    );
+    assert!(
+        worst_step <= 0.1 * spacing,
+        "a blending particle moved {:.2} spacings off its host in one step",
+        worst_step / spacing
+    );
+}
+
 /// The CPU stepper's activation visits only the region it can change (`cpu/active_region.rs`):
 /// live particles and those of tets near the tool, tets that host stress-set particles and
 /// vertices that host force-set or released particles, now or at the last activation; and the

@@ -326,7 +326,7 @@ fn particle_kernels_match_their_cpu_twins() {
         mut pu,
         pv,
         mut pmode,
-        ptimer,
+        mut ptimer,
         poffset,
     } = io;
     cpu::activate::mark_set(n, mode::DYNAMIC, mode::IN_S, noff, nbrs, &mut pmode);
@@ -411,12 +411,18 @@ fn particle_kernels_match_their_cpu_twins() {
 
     // follow
     g.run_stage(Stage::Follow).unwrap();
-    cpu::follow::follow(&pp, &fl, &pmode, &st, &u, &ptimer, &poffset, &mut pu);
+    cpu::follow::follow(&pp, &fl, &pmode, &st, &u, &mut ptimer, &poffset, &mut pu);
     let e = rel(
         &g.read_f32("particle_displacements").unwrap()[..pu.len()],
         &pu,
     );
     assert!(e <= KERNEL_TOL, "follow rel err {e:.2e}");
+    let timers = g.read_f32("particle_timer").unwrap();
+    assert_eq!(
+        bits(&timers[..ptimer.len()]),
+        bits(&ptimer),
+        "follow: blend clocks"
+    );
 
     // sph_stress (from the GPU's displacements, to test the kernel alone)
     let pu = g.read_f32("particle_displacements").unwrap();

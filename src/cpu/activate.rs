@@ -120,6 +120,8 @@ pub struct ModeState<'a> {
 /// |X_p − c| − Σ|wᵢ|·max|uᵢ| − R ≥ activation radius (with a margin for rounding) rules it out.
 pub fn update_particle(inp: &ModeInputs, p: usize, st: ModeState) {
     let (pp, s, c) = (inp.pp, inp.s, inp.centre);
+    // In F since the last update: `follow` advanced its blend clock every sub-step.
+    let followed = *st.mode & mode::IN_F != 0;
     let mut m = *st.mode & !PER_UPDATE;
     if m & mode::PINNED != 0 {
         *st.mode = m;
@@ -175,7 +177,9 @@ pub fn update_particle(inp: &ModeInputs, p: usize, st: ModeState) {
         timer = 0.0;
         offset = Vec3::ZERO;
     } else if m & mode::BLENDING != 0 {
-        timer += pp.interval;
+        if !followed {
+            timer += pp.interval;
+        }
         if timer >= pp.blend {
             m &= !mode::BLENDING;
             offset = Vec3::ZERO;

@@ -1,11 +1,14 @@
 //! CPU twin of `kernels/follow.wgsl`: embedded particles of the force set follow their host
-//! (plus the fading offset of a blending particle).
+//! (plus the fading offset of a blending particle, whose blend clock advances here by a
+//! particle sub-step, so the offset fades step by step).
 
 use super::activate::ParticleStatic;
 use super::{load3, store3};
 use crate::particles::params::{mode, ParticleParams};
 
-/// Per particle of `force_list` that is not dynamic: u_p = Σ wᵢ uᵢ (+ offset·(1 − t/blend)).
+/// Per particle of `force_list` that is not dynamic: u_p = Σ wᵢ uᵢ, plus, when it is blending,
+/// offset·(1 − t/blend) with its timer first advanced by a sub-step, t += Δt_sub (the
+/// activation then adds nothing for the interval to a particle that was in the force set).
 #[allow(clippy::too_many_arguments)]
 pub fn follow(
     pp: &ParticleParams,
@@ -13,7 +16,7 @@ pub fn follow(
     particle_mode: &[u32],
     s: &ParticleStatic,
     displacements: &[f32],
-    particle_timer: &[f32],
+    particle_timer: &mut [f32],
     particle_offset: &[f32],
     particle_displacements: &mut [f32],
 ) {
@@ -25,7 +28,9 @@ pub fn follow(
         }
         let mut u = s.embed(displacements, p);
         if m & mode::BLENDING != 0 {
-            let b = 0.0f32.max(1.0 - particle_timer[p] / pp.blend.max(1e-30));
+            let t = particle_timer[p] + pp.sub_dt;
+            particle_timer[p] = t;
+            let b = 0.0f32.max(1.0 - t / pp.blend.max(1e-30));
             u += load3(particle_offset, p) * b;
         }
         store3(particle_displacements, p, u);

@@ -915,7 +915,7 @@ impl CpuStepper {
                 &pa.state.mode,
                 &st,
                 &self.state.displacements,
-                &pa.state.timer,
+                &mut pa.state.timer,
                 &pa.state.offset,
                 &mut pa.state.displacements,
             ),
