@@ -223,6 +223,32 @@ fn bad_scene_values_give_one_line_errors_naming_file_and_key() {
             "youngs_modulus = 1.0e39",
             &["single precision"],
         ),
+        // Fixed-length arrays take exactly their length (longer ones were cut silently).
+        (
+            "size = [0.1, 0.02, 0.02]",
+            "size = [0.1, 0.02, 0.02, 0.5]",
+            &["size", "3 values"],
+        ),
+        (
+            "gravity = [0.0, 0.0, -9.81]",
+            "gravity = [0.0, 0.0, -9.81, 100.0]",
+            &["gravity", "3 values"],
+        ),
+        (
+            "normal = [1.0, 0.0, 0.0]",
+            "normal = [1.0, 0.0, 0.0, 3.0]",
+            &["normal", "3 values"],
+        ),
+        (
+            "viscosity = [0.0, 0.0]",
+            "viscosity = [0.0, 0.0, 5.0]",
+            &["viscosity", "2 values"],
+        ),
+        (
+            "viscosity = [0.0, 0.0]",
+            "viscosity = [0.0]",
+            &["viscosity", "2 values"],
+        ),
     ];
     for (i, (from, to, want)) in cases.iter().enumerate() {
         assert!(BEAM.contains(from), "fixture: {from}");
@@ -574,6 +600,14 @@ fn bad_tool_sections_are_one_line_errors_naming_the_key() {
         (
             "radius = 0.004\nstiffness = 1e8\nspeed = 2.0\npath = [[0.0, 0.05, 0.01, 0.03]]",
             &["line", "speed"],
+        ),
+        (
+            "radius = 0.004\nstiffness = 1e8\npath = [[0.0, 0.05, 0.01, 0.03, 7.0]]",
+            &["line", "path", "4 values"],
+        ),
+        (
+            "radius = 0.004\nstiffness = 1e8\nhome = [0.05, 0.01, 0.03, 5.0]\npath = [[0.0, 0.05, 0.01, 0.03]]",
+            &["line", "home", "3 values"],
         ),
     ];
     for (i, (body, want)) in cases.iter().enumerate() {

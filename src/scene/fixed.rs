@@ -11,6 +11,7 @@ use serde::Deserialize;
 #[serde(deny_unknown_fields)]
 pub struct PlaneSpec {
     /// Plane normal (need not be unit).
+    #[serde(deserialize_with = "super::exact::array")]
     pub normal: [f64; 3],
     /// Offset along the unit normal, m.
     pub offset: f64,
@@ -21,8 +22,10 @@ pub struct PlaneSpec {
 #[serde(deny_unknown_fields)]
 pub struct BoxSpec {
     /// Lower corner, m.
+    #[serde(deserialize_with = "super::exact::array")]
     pub min: [f64; 3],
     /// Upper corner, m.
+    #[serde(deserialize_with = "super::exact::array")]
     pub max: [f64; 3],
 }
 

@@ -41,6 +41,7 @@ pub struct FollowerSpec {
 #[serde(deny_unknown_fields)]
 pub struct LoadsSpec {
     /// Gravity, m/s².
+    #[serde(default, deserialize_with = "super::exact::option")]
     pub gravity: Option<[f64; 3]>,
     /// Surface pressures.
     #[serde(default)]

@@ -27,6 +27,7 @@ pub struct MaterialSpec {
     /// Rest density ρ, kg/m³.
     pub density: Option<f64>,
     /// Viscosity [φ, ψ] of paper eq. (4), Pa·s.
+    #[serde(default, deserialize_with = "super::exact::option")]
     pub viscosity: Option<[f64; 2]>,
     /// Bulk modulus κ of a split law, Pa (default: from `poisson_ratio`, or λ + 2μ/3).
     pub bulk_modulus: Option<f64>,
@@ -44,6 +45,7 @@ pub struct MaterialSpec {
     /// Guccione's b_fs (default 1).
     pub guccione_bfs: Option<f64>,
     /// A constant fibre direction for every tet (overrides the mesh's fibres).
+    #[serde(default, deserialize_with = "super::exact::option")]
     pub fibre: Option<[f64; 3]>,
 }
 

@@ -15,17 +15,22 @@ pub struct MeshSpec {
     /// Path of a mesh file (relative to the scene file).
     pub file: Option<PathBuf>,
     /// beam: box size [x, y, z], m.
+    #[serde(default, deserialize_with = "super::exact::option")]
     pub size: Option<[f64; 3]>,
     /// beam: [nx, ny, nz] cells; ellipsoid_shell: [layers through the wall, cells per cube-face edge];
     /// lv: [layers through the wall, disk cells].
     pub cells: Option<Vec<usize>>,
     /// ellipsoid_shell: inner semi-axes [a, b, c], m.
+    #[serde(default, deserialize_with = "super::exact::option")]
     pub inner_radii: Option<[f64; 3]>,
     /// ellipsoid_shell: outer semi-axes [a, b, c], m.
+    #[serde(default, deserialize_with = "super::exact::option")]
     pub outer_radii: Option<[f64; 3]>,
     /// lv: short-axis radius [endocardium, epicardium], m.
+    #[serde(default, deserialize_with = "super::exact::option")]
     pub short_radius: Option<[f64; 2]>,
     /// lv: long-axis radius [endocardium, epicardium], m.
+    #[serde(default, deserialize_with = "super::exact::option")]
     pub long_radius: Option<[f64; 2]>,
     /// lv: height of the base plane, m.
     pub base_z: Option<f64>,

@@ -4,6 +4,7 @@
 //! Unknown keys are refused. Every error names the scene (file path or built-in name), the
 //! key, and what is wrong, on one line.
 
+mod exact;
 mod fixed;
 mod loads;
 mod material;

@@ -20,8 +20,10 @@ pub struct ToolSpec {
     pub damping: Option<f64>,
     /// Keyframes `[t s, x m, y m, z m]`, time strictly increasing; linear between them,
     /// held after the last.
+    #[serde(default, deserialize_with = "super::exact::option_rows")]
     pub path: Option<Vec<[f64; 4]>>,
     /// Where the haptic device's origin maps to, m (default: the first keyframe).
+    #[serde(default, deserialize_with = "super::exact::option")]
     pub home: Option<[f64; 3]>,
 }
 
