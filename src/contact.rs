@@ -140,7 +140,12 @@ impl ToolModel {
     /// ω² = k A/m and ζ = b A/(2 m ω), dt = (2/ω)(sqrt(1 + ζ²) − ζ); the minimum over
     /// free vertices (∞ when none).
     pub fn contact_dt_bound(&self, mass: &[f32], inv_mass: &[f32]) -> f64 {
-        let (k, b) = (self.tool.stiffness, self.tool.damping);
+        self.spring_dt_bound(self.tool.damping, mass, inv_mass)
+    }
+
+    /// [`ToolModel::contact_dt_bound`] with contact damping `b` per unit area.
+    pub fn spring_dt_bound(&self, b: f64, mass: &[f32], inv_mass: &[f32]) -> f64 {
+        let k = self.tool.stiffness;
         self.surface_vertices
             .iter()
             .zip(&self.surface_area)
@@ -149,7 +154,7 @@ impl ToolModel {
                 let m = mass[v as usize] as f64;
                 let omega = (k * a as f64 / m).sqrt();
                 let zeta = b * a as f64 / (2.0 * m * omega);
-                2.0 / omega * ((1.0 + zeta * zeta).sqrt() - zeta)
+                2.0 / omega * crate::timestep::damped_step_factor(zeta)
             })
             .fold(f64::INFINITY, f64::min)
     }

@@ -282,10 +282,35 @@ impl Model {
             )?;
             model = model.with_particles(&scene.fixed, p);
         }
-        Ok(match &scene.tool {
-            Some(tool) => model.with_tool(&scene.mesh, tool.clone()),
-            None => model,
-        })
+        let Some(tool) = &scene.tool else {
+            return Ok(model);
+        };
+        let model = model.with_tool(&scene.mesh, tool.clone());
+        let b = model.bounds;
+        if b.dt_contact * crate::timestep::MAX_CONTACT_STIFFENING < b.dt_elastic {
+            // Which key: the stiffness when the springs alone, undamped, are already too stiff.
+            let undamped = model.tool.as_ref().map_or(f64::INFINITY, |t| {
+                t.spring_dt_bound(0.0, &model.mass, &model.inv_mass)
+            });
+            let item = if undamped * crate::timestep::MAX_CONTACT_STIFFENING < b.dt_elastic {
+                "tool.stiffness"
+            } else {
+                "tool.damping"
+            };
+            return Err(crate::error::PalpateError::SceneValue {
+                origin: scene.origin.clone(),
+                item: item.into(),
+                message: format!(
+                    "the tool's contact springs (stiffness {:e} Pa/m, damping {:e} Pa·s/m) need dt <= {:.3e} s, more than {:e} times below the tissue's {:.3e} s: a run would take that many times the steps; lower it",
+                    tool.stiffness,
+                    tool.damping,
+                    b.dt_contact,
+                    crate::timestep::MAX_CONTACT_STIFFENING,
+                    b.dt_elastic
+                ),
+            });
+        }
+        Ok(model)
     }
 
     /// Add the particle layer: vertex masses become the core mass plus the particles'

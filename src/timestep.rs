@@ -17,6 +17,17 @@ use crate::material::MaterialParams;
 /// Default safety factor applied to the bound by `dt = "auto"`.
 pub const DEFAULT_SAFETY: f64 = 0.5;
 
+/// The most the tool's contact springs may shorten the stable step: to 1/1000 of the
+/// tissue's. A penalty contact is tuned to the tissue it touches; one a thousand times
+/// stiffer is a mistake in the scene, and a run would take that many times the steps.
+pub const MAX_CONTACT_STIFFENING: f64 = 1e3;
+
+/// sqrt(1 + ζ²) − ζ, the factor by which damping ratio ζ shortens a symplectic-Euler step,
+/// in the form 1/(sqrt(1 + ζ²) + ζ): no cancellation at large ζ, no overflow of ζ².
+pub fn damped_step_factor(zeta: f64) -> f64 {
+    1.0 / (zeta.hypot(1.0) + zeta)
+}
+
 /// The stability bounds of a mesh and material.
 #[derive(Clone, Copy, Debug, serde::Serialize)]
 pub struct TimeStepBounds {
@@ -45,7 +56,7 @@ impl TimeStepBounds {
         let c = m.p_wave_speed();
         let omega = 2.0 * c / h_altitude;
         let zeta = (m.phi + 2.0 * m.psi) * omega / (2.0 * (m.lambda + 2.0 * m.mu));
-        let dt_bound = h_altitude / c * ((1.0 + zeta * zeta).sqrt() - zeta);
+        let dt_bound = h_altitude / c * damped_step_factor(zeta);
         let paper_c = ((2.0 * m.lambda + m.mu) / m.density).sqrt();
         TimeStepBounds {
             h_altitude,

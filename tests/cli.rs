@@ -601,6 +601,19 @@ fn bad_tool_sections_are_one_line_errors_naming_the_key() {
             "radius = 0.004\nstiffness = 1e8\nspeed = 2.0\npath = [[0.0, 0.05, 0.01, 0.03]]",
             &["line", "speed"],
         ),
+        // Contact springs far stiffer than the tissue: the step would shrink a million-fold.
+        (
+            "radius = 0.004\nstiffness = 1e18\npath = [[0.0, 0.05, 0.01, 0.03]]",
+            &["tool.stiffness", "times below the tissue's"],
+        ),
+        (
+            "radius = 0.004\nstiffness = 1e8\ndamping = 1e15\npath = [[0.0, 0.05, 0.01, 0.03]]",
+            &["tool.damping", "times below the tissue's"],
+        ),
+        (
+            "radius = 0.004\nstiffness = 1e8\ndamping = 1e250\npath = [[0.0, 0.05, 0.01, 0.03]]",
+            &["tool.damping", "times below the tissue's"],
+        ),
         (
             "radius = 0.004\nstiffness = 1e8\npath = [[0.0, 0.05, 0.01, 0.03, 7.0]]",
             &["line", "path", "4 values"],
