@@ -280,6 +280,9 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
     let mut batch_ms = Vec::new();
     let mut refresh_ms = Vec::new();
     let mut status = RunStatus::Ok;
+    // The last divergence not yet followed by a good batch (the session may end while dt is
+    // still being halved: then it did not end ok).
+    let mut unrecovered: Option<(u64, u32)> = None;
     let mut published_k = DMat3::ZERO;
     let mut last_refresh: Option<Instant> = None;
     let start = Instant::now();
@@ -304,9 +307,13 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
             batch_ms.push(t0.elapsed().as_secs_f64() * 1e3);
             stats.batches += 1;
             let diverged = match result {
-                Guarded::Done(_) => false,
-                Guarded::Retry { .. } => {
+                Guarded::Done(_) => {
+                    unrecovered = None;
+                    false
+                }
+                Guarded::Retry { step, vertex, .. } => {
                     stats.divergences += 1;
+                    unrecovered = Some((step, vertex));
                     true
                 }
                 Guarded::Diverged { step, vertex } => {
@@ -384,6 +391,9 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
     }
     let servo_report: ServoReport = servo.join()?;
     outcome?;
+    if let (RunStatus::Ok, Some((step, vertex))) = (&status, unrecovered) {
+        status = diverged_status(&sim, step, vertex, sim.dt);
+    }
     let wall = start.elapsed().as_secs_f64();
     stats.tool_stiffness = published_k.transpose().to_cols_array_2d();
     let busy = batch_ms.iter().sum::<f64>() * 1e-3;

@@ -781,6 +781,36 @@ fn bad_haptic_arguments_are_one_line_errors() {
     drop(taken);
 }
 
+/// A session whose physics diverges at every try (a tool that engulfs the body) and is still
+/// halving dt when the session ends does not end `ok` (it used to, with 0 steps simulated).
+#[test]
+fn a_haptic_session_whose_physics_never_recovers_is_not_ok() {
+    let d = tmp("hapticdiverged");
+    let engulf = BEAM.replacen(
+        "[solver]",
+        "[tool]\nradius = 1e30\nstiffness = 2e7\nhome = [0.08, 0.01, 0.032]\n\n[solver]",
+        1,
+    );
+    let scene = scene_file(&d, "engulf.toml", &engulf);
+    let out = d.join("out");
+    let (ok, _, err) = palpate(&[
+        "haptic",
+        &scene,
+        "--device",
+        "null",
+        "--seconds",
+        "0.3",
+        "--backend",
+        "cpu",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!ok, "the session ended ok: {err}");
+    assert!(err.contains("diverged"), "{err}");
+    let status = summary(&out)["status"].as_str().unwrap().to_string();
+    assert!(status.starts_with("diverged"), "{status}");
+}
+
 #[test]
 fn a_haptic_session_runs_on_the_gpu_backend_too() {
     let d = tmp("hapticgpu");
