@@ -51,7 +51,7 @@ pub enum PalpateError {
         message: String,
     },
     /// A requested time step exceeds the stability bound.
-    #[error("dt = {dt:.3e} s is above the stability bound {bound:.3e} s ({detail}); use a smaller --dt, dt = \"auto\", or --allow-unstable")]
+    #[error("dt = {dt:.3e} s is above the stability bound {bound:.3e} s ({detail}); use a smaller --dt or dt = \"auto\" (`palpate run --allow-unstable` runs it anyway)")]
     UnstableTimeStep {
         /// The requested step.
         dt: f64,

@@ -332,6 +332,30 @@ fn dt_above_the_bound_is_refused_unless_allowed_and_divergence_is_caught() {
         ],
         &["above the stability bound", "--allow-unstable"],
     );
+    // The scene's own dt above the bound: refused, and `--allow-unstable` alone (as the
+    // message says) runs it.
+    let fast = scene_file(
+        &d,
+        "fast.toml",
+        &BEAM.replacen("dt = \"auto\"", "dt = 1.0e-3", 1),
+    );
+    let fast_args = [
+        "run",
+        &fast,
+        "--steps",
+        "2",
+        "--backend",
+        "cpu",
+        "--out",
+        out,
+    ];
+    assert_one_line_error(
+        &fast_args,
+        &["above the stability bound", "--allow-unstable"],
+    );
+    let (ok, _, err) = palpate(&[&fast_args[..], &["--allow-unstable"]].concat());
+    assert!(ok, "{err}");
+    assert_eq!(summary(&d)["dt"], 1.0e-3);
     // Allowed, it diverges; the run stops, says where, and writes the last finite state.
     let (ok, _, err) = palpate(&[
         "run",

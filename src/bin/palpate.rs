@@ -47,8 +47,8 @@ enum Command {
         /// Time step, s (overrides the scene).
         #[arg(long)]
         dt: Option<f64>,
-        /// Accept a dt above the stability bound.
-        #[arg(long, requires = "dt")]
+        /// Accept a dt (--dt or the scene's) above the stability bound.
+        #[arg(long)]
         allow_unstable: bool,
         /// What to do when the state becomes non-finite.
         #[arg(long, value_enum, default_value = "stop")]
