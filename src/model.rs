@@ -410,6 +410,14 @@ impl Model {
         if let Some(k) = self.external_forces.iter().position(|v| !v.is_finite()) {
             return Err(bad(format!("vertex {} has a non-finite load", k / 3)));
         }
+        if let Some(p) = &self.particles {
+            if !(p.mass > 0.0 && (1.0 / p.mass).is_finite() && p.volume > 0.0) {
+                return Err(bad(format!(
+                    "a particle has mass {:e} kg and volume {:e} m³ in f32",
+                    p.mass, p.volume
+                )));
+            }
+        }
         Ok(())
     }
 

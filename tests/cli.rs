@@ -710,6 +710,26 @@ fn bad_particle_sections_are_one_line_errors_naming_the_key() {
             &["particles.kernel_radius", "√4", "1.95"],
         ),
     ];
+    // A density whose particle masses underflow f32 (the run used to diverge at step 1).
+    let light = with("region = 0\nspacing = 0.002\nactivation_radius = 0.004").replacen(
+        "density = 1000.0",
+        "density = 1e-38",
+        1,
+    );
+    let light = scene_file(&d, "light.toml", &light);
+    assert_one_line_error(
+        &[
+            "run",
+            &light,
+            "--steps",
+            "1",
+            "--backend",
+            "cpu",
+            "--out",
+            d.to_str().unwrap(),
+        ],
+        &["single precision", "particle has mass", &light],
+    );
     for (i, (body, want)) in cases.iter().enumerate() {
         let path = scene_file(&d, &format!("p{i}.toml"), &with(body));
         let mut must: Vec<&str> = want.to_vec();
