@@ -765,6 +765,8 @@ fn bad_haptic_arguments_are_one_line_errors() {
     std::fs::write(&malformed, "t,x,y,z\n0,0,0,0\n0.5,0,zero,0\n").unwrap();
     let backwards = d.join("backwards.csv");
     std::fs::write(&backwards, "t,x,y,z\n0,0,0,0\n0.5,0,0,0\n0.4,0,0,0\n").unwrap();
+    let far = d.join("far.csv");
+    std::fs::write(&far, "t,x,y,z\n0,0,0,0\n0.1,0,0,-1e30\n").unwrap();
     let missing = d.join("missing.csv");
     let scripted = |p: &Path| format!("scripted:{}", p.display());
     let taken = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
@@ -781,6 +783,14 @@ fn bad_haptic_arguments_are_one_line_errors() {
         (
             vec![scene.clone(), "--device".into(), scripted(&backwards)],
             vec![backwards.display().to_string(), "line 4".into()],
+        ),
+        (
+            vec![scene.clone(), "--device".into(), scripted(&far)],
+            vec![
+                far.display().to_string(),
+                "keyframe 2".into(),
+                "workspace".into(),
+            ],
         ),
         (
             vec![scene.clone(), "--device".into(), scripted(&missing)],

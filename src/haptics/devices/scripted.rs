@@ -5,6 +5,7 @@
 //! first non-blank line may be a header (a line none of whose fields is a number, such as
 //! `t,x,y,z`). Times must strictly increase. The position is linear between rows, held at
 //! the first row before it and at the last row after it. Time 0 is the device's first read.
+//! A row more than 10 workspace radii from the origin is refused (no device gets there).
 
 use crate::error::{PalpateError, Result};
 use crate::haptics::device::{DeviceReading, DeviceSpec, HapticDevice, VelocityEstimator};
@@ -162,6 +163,9 @@ pub struct ScriptedDevice {
 }
 
 impl ScriptedDevice {
+    /// How far a scripted row may lie from the device's origin, in workspace radii.
+    pub const REACH: f64 = 10.0;
+
     /// Play `trajectory`; `source` names it in [`HapticDevice::describe`].
     pub fn new(trajectory: Trajectory, spec: DeviceSpec, source: &str) -> Self {
         ScriptedDevice {
@@ -174,9 +178,22 @@ impl ScriptedDevice {
         }
     }
 
-    /// Read the trajectory CSV at `path`.
+    /// Read the trajectory CSV at `path`. A row farther than [`Self::REACH`] workspace radii
+    /// from the device's origin is refused: no device moves there (within that, the physics
+    /// clamps the tool to the workspace and counts it).
     pub fn from_file(path: &Path, spec: DeviceSpec) -> Result<Self> {
         let trajectory = Trajectory::from_file(path)?;
+        let reach = Self::REACH * spec.workspace_radius;
+        if let Some(k) = trajectory.points.iter().position(|x| x.length() > reach) {
+            return Err(PalpateError::Usage(format!(
+                "{}: keyframe {} (t = {} s): |x| = {:e} m is beyond any reach of the device (workspace radius {} m)",
+                path.display(),
+                k + 1,
+                trajectory.times[k],
+                trajectory.points[k].length(),
+                spec.workspace_radius
+            )));
+        }
         Ok(Self::new(
             trajectory,
             spec,
