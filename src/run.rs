@@ -160,6 +160,11 @@ fn steps_for(length: RunLength, dt: f64) -> Result<u64> {
             }
             // Round up, but not past a whole number that f64 division missed by an ulp.
             let x = t / dt;
+            if x > MAX_RUN_STEPS as f64 {
+                return Err(PalpateError::Usage(format!(
+                    "the run would take {x:.3e} steps of {dt:.3e} s (more than {MAX_RUN_STEPS}); use a larger --dt or a shorter run"
+                )));
+            }
             if (x - x.round()).abs() < 1e-9 * x.max(1.0) {
                 x.round() as u64
             } else {

@@ -212,6 +212,11 @@ fn bad_scene_values_give_one_line_errors_naming_file_and_key() {
             "offset = 5.0 }",
             &["fixed[0]", "selects no vertex"],
         ),
+        (
+            "offset = 0.0 }",
+            "offset = nan }",
+            &["fixed[0].plane.offset", "finite"],
+        ),
         ("[loads]", "[loadz]", &["loadz"]),
         (
             "cells = [20, 4, 4]",

@@ -41,8 +41,8 @@ enum Command {
         /// Run with critical viscous damping until the residual force is below the scene's tolerance.
         #[arg(long)]
         until_static: bool,
-        /// Step cap for --until-static.
-        #[arg(long, default_value_t = 200_000)]
+        /// Step cap for --until-static (at least 1).
+        #[arg(long, default_value_t = 200_000, value_parser = clap::value_parser!(u64).range(1..))]
         max_steps: u64,
         /// Time step, s (overrides the scene).
         #[arg(long)]

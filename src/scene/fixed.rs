@@ -106,6 +106,32 @@ pub(super) fn select_fixed(specs: &[FixedSpec], mesh: &TetMesh, bad: &Bad) -> Re
                 "applies to a plane only".into(),
             ));
         }
+        let finite = |what: &str, v: &[f64]| {
+            if v.iter().all(|x| x.is_finite()) {
+                Ok(())
+            } else {
+                Err(bad(
+                    &format!("{item}.{what}"),
+                    format!("must be finite, got {v:?}"),
+                ))
+            }
+        };
+        if let Some(plane) = &spec.plane {
+            finite("plane.normal", &plane.normal)?;
+            finite("plane.offset", &[plane.offset])?;
+        }
+        if let Some(b) = &spec.bbox {
+            finite("box.min", &b.min)?;
+            finite("box.max", &b.max)?;
+        }
+        if let Some(t) = spec.tolerance {
+            if !(t.is_finite() && t >= 0.0) {
+                return Err(bad(
+                    &format!("{item}.tolerance"),
+                    format!("must be >= 0 m, got {t}"),
+                ));
+            }
+        }
         let select: Box<dyn Fn(usize, DVec3) -> bool> = if let Some(plane) = &spec.plane {
             let n = unit_normal(plane, &item, bad)?;
             let tol = spec.tolerance.unwrap_or(1e-6 * diag);
