@@ -255,10 +255,15 @@ pub fn run_with_state(
     let model = sim.model.clone();
     if opts.announce {
         println!(
-            "{}: {} tets, {} vertices; backend {} on {} ({})",
+            "{}: {} tets, {} vertices{}; backend {} on {} ({})",
             scene.name,
             model.n_tets(),
             model.n_vertices(),
+            model
+                .particles
+                .as_ref()
+                .map(|p| format!(", {} particles", p.len()))
+                .unwrap_or_default(),
             if sim.backend == Backend::Gpu {
                 "gpu"
             } else {

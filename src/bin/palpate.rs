@@ -255,10 +255,21 @@ fn execute(cli: Cli) -> Result<()> {
                     .unwrap_or_default(),
                 s.status
             );
+            let mut wrote = vec!["final.vtu"];
+            if s.particles > 0 {
+                wrote.push("particles_final.vtu");
+            }
+            if frames > 0 {
+                wrote.push("series.pvd (with its frames)");
+            }
+            wrote.push("summary.json");
+            let wrote: Vec<String> = wrote
+                .iter()
+                .map(|f| format!("{}/{f}", out.display()))
+                .collect();
             println!(
-                "wrote {}/final.vtu, {}/summary.json; realtime factor {:.3} (simulated / wall seconds)",
-                out.display(),
-                out.display(),
+                "wrote {}; realtime factor {:.3} (simulated / wall seconds)",
+                wrote.join(", "),
                 s.realtime_factor
             );
             if !s.status.is_ok() {
@@ -317,8 +328,13 @@ fn execute(cli: Cli) -> Result<()> {
                 );
             }
             println!(
-                "wrote {0}/haptic.csv, {0}/final.vtu, {0}/summary.json; status: {1}",
+                "wrote {0}/haptic.csv, {0}/final.vtu, {1}{0}/summary.json; status: {2}",
                 out.display(),
+                if s.run.particles > 0 {
+                    format!("{}/particles_final.vtu, ", out.display())
+                } else {
+                    String::new()
+                },
                 s.run.status
             );
             if !s.run.status.is_ok() {

@@ -153,9 +153,11 @@ pub struct RunSummary {
     pub kinetic_energy: f64,
     /// Elastic energy at the end, J.
     pub elastic_energy: f64,
-    /// ‖residual force‖ / ‖external load‖ at the end (with `--until-static`).
+    /// ‖residual force‖ / ‖external load‖ at the end (with `--until-static`; absent without).
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub static_residual: Option<f64>,
-    /// The tolerance `static_residual` was held to (with `--until-static`).
+    /// The tolerance `static_residual` was held to (with `--until-static`; absent without).
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub static_tolerance: Option<f64>,
     /// Dynamic particles at the end (scenes with particles).
     #[serde(skip_serializing_if = "Option::is_none")]
