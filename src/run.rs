@@ -286,7 +286,7 @@ pub fn run_with_state(
     };
     let mut frames = FrameSeries::new(&opts.out);
     if opts.frames >= 2 {
-        frames.write(&model, &sim.state()?, 0.0)?;
+        frames.write(&model, &sim.state()?, sim.particle_state()?.as_ref(), 0.0)?;
     }
     let show = opts.progress && std::io::stdout().is_terminal();
     let mut progress = Progress::new(show, (!until_static).then_some(target_steps));
@@ -348,7 +348,8 @@ pub fn run_with_state(
             }
         }
         if sim.time >= next_frame_time - 0.5 * sim.dt {
-            frames.write(&model, &sim.state()?, sim.time)?;
+            let particles = sim.particle_state()?;
+            frames.write(&model, &sim.state()?, particles.as_ref(), sim.time)?;
             next_frame_time += frame_dt;
         }
         progress.update(
@@ -368,16 +369,17 @@ pub fn run_with_state(
         };
     }
     let state = sim.state()?;
+    let particles = sim.particle_state()?;
     // The final state closes the series (with --frames 1 it is the only frame).
     let final_missing = frames.last_time().is_none_or(|t| t < sim.time);
     if opts.frames == 1 || (opts.frames >= 2 && final_missing) {
-        frames.write(&model, &state, sim.time)?;
+        frames.write(&model, &state, particles.as_ref(), sim.time)?;
     }
     write_atomic(
         &opts.out.join("final.vtu"),
         state_vtu(&model, &state).as_bytes(),
     )?;
-    if let Some(snap) = sim.particle_state()? {
+    if let Some(snap) = particles {
         write_atomic(
             &opts.out.join("particles_final.vtu"),
             crate::output::particles::particles_vtu(&model, &state, &snap).as_bytes(),

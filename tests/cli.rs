@@ -134,6 +134,48 @@ fn gpu_run_with_frames_writes_a_series() {
     assert!(s["max_displacement"].as_f64().unwrap() > 0.0);
 }
 
+/// A particle scene's frames carry the particles too: `particles_series.pvd` lists one
+/// `particles_frame_NNNN.vtu` per frame, the last equal to `particles_final.vtu`.
+#[test]
+fn frames_of_a_particle_scene_include_the_particles() {
+    let d = tmp("particleframes");
+    let scene = BEAM.replacen(
+        "[solver]",
+        "[particles]\nregion = 0\nspacing = 0.002\nactivation_radius = 0.004\n\n[tool]\nradius = 0.01\nstiffness = 2e7\npath = [[0.0, 0.08, 0.01, 0.035], [0.01, 0.08, 0.01, 0.027]]\n\n[solver]",
+        1,
+    );
+    let scene = scene_file(&d, "pressed.toml", &scene);
+    let (ok, out, err) = palpate(&[
+        "run",
+        &scene,
+        "--duration",
+        "0.01",
+        "--frames",
+        "3",
+        "--backend",
+        "cpu",
+        "--out",
+        d.to_str().unwrap(),
+    ]);
+    assert!(ok, "{out}{err}");
+    assert!(out.contains("particles_series.pvd"), "{out}");
+    let pvd = std::fs::read_to_string(d.join("particles_series.pvd")).unwrap();
+    assert_eq!(pvd.matches("<DataSet").count(), 3, "{pvd}");
+    for k in 0..3 {
+        assert!(
+            pvd.contains(&format!("particles_frame_{k:04}.vtu")),
+            "{pvd}"
+        );
+        assert!(d.join(format!("particles_frame_{k:04}.vtu")).exists());
+    }
+    assert_eq!(
+        std::fs::read(d.join("particles_frame_0002.vtu")).unwrap(),
+        std::fs::read(d.join("particles_final.vtu")).unwrap(),
+        "the last particle frame is the final state"
+    );
+    assert!(summary(&d)["active_particles_max"].as_u64().unwrap() > 0);
+}
+
 #[test]
 fn duration_runs_the_right_number_of_steps() {
     let d = tmp("duration");

@@ -261,6 +261,9 @@ fn execute(cli: Cli) -> Result<()> {
             }
             if frames > 0 {
                 wrote.push("series.pvd (with its frames)");
+                if s.particles > 0 {
+                    wrote.push("particles_series.pvd (with its frames)");
+                }
             }
             wrote.push("summary.json");
             let wrote: Vec<String> = wrote
