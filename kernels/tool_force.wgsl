@@ -32,6 +32,7 @@
 @group(0) @binding(17) var<storage, read> particle_contact_offset: array<f32>;
 @group(0) @binding(18) var<storage, read> particle_counts: array<u32>;
 @group(0) @binding(19) var<storage, read> dynamic_list: array<u32>;
+@group(0) @binding(20) var<storage, read> tool_state: ToolState;
 
 // Pipeline constant: the scene has particles (vertex contacts are weighted as in contact.wgsl;
 // tool_force_particles adds the dynamic particles' contacts in blocks after the vertices').
@@ -81,7 +82,7 @@ fn contact_lane(x: vec3<f32>, v: vec3<f32>, area: f32) -> array<f32, 15> {
         lane[k] = 0.0;
     }
     let vc = (tool_input.end - tool_input.start) / (f32(max(tool_input.steps, 1u)) * params.dt);
-    let c = contact_force(tool_params, x, v, tool_input.end, vc, area);
+    let c = contact_force(tool_params, x, v, tool_batch_end(tool_input, tool_state), vc, area);
     if c.penetration > 0.0 {
         let n = c.normal;
         let a = tool_params.radius / c.distance;

@@ -282,7 +282,7 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
     let mut status = RunStatus::Ok;
     // The last divergence not yet followed by a good batch (the session may end while dt is
     // still being halved: then it did not end ok).
-    let mut unrecovered: Option<(u64, u32)> = None;
+    let mut unrecovered: Option<(u64, u32, f64)> = None;
     let mut published_k = DMat3::ZERO;
     let mut last_refresh: Option<Instant> = None;
     let start = Instant::now();
@@ -311,9 +311,10 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                     unrecovered = None;
                     false
                 }
-                Guarded::Retry { step, vertex, .. } => {
+                Guarded::Retry { step, vertex, dt } => {
                     stats.divergences += 1;
-                    unrecovered = Some((step, vertex));
+                    // It diverged at the step before the halving.
+                    unrecovered = Some((step, vertex, 2.0 * dt));
                     true
                 }
                 Guarded::Diverged { step, vertex } => {
@@ -391,8 +392,8 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
     }
     let servo_report: ServoReport = servo.join()?;
     outcome?;
-    if let (RunStatus::Ok, Some((step, vertex))) = (&status, unrecovered) {
-        status = diverged_status(&sim, step, vertex, sim.dt);
+    if let (RunStatus::Ok, Some((step, vertex, dt))) = (&status, unrecovered) {
+        status = diverged_status(&sim, step, vertex, dt);
     }
     let wall = start.elapsed().as_secs_f64();
     stats.tool_stiffness = published_k.transpose().to_cols_array_2d();

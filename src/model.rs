@@ -411,7 +411,12 @@ impl Model {
             return Err(bad(format!("vertex {} has a non-finite load", k / 3)));
         }
         if let Some(p) = &self.particles {
-            if !(p.mass > 0.0 && (1.0 / p.mass).is_finite() && p.volume > 0.0) {
+            if !(p.mass > 0.0
+                && p.mass.is_finite()
+                && (1.0 / p.mass).is_finite()
+                && p.volume > 0.0
+                && p.volume.is_finite())
+            {
                 return Err(bad(format!(
                     "a particle has mass {:e} kg and volume {:e} m³ in f32",
                     p.mass, p.volume

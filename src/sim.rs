@@ -437,8 +437,12 @@ impl Simulation {
                     // state after step start + k is kept, so this is not a divergence report.
                     self.go_back_to(start)?;
                     return Err(PalpateError::Internal(format!(
-                        "redoing step {} of a diverged batch diverged (vertex {vertex}) where its replay had not: the backend did not repeat itself; the state is back at step {}",
+                        "redoing step {} of a diverged batch diverged (at {}) where its replay had not: the backend did not repeat itself; the state is back at step {}",
                         start.steps_done + k as u64 + 1,
+                        match vertex.checked_sub(self.model.n_vertices() as u32) {
+                            Some(p) => format!("particle {p}"),
+                            None => format!("vertex {vertex}"),
+                        },
                         start.steps_done
                     )));
                 }

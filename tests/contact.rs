@@ -130,6 +130,7 @@ fn contact_kernels_match_their_cpu_twins() {
         &p,
         &tp,
         &input,
+        &state,
         &t.surface_vertices,
         &t.surface_area,
         &m.rest,
@@ -156,12 +157,18 @@ fn frozen_stiffness_is_the_derivative_of_the_tool_force() {
     let u = vec![0.0f32; 3 * m.n_vertices()];
     let force_at = |c: DVec3| {
         let input = batch_input(c, c, 1);
+        // After the batch's one step: the tool at its end, c.
+        let state = palpate::contact::ToolState {
+            position: input.end,
+            step: 1,
+        };
         let mut partials = vec![0.0; cpu::tool_force::LANE * cpu::tool_force::n_partials(&tp)];
         let mut report = vec![0.0; palpate::contact::REPORT_LEN];
         cpu::tool_force_partial(
             &p,
             &tp,
             &input,
+            &state,
             &t.surface_vertices,
             &t.surface_area,
             &m.rest,

@@ -98,7 +98,7 @@ fn a_particle_zone_too_spread_out_for_its_grid_is_an_error_naming_the_spacing() 
         err.contains("particles.spacing") && err.contains("cells") && !err.contains('\n'),
         "{err}"
     );
-    // The compact block: the grid spans its lattice plus a cell of margin on each side.
+    // The compact block: the grid spans its lattice plus about a cell of margin on each side.
     let m = Model::from_scene(&block_scene(1e-3, ""));
     let p = m.particles.as_ref().unwrap();
     let (grid, cells) = GridParams::layout(&p.rest, p.support);
@@ -409,9 +409,42 @@ fn particle_kernels_match_their_cpu_twins() {
         counts[0], counts[1], counts[2]
     );
 
-    // follow
+    // follow, with every third embedded particle of the force set blending back (timers
+    // spread over the blend time, offsets of a few spacings' thousandths): the kernel fades
+    // their offsets and advances their blend clocks by a sub-step, as the twin does.
+    let mut poffset = poffset;
+    let mut blending = 0;
+    for (j, &q) in fl.iter().enumerate() {
+        let q = q as usize;
+        if pmode[q] & (mode::DYNAMIC | mode::PINNED) == 0 && j % 3 == 0 {
+            pmode[q] |= mode::BLENDING;
+            ptimer[q] = pp.blend * (j % 7) as f32 / 8.0;
+            for (c, o) in poffset[3 * q..3 * q + 3].iter_mut().enumerate() {
+                *o = 1e-3 * pp.spacing * (1.0 + c as f32 + (j % 5) as f32);
+            }
+            blending += 1;
+        }
+    }
+    assert!(
+        blending > 10,
+        "only {blending} blending particles to follow"
+    );
+    g.write_f32("particle_mode", bytemuck::cast_slice(&pmode))
+        .unwrap();
+    g.write_f32("particle_timer", &ptimer).unwrap();
+    g.write_f32("particle_offset", &poffset).unwrap();
     g.run_stage(Stage::Follow).unwrap();
+    let timers_before = ptimer.clone();
     cpu::follow::follow(&pp, &fl, &pmode, &st, &u, &mut ptimer, &poffset, &mut pu);
+    assert!(
+        ptimer
+            .iter()
+            .zip(&timers_before)
+            .filter(|(a, b)| a != b)
+            .count()
+            == blending,
+        "the blend clocks of the blending particles advance, no others"
+    );
     let e = rel(
         &g.read_f32("particle_displacements").unwrap()[..pu.len()],
         &pu,
@@ -1472,6 +1505,7 @@ fn a_batch_replayed_one_step_at_a_time_repeats_it_bit_for_bit() {
         assert!(dynamic.count() > 0, "{name}: no particle became dynamic");
         s.restore().unwrap();
         let mut last = None;
+        let mut sliced_tool = Vec::new();
         for k in 0..n {
             let input = BatchInput {
                 tool_slice: Some((k, n)),
@@ -1482,7 +1516,9 @@ fn a_batch_replayed_one_step_at_a_time_repeats_it_bit_for_bit() {
                 a + (b - a) * ((k + 1) as f64 / n as f64)
             );
             s.submit(1, &input).unwrap();
-            last = Some(s.wait().unwrap());
+            let r = s.wait().unwrap();
+            sliced_tool.push(r.tool.unwrap());
+            last = Some(r);
         }
         let sliced = end(s);
         for (what, x, y) in [
@@ -1519,11 +1555,26 @@ fn a_batch_replayed_one_step_at_a_time_repeats_it_bit_for_bit() {
         );
         // One-step batches of their own moves: the tool velocity differs by rounding.
         s.restore().unwrap();
+        let mut worst = 0.0f64;
         for k in 0..n {
             let at = |j: u32| a + (b - a) * (j as f64 / n as f64);
             s.submit(1, &BatchInput::moving(at(k), at(k + 1))).unwrap();
-            s.wait().unwrap();
+            let own = s.wait().unwrap().tool.unwrap();
+            // Each slice's report has the tool where that step left it (not at the move's
+            // end): the same force as the one-step move's, to the rounding of the velocity.
+            let sliced = sliced_tool[k as usize];
+            assert_eq!(
+                sliced.position, own.position,
+                "{name}: step {k}: tool position"
+            );
+            if own.force.length() > 0.0 {
+                worst = worst.max((sliced.force - own.force).length() / own.force.length());
+            }
         }
+        assert!(
+            worst <= 1e-2,
+            "{name}: a slice's tool force is {worst:.2e} off the one-step move's"
+        );
         let own = end(s);
         assert_ne!(
             bits(&batch.1.velocities),

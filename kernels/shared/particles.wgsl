@@ -1,7 +1,7 @@
 // The particle layer's uniforms and kernel functions. Mirrors src/particles/params.rs
 // (a test checks sizes and offsets against naga's layout of these structs).
 
-// The reference grid the neighbour lists are built on (cells of the kernel support).
+// The reference grid the neighbour lists are built on (cells 1.001 x the kernel support).
 struct GridParams {
     origin: vec3<f32>,    // m, lower corner
     inv_cell: f32,        // 1/m, 1 / cell edge (the edge is 1.001 R)

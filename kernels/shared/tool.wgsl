@@ -25,6 +25,16 @@ struct ToolState {
     step: u32,
 }
 
+// Where the tool is once the batch's steps are done (tool_motion counted them in
+// state.step): `end` after the whole move; after a slice of it (a diverged batch replayed one
+// step at a time), the move's position at that step, as tool_motion would place it.
+fn tool_batch_end(input: ToolInput, state: ToolState) -> vec3<f32> {
+    if state.step >= input.steps {
+        return input.end;
+    }
+    return input.start + (input.end - input.start) * (f32(state.step) / f32(max(input.steps, 1u)));
+}
+
 const NOT_ON_SURFACE: u32 = 0xffffffffu;
 
 // Slots of the 16-float tool report (src/contact.rs `report`).

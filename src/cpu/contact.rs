@@ -40,6 +40,21 @@ pub fn contact_force(p: &ToolParams, x: Vec3, v: Vec3, c: Vec3, vc: Vec3, area: 
     out
 }
 
+/// Where the tool is once the batch's steps are done (twin of `tool_batch_end` in
+/// `kernels/shared/tool.wgsl`): `end` after the whole move, else the move's position at
+/// `state.step`, start + (end − start)·step/steps, as `tool_motion` places it.
+pub fn tool_batch_end(tool_input: &ToolInput, state: &crate::contact::ToolState) -> Vec3 {
+    if state.step >= tool_input.steps {
+        return Vec3::from_array(tool_input.end);
+    }
+    let s = state.step as f32 / tool_input.steps.max(1) as f32;
+    let (from, to) = (
+        Vec3::from_array(tool_input.start),
+        Vec3::from_array(tool_input.end),
+    );
+    from + (to - from) * s
+}
+
 /// The tool's velocity during a batch, (to − from)/(steps·dt).
 pub fn tool_velocity(params: &StepParams, tool_input: &ToolInput) -> Vec3 {
     (Vec3::from_array(tool_input.end) - Vec3::from_array(tool_input.start))

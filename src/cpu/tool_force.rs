@@ -5,7 +5,7 @@
 
 use super::contact::{contact_force, tool_velocity};
 use super::load3;
-use crate::contact::{ToolInput, ToolParams, REPORT_LEN};
+use crate::contact::{ToolInput, ToolParams, ToolState, REPORT_LEN};
 use crate::params::StepParams;
 use glam::Vec3;
 
@@ -68,12 +68,14 @@ fn lane(p: &ToolParams, x: Vec3, v: Vec3, c: Vec3, vc: Vec3, area: f32) -> [f32;
     lane
 }
 
-/// Per block of 128 surface vertices: the block's partial lane (tool at `tool_input.end`).
+/// Per block of 128 surface vertices: the block's partial lane (tool where the batch left it,
+/// [`super::contact::tool_batch_end`]).
 #[allow(clippy::too_many_arguments)]
 pub fn tool_force_partial(
     params: &StepParams,
     tool_params: &ToolParams,
     tool_input: &ToolInput,
+    tool_state: &ToolState,
     surface_vertices: &[u32],
     surface_area: &[f32],
     rest_positions: &[f32],
@@ -83,7 +85,7 @@ pub fn tool_force_partial(
     contact_weight: Option<&[f32]>,
 ) {
     let vc = tool_velocity(params, tool_input);
-    let c = Vec3::from_array(tool_input.end);
+    let c = super::contact::tool_batch_end(tool_input, tool_state);
     let n = tool_params.n_surface as usize;
     let blocks = n.div_ceil(TOOL_WORKGROUP);
     super::par::for_each_chunk::<LANE>(tool_partials, blocks, |block, out| {
@@ -115,6 +117,7 @@ pub fn tool_force_particles(
     params: &StepParams,
     tool_params: &ToolParams,
     tool_input: &ToolInput,
+    tool_state: &ToolState,
     particle_mode: &[u32],
     particle_rest: &[f32],
     particle_displacements: &[f32],
@@ -126,7 +129,7 @@ pub fn tool_force_particles(
     tool_partials: &mut [f32],
 ) {
     let vc = tool_velocity(params, tool_input);
-    let c = Vec3::from_array(tool_input.end);
+    let c = super::contact::tool_batch_end(tool_input, tool_state);
     let n = dynamic_list.len();
     let first = (tool_params.n_surface as usize).div_ceil(TOOL_WORKGROUP);
     super::par::for_each_chunk::<LANE>(

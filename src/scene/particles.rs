@@ -226,5 +226,5 @@ fn lattice_shell_on_support(kernel_radius: f64) -> Option<u32> {
     let k = r2.round() as u32;
     let is_shell =
         (0..=4u32).any(|i| (0..=4u32).any(|j| (0..=4u32).any(|l| i * i + j * j + l * l == k)));
-    (is_shell && (r2 - k as f64).abs() <= 1e-3 * r2).then_some(k)
+    (is_shell && (kernel_radius - (k as f64).sqrt()).abs() <= 1e-3 * kernel_radius).then_some(k)
 }
