@@ -54,6 +54,11 @@ fn assert_one_line_error(args: &[&str], must_contain: &[&str]) {
 
 const BEAM: &str = include_str!("../scenes/beam.toml");
 
+/// The beam scene with `sections` (TOML) added before its `[solver]`.
+fn beam_with(sections: &str) -> String {
+    BEAM.replacen("[solver]", &format!("{sections}\n\n[solver]"), 1)
+}
+
 fn scene_file(dir: &Path, name: &str, text: &str) -> String {
     let p = dir.join(name);
     std::fs::write(&p, text).unwrap();
@@ -139,11 +144,7 @@ fn gpu_run_with_frames_writes_a_series() {
 #[test]
 fn frames_of_a_particle_scene_include_the_particles() {
     let d = tmp("particleframes");
-    let scene = BEAM.replacen(
-        "[solver]",
-        "[particles]\nregion = 0\nspacing = 0.002\nactivation_radius = 0.004\n\n[tool]\nradius = 0.01\nstiffness = 2e7\npath = [[0.0, 0.08, 0.01, 0.035], [0.01, 0.08, 0.01, 0.027]]\n\n[solver]",
-        1,
-    );
+    let scene = beam_with("[particles]\nregion = 0\nspacing = 0.002\nactivation_radius = 0.004\n\n[tool]\nradius = 0.01\nstiffness = 2e7\npath = [[0.0, 0.08, 0.01, 0.035], [0.01, 0.08, 0.01, 0.027]]");
     let scene = scene_file(&d, "pressed.toml", &scene);
     let (ok, out, err) = palpate(&[
         "run",
@@ -645,7 +646,7 @@ fn threads_are_recorded_and_bad_counts_or_missing_adapters_are_one_line_errors()
 #[test]
 fn bad_tool_sections_are_one_line_errors_naming_the_key() {
     let d = tmp("badtool");
-    let tool = |body: &str| BEAM.replacen("[solver]", &format!("[tool]\n{body}\n\n[solver]"), 1);
+    let tool = |body: &str| beam_with(&format!("[tool]\n{body}"));
     let cases: &[(&str, &[&str])] = &[
         (
             "radius = -0.004\nstiffness = 1e8\npath = [[0.0, 0.05, 0.01, 0.03]]",
@@ -717,8 +718,7 @@ fn bad_tool_sections_are_one_line_errors_naming_the_key() {
 #[test]
 fn bad_particle_sections_are_one_line_errors_naming_the_key() {
     let d = tmp("badparticles");
-    let with =
-        |body: &str| BEAM.replacen("[solver]", &format!("[particles]\n{body}\n\n[solver]"), 1);
+    let with = |body: &str| beam_with(&format!("[particles]\n{body}"));
     let cases: &[(&str, &[&str])] = &[
         (
             "region = 7\nspacing = 0.002\nactivation_radius = 0.004",
@@ -801,11 +801,7 @@ fn bad_particle_sections_are_one_line_errors_naming_the_key() {
 fn bad_haptic_arguments_are_one_line_errors() {
     let d = tmp("badhaptic");
     let out = d.to_str().unwrap();
-    let touch = BEAM.replacen(
-        "[solver]",
-        "[tool]\nradius = 0.01\nstiffness = 2e7\nhome = [0.08, 0.01, 0.032]\n\n[solver]",
-        1,
-    );
+    let touch = beam_with("[tool]\nradius = 0.01\nstiffness = 2e7\nhome = [0.08, 0.01, 0.032]");
     let scene = scene_file(&d, "touch.toml", &touch);
     let no_tool = scene_file(&d, "beam.toml", BEAM);
     let malformed = d.join("bad.csv");
@@ -887,11 +883,7 @@ fn bad_haptic_arguments_are_one_line_errors() {
 #[test]
 fn a_haptic_session_whose_physics_never_recovers_is_not_ok() {
     let d = tmp("hapticdiverged");
-    let engulf = BEAM.replacen(
-        "[solver]",
-        "[tool]\nradius = 1e30\nstiffness = 2e7\nhome = [0.08, 0.01, 0.032]\n\n[solver]",
-        1,
-    );
+    let engulf = beam_with("[tool]\nradius = 1e30\nstiffness = 2e7\nhome = [0.08, 0.01, 0.032]");
     let scene = scene_file(&d, "engulf.toml", &engulf);
     let out = d.join("out");
     let (ok, _, err) = palpate(&[
@@ -915,13 +907,10 @@ fn a_haptic_session_whose_physics_never_recovers_is_not_ok() {
 #[test]
 fn a_haptic_session_runs_on_the_gpu_backend_too() {
     let d = tmp("hapticgpu");
-    let touch = BEAM
-        .replacen(
-            "[solver]",
-            "[tool]\nradius = 0.01\nstiffness = 2e7\ndamping = 1e3\nhome = [0.08, 0.01, 0.032]\n\n[solver]",
-            1,
-        )
-        .replace("gravity = [0.0, 0.0, -9.81]", "gravity = [0.0, 0.0, 0.0]");
+    let touch = beam_with(
+        "[tool]\nradius = 0.01\nstiffness = 2e7\ndamping = 1e3\nhome = [0.08, 0.01, 0.032]",
+    )
+    .replace("gravity = [0.0, 0.0, -9.81]", "gravity = [0.0, 0.0, 0.0]");
     let scene = scene_file(&d, "touch.toml", &touch);
     let press = d.join("press.csv");
     std::fs::write(&press, "t,x,y,z\n0,0,0,0\n0.4,0,0,-0.006\n1.0,0,0,-0.006\n").unwrap();
