@@ -52,6 +52,9 @@ pub struct ParticleLayer {
     pub layers: usize,
     /// Kernel support radius, in spacings (the scene default is 2.4).
     pub kernel_radius: f64,
+    /// Activation radius from the tool's surface, in contact radii (the bench uses 2); None:
+    /// every particle dynamic (`activation = "all"`).
+    pub activation: Option<f64>,
 }
 
 impl Default for HertzCase {
@@ -71,22 +74,26 @@ impl Default for HertzCase {
 }
 
 impl HertzCase {
-    /// `cells a/3`, or `core 2a + particles a/3` for a hybrid block.
+    /// `cells a/3`, or `core 2a + particles a/3` for a hybrid block (with its kernel support
+    /// and activation radius when they are not the defaults, 2.4Δx and 2a).
     pub fn label(&self) -> String {
-        match self.particles {
-            None => format!("cells a/{:.1}", 1.0 / self.fine),
-            Some(p) if p.kernel_radius != 2.4 => format!(
-                "core {:.1}a + particles a/{:.1} (support {}Δx)",
-                self.fine,
-                1.0 / p.spacing,
-                p.kernel_radius
-            ),
-            Some(p) => format!(
-                "core {:.1}a + particles a/{:.1}",
-                self.fine,
-                1.0 / p.spacing
-            ),
+        let Some(p) = self.particles else {
+            return format!("cells a/{:.1}", 1.0 / self.fine);
+        };
+        let mut label = format!(
+            "core {:.1}a + particles a/{:.1}",
+            self.fine,
+            1.0 / p.spacing
+        );
+        if p.kernel_radius != 2.4 {
+            label.push_str(&format!(" (support {}Δx)", p.kernel_radius));
         }
+        match p.activation {
+            Some(r) if r == 2.0 => {}
+            Some(r) => label.push_str(&format!(" (awake within {r}a)")),
+            None => label.push_str(" (all awake)"),
+        }
+        label
     }
 
     /// Contact radius a = √(R d), m.
@@ -173,14 +180,14 @@ impl HertzCase {
                 region: 1,
                 spacing: layer.spacing * self.contact_radius(),
                 model: crate::scene::ParticleModel::Tlsph,
-                activation_radius: 2.0 * self.contact_radius(),
+                activation_radius: layer.activation.unwrap_or(2.0) * self.contact_radius(),
                 kernel_radius: layer.kernel_radius,
                 hourglass: 0.1,
                 hysteresis: 1.5,
                 dwell: 0.01,
                 blend: 0.01,
                 activation_interval: 10,
-                all_active: false,
+                all_active: layer.activation.is_none(),
             }),
         })
     }
@@ -313,9 +320,26 @@ pub fn study(backend: Backend, quick: bool, log: &mut dyn FnMut(&str)) -> Result
                 spacing,
                 layers: 2,
                 kernel_radius: 2.4,
+                activation: Some(2.0),
             }),
             ..base
         });
+    }
+    // What waking only the particles near the tool costs in accuracy: the a/2 layer awake
+    // within 1a and 4a of the tool, and all awake, beside the 2a above.
+    if !quick {
+        for activation in [Some(1.0), Some(4.0), None] {
+            cases.push(HertzCase {
+                fine: 2.0,
+                particles: Some(ParticleLayer {
+                    spacing: 0.5,
+                    layers: 2,
+                    kernel_radius: 2.4,
+                    activation,
+                }),
+                ..base
+            });
+        }
     }
     let dir = std::env::temp_dir().join(format!("palpate-hertz-{}", std::process::id()));
     std::fs::create_dir_all(&dir).map_err(|source| crate::error::PalpateError::OutputIo {
@@ -338,7 +362,7 @@ pub fn write(out: &Path, rows: &[HertzResult], header: &str) -> Result<()> {
         source,
     })?;
     let mut csv = String::from(
-        "radius_m,depth_m,contact_radius_m,cell_over_a,particle_spacing_over_a,penalty_pa_per_m,tets,particles,force_n,hertz_n,relative_error,steps,wall_seconds,status\n",
+        "radius_m,depth_m,contact_radius_m,cell_over_a,particle_spacing_over_a,activation_radius_over_a,penalty_pa_per_m,tets,particles,force_n,hertz_n,relative_error,steps,wall_seconds,status\n",
     );
     let mut md = format!(
         "# Contact against Hertz\n\n{header}\n\n| block | depth mm | penalty Pa/m | tets | particles | F sim N | F Hertz N | error | steps | wall s |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n"
@@ -346,12 +370,15 @@ pub fn write(out: &Path, rows: &[HertzResult], header: &str) -> Result<()> {
     for r in rows {
         let c = &r.case;
         csv.push_str(&format!(
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
             c.radius,
             c.depth,
             c.contact_radius(),
             c.fine,
             c.particles.map_or(String::new(), |p| p.spacing.to_string()),
+            c.particles.map_or(String::new(), |p| p
+                .activation
+                .map_or("all".into(), |r| r.to_string())),
             c.penalty,
             r.tets,
             r.particles,

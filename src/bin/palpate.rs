@@ -402,7 +402,7 @@ fn execute(cli: Cli) -> Result<()> {
                 let rows =
                     contact::study(backend, quick, &mut |s| eprintln!("bench contact: {s}"))?;
                 let header = format!(
-                    "Written by `palpate bench contact{}` on {}. A sphere of radius {} mm pressed into a block of E = {} kPa, nu = {} (bottom held, half-width and depth {} contact radii), relaxed to a static state; error = (F - F_Hertz)/F_Hertz.",
+                    "Written by `palpate bench contact{}` on {}. A sphere of radius {} mm pressed into a block of E = {} kPa, nu = {} (bottom held, half-width and depth {} contact radii), relaxed to a static state; error = (F - F_Hertz)/F_Hertz. In the hybrid blocks the particles within 2a of the tool are awake (dynamic) unless the label says otherwise; the rest move with the coarse core, which stiffens the contact the less the more are awake (compare the a/2 rows with 1a, 2a, 4a and all awake).",
                     if quick { " --quick" } else { "" },
                     adapter_name(backend),
                     contact::HertzCase::default().radius * 1e3,
