@@ -89,7 +89,7 @@ impl HertzCase {
             label.push_str(&format!(" (support {}Δx)", p.kernel_radius));
         }
         match p.activation {
-            Some(r) if r == 2.0 => {}
+            Some(2.0) => {}
             Some(r) => label.push_str(&format!(" (awake within {r}a)")),
             None => label.push_str(" (all awake)"),
         }
