@@ -1,6 +1,7 @@
 // Stage (last step of a batch): the force the tissue exerts on the tool, F = -sum f_i, and
 // its frozen-tissue stiffness K = dF/dc = sum k A_i [(R/r)(I - n n^T) - I], with the tool
-// at the batch's end position `end` and the vertices where the batch left them; also the
+// and the vertices where the batch left them (tool_batch_end: `end`, or after a slice of the
+// move, the move's position at that step); also the
 // largest penetration, the number of contacts and their rest area. Two-level tree reduction
 // like reduce.wgsl: tool_force_partial (128 surface vertices per workgroup),
 // tool_force_particles (128 entries of the dynamic list per workgroup, blocks after the

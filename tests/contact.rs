@@ -416,7 +416,7 @@ fn contact_helpers_agree_with_the_formula() {
 /// every particle dynamic (`activation = "all"`). Embedded particles move with the coarse
 /// core, so a small awake region is held by a stiffer surround. Measured: +12.2, +4.2 and
 /// +0.55 % (at particles a/3: +19.6, +6.3, +0.60 %; at 0.5a: +23 and +48 %). The contact
-/// bench wakes 2a; hm1 (0.7a) and lv_touch (0.3a) wake less, for speed (docs/contact.md).
+/// bench wakes 2a; hm1 (0.7a) and lv_touch (0.35a) wake less, for speed (BENCHMARKS.md).
 #[test]
 fn the_bias_of_waking_only_the_particles_near_the_tool_falls_with_the_radius() {
     use palpate::bench::contact::ParticleLayer;
