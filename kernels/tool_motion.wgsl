@@ -9,7 +9,6 @@
 @compute @workgroup_size(1)
 fn tool_motion() {
     let k = tool_state.step;
-    let s = f32(k) / f32(max(tool_input.steps, 1u));
-    tool_state.position = tool_input.start + (tool_input.end - tool_input.start) * s;
+    tool_state.position = tool_at_step(tool_input, k);
     tool_state.step = k + 1u;
 }

@@ -439,10 +439,10 @@ impl Simulation {
                     return Err(PalpateError::Internal(format!(
                         "redoing step {} of a diverged batch diverged (at {}) where its replay had not: the backend did not repeat itself; the state is back at step {}",
                         start.steps_done + k as u64 + 1,
-                        match vertex.checked_sub(self.model.n_vertices() as u32) {
-                            Some(p) => format!("particle {p}"),
-                            None => format!("vertex {vertex}"),
-                        },
+                        crate::output::summary::flagged_point(
+                            vertex,
+                            self.model.n_vertices() as u32
+                        ),
                         start.steps_done
                     )));
                 }

@@ -131,13 +131,11 @@ impl BatchInput {
         let (from, to) = self.tool.unwrap_or((at, at));
         let (first, of) = self.tool_slice.unwrap_or((0, steps));
         let input = crate::contact::batch_input(from, to, of);
-        let mut state = crate::contact::ToolState {
-            position: input.start,
+        // The position tool_motion gives step `first` (what the state holds before it runs).
+        let state = crate::contact::ToolState {
+            position: crate::cpu::tool_motion::tool_at_step(&input, first).to_array(),
             step: first,
         };
-        // The position tool_motion gives step `first` (what the state holds before it runs).
-        crate::cpu::tool_motion::tool_motion(&input, &mut state);
-        state.step = first;
         let after = self.tool_after(steps).unwrap_or(at);
         (input, state, after)
     }

@@ -419,17 +419,7 @@ fn contact_helpers_agree_with_the_formula() {
 /// bench wakes 2a; hm1 (0.7a) and lv_touch (0.35a) wake less, for speed (BENCHMARKS.md).
 #[test]
 fn the_bias_of_waking_only_the_particles_near_the_tool_falls_with_the_radius() {
-    use palpate::bench::contact::ParticleLayer;
-    let case = |activation| HertzCase {
-        fine: 2.0,
-        particles: Some(ParticleLayer {
-            spacing: 0.5,
-            layers: 2,
-            kernel_radius: 2.4,
-            activation,
-        }),
-        ..Default::default()
-    };
+    let case = HertzCase::awake_within;
     let out = std::env::temp_dir().join(format!("palpate-hertz-bias-{}", std::process::id()));
     let all = run_case(&case(None), Backend::Cpu, &out).unwrap();
     eprintln!("{}", all.line());

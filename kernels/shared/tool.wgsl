@@ -32,7 +32,12 @@ fn tool_batch_end(input: ToolInput, state: ToolState) -> vec3<f32> {
     if state.step >= input.steps {
         return input.end;
     }
-    return input.start + (input.end - input.start) * (f32(state.step) / f32(max(input.steps, 1u)));
+    return tool_at_step(input, state.step);
+}
+
+// The tool's centre at step k of the move: start + (end - start) k / steps.
+fn tool_at_step(input: ToolInput, k: u32) -> vec3<f32> {
+    return input.start + (input.end - input.start) * (f32(k) / f32(max(input.steps, 1u)));
 }
 
 const NOT_ON_SURFACE: u32 = 0xffffffffu;

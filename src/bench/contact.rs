@@ -74,6 +74,21 @@ impl Default for HertzCase {
 }
 
 impl HertzCase {
+    /// The activation-bias case: core cells 2a, the top two layers as particles a/2, awake
+    /// within `activation` contact radii of the tool (None: all awake).
+    pub fn awake_within(activation: Option<f64>) -> HertzCase {
+        HertzCase {
+            fine: 2.0,
+            particles: Some(ParticleLayer {
+                spacing: 0.5,
+                layers: 2,
+                kernel_radius: 2.4,
+                activation,
+            }),
+            ..HertzCase::default()
+        }
+    }
+
     /// `cells a/3`, or `core 2a + particles a/3` for a hybrid block (with its kernel support
     /// and activation radius when they are not the defaults, 2.4Δx and 2a).
     pub fn label(&self) -> String {
@@ -329,16 +344,7 @@ pub fn study(backend: Backend, quick: bool, log: &mut dyn FnMut(&str)) -> Result
     // within 1a and 4a of the tool, and all awake, beside the 2a above.
     if !quick {
         for activation in [Some(1.0), Some(4.0), None] {
-            cases.push(HertzCase {
-                fine: 2.0,
-                particles: Some(ParticleLayer {
-                    spacing: 0.5,
-                    layers: 2,
-                    kernel_radius: 2.4,
-                    activation,
-                }),
-                ..base
-            });
+            cases.push(HertzCase::awake_within(activation));
         }
     }
     let dir = std::env::temp_dir().join(format!("palpate-hertz-{}", std::process::id()));

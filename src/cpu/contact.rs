@@ -47,12 +47,7 @@ pub fn tool_batch_end(tool_input: &ToolInput, state: &crate::contact::ToolState)
     if state.step >= tool_input.steps {
         return Vec3::from_array(tool_input.end);
     }
-    let s = state.step as f32 / tool_input.steps.max(1) as f32;
-    let (from, to) = (
-        Vec3::from_array(tool_input.start),
-        Vec3::from_array(tool_input.end),
-    );
-    from + (to - from) * s
+    super::tool_motion::tool_at_step(tool_input, state.step)
 }
 
 /// The tool's velocity during a batch, (to − from)/(steps·dt).

@@ -39,6 +39,14 @@ pub enum RunStatus {
     },
 }
 
+/// A divergence flag's index in words: `vertex i`, or `particle p` for n_vertices + p.
+pub fn flagged_point(index: u32, n_vertices: u32) -> String {
+    match index.checked_sub(n_vertices) {
+        Some(p) => format!("particle {p}"),
+        None => format!("vertex {index}"),
+    }
+}
+
 impl RunStatus {
     /// True for [`RunStatus::Ok`].
     pub fn is_ok(&self) -> bool {
@@ -57,10 +65,7 @@ impl RunStatus {
                 dt,
                 dt_bound,
             } => {
-                let at = match vertex.checked_sub(*n_vertices) {
-                    Some(p) => format!("particle {p}"),
-                    None => format!("vertex {vertex}"),
-                };
+                let at = flagged_point(*vertex, *n_vertices);
                 Some(format!(
                     "diverged: non-finite or faster than {speed_limit:.3e} m/s ({wave_speeds} x P-wave speed) at step {step}, {at} (dt = {dt:.3e} s, bound {dt_bound:.3e} s)"
                 ))

@@ -36,8 +36,8 @@ pub const MAX_GRID_CELLS: u64 = 1 << 27;
 
 impl GridParams {
     /// The grid over `rest` (packed xyz) with cells of [`CELL_OVER_SUPPORT`]·R, a support R of
-    /// margin below the particles and at least one cell above them, and its number of cells (unbounded: [`GridParams::over`] needs
-    /// it ≤ [`MAX_GRID_CELLS`], which sampling checks).
+    /// margin below the particles and at least one cell above them, and its number of cells
+    /// (unbounded: [`GridParams::over`] needs it ≤ [`MAX_GRID_CELLS`], which sampling checks).
     pub fn layout(rest: &[f32], support: f32) -> (GridParams, u64) {
         let n = rest.len() / 3;
         let mut lo = [f32::INFINITY; 3];
