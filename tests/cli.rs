@@ -644,6 +644,48 @@ fn threads_are_recorded_and_bad_counts_or_missing_adapters_are_one_line_errors()
 }
 
 #[test]
+fn a_tool_that_starts_inside_the_tissue_is_warned_about() {
+    let d = tmp("toolinside");
+    let cases: &[(&str, Option<&str>)] = &[
+        ("[0.05, 0.01, 0.03]", None),
+        ("[0.05, 0.01, 0.0225]", Some("lies 1.500e-3 inside it")),
+        (
+            "[0.05, 0.01, 0.01]",
+            Some("its centre lies inside the tissue (tet"),
+        ),
+    ];
+    for (i, (at, want)) in cases.iter().enumerate() {
+        let text = beam_with(&format!(
+            "[tool]\nradius = 0.004\nstiffness = 1e8\npath = [[0.0, {}]]",
+            &at[1..at.len() - 1]
+        ));
+        let path = scene_file(&d, &format!("inside{i}.toml"), &text);
+        let out = d.join(format!("out{i}"));
+        let (ok, _, err) = palpate(&[
+            "run",
+            &path,
+            "--steps",
+            "1",
+            "--backend",
+            "cpu",
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert!(ok, "{at}: {err}");
+        let warning = err
+            .lines()
+            .find(|l| l.starts_with("warning:") && l.contains("the tool overlaps the tissue"));
+        match want {
+            None => assert!(warning.is_none(), "{at}: {err}"),
+            Some(w) => {
+                let line = warning.unwrap_or_else(|| panic!("{at}: no warning in {err}"));
+                assert!(line.contains(w) && line.contains("at t = 0"), "{line}");
+            }
+        }
+    }
+}
+
+#[test]
 fn bad_tool_sections_are_one_line_errors_naming_the_key() {
     let d = tmp("badtool");
     let tool = |body: &str| beam_with(&format!("[tool]\n{body}"));

@@ -217,6 +217,9 @@ fn execute(cli: Cli) -> Result<()> {
                     scene.mesh_report.reoriented.len()
                 );
             }
+            if let Some(tool) = &scene.tool {
+                warn_tool_overlap(&scene, tool.position_at(0.0), "at t = 0");
+            }
             let length = match (steps, duration, until_static) {
                 (Some(n), _, _) => RunLength::Steps(n),
                 (_, Some(t), _) => RunLength::Duration(t),
@@ -293,6 +296,9 @@ fn execute(cli: Cli) -> Result<()> {
             out,
         } => {
             let scene = Scene::load(&scene)?;
+            if let Some(tool) = &scene.tool {
+                warn_tool_overlap(&scene, tool.home, "at home");
+            }
             let opts = palpate::haptic_run::HapticOptions {
                 backend,
                 threads,
@@ -563,6 +569,21 @@ fn execute(cli: Cli) -> Result<()> {
             }
             Ok(())
         }
+    }
+}
+
+/// Warn when the tool at `centre` starts inside the tissue at rest: its contact then shoves
+/// the tissue out at once (or through the wall).
+fn warn_tool_overlap(scene: &Scene, centre: glam::DVec3, when: &str) {
+    if let Some(overlap) = scene
+        .tool
+        .as_ref()
+        .and_then(|t| t.overlap(&scene.mesh, centre))
+    {
+        eprintln!(
+            "warning: {}: {when} the tool overlaps the tissue at rest: {overlap}; its contact shoves the tissue out at once (start the tool clear of the surface)",
+            scene.origin
+        );
     }
 }
 

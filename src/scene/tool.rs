@@ -5,7 +5,8 @@
 
 use super::{positive, Bad};
 use crate::error::Result;
-use glam::DVec3;
+use crate::mesh::TetMesh;
+use glam::{DMat3, DVec3};
 use serde::Deserialize;
 
 /// `[tool]` as written in the scene file.
@@ -61,6 +62,62 @@ impl Tool {
     /// Time of the last keyframe (0 without a path).
     pub fn path_end(&self) -> f64 {
         self.path.last().map_or(0.0, |(t, _)| *t)
+    }
+
+    /// How the sphere at `centre` overlaps the tissue at rest: its centre inside a tet (all
+    /// four barycentric coordinates ≥ 0), else the vertex deepest inside it
+    /// (depth R − |X − c| > 0), else None. A tool that starts in the tissue shoves it out at
+    /// once, or through the wall when it holds more than the wall's thickness.
+    pub fn overlap(&self, mesh: &TetMesh, centre: DVec3) -> Option<ToolOverlap> {
+        let inside = mesh.tets.iter().position(|tet| {
+            let p = tet.map(|i| mesh.positions[i as usize]);
+            let m = DMat3::from_cols(p[1] - p[0], p[2] - p[0], p[3] - p[0]);
+            if m.determinant() == 0.0 {
+                return false;
+            }
+            let b = m.inverse() * (centre - p[0]);
+            b.min_element() >= 0.0 && b.x + b.y + b.z <= 1.0
+        });
+        if let Some(tet) = inside {
+            return Some(ToolOverlap::CentreInside { tet });
+        }
+        mesh.positions
+            .iter()
+            .enumerate()
+            .map(|(vertex, x)| (vertex, self.radius - (*x - centre).length()))
+            .filter(|(_, depth)| *depth > 0.0)
+            .max_by(|a, b| a.1.total_cmp(&b.1))
+            .map(|(vertex, depth)| ToolOverlap::Vertex { vertex, depth })
+    }
+}
+
+/// Where a tool overlaps the tissue at rest ([`Tool::overlap`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum ToolOverlap {
+    /// The tool's centre lies inside tet `tet`.
+    CentreInside {
+        /// The tet holding the centre.
+        tet: usize,
+    },
+    /// Vertex `vertex` lies `depth` inside the sphere, the deepest of those inside.
+    Vertex {
+        /// The deepest vertex inside the sphere.
+        vertex: usize,
+        /// R − |X − c|, scene length units.
+        depth: f64,
+    },
+}
+
+impl std::fmt::Display for ToolOverlap {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            ToolOverlap::CentreInside { tet } => {
+                write!(f, "its centre lies inside the tissue (tet {tet})")
+            }
+            ToolOverlap::Vertex { vertex, depth } => {
+                write!(f, "vertex {vertex} lies {depth:.3e} inside it")
+            }
+        }
     }
 }
 
