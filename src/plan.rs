@@ -4,7 +4,7 @@
 //! stages from it.
 //!
 //! Adding a stage means: a [`Stage`] variant with its row in [`Stage::entries`], a line in
-//! [`StepPlan::for_model`] that says when it runs, its kernel in `kernels/`, its CPU twin in
+//! `StepPlan::for_model_at` (behind [`StepPlan::for_model`]) that says when it runs, its kernel in `kernels/`, its CPU twin in
 //! `src/cpu/` (called from the CPU stepper's `run_stage`), and its test.
 
 use crate::model::Model;

@@ -14,7 +14,8 @@ use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::time::Instant;
 
-/// What to do when the state becomes non-finite (`--on-diverge`).
+/// What to do when the state diverges (`--on-diverge`): non-finite, or faster than 10× the
+/// P-wave speed.
 pub type OnDiverge = DivergencePolicy;
 
 /// How long to run.

@@ -25,10 +25,13 @@ pub enum Backend {
     Cpu,
 }
 
-/// The backend `auto` picks on this machine, with the reason in words, and the hardware
-/// adapter it found (None: the CPU backend).
+/// The backend `auto` picks on this machine among the adapters `PALPATE_ADAPTER` allows,
+/// with the reason in words, and the hardware adapter it found (None: the CPU backend).
 pub fn pick_auto() -> (Backend, String, Option<wgpu::Adapter>) {
-    match crate::gpu::context::list_adapters() {
+    let filter = crate::gpu::context::adapter_filter()
+        .map(|a| format!(" matching PALPATE_ADAPTER='{a}'"))
+        .unwrap_or_default();
+    match crate::gpu::context::allowed_adapters() {
         Err(e) => (Backend::Cpu, format!("auto: {e}"), None),
         Ok(adapters) => {
             let hardware = adapters
@@ -50,13 +53,17 @@ pub fn pick_auto() -> (Backend, String, Option<wgpu::Adapter>) {
                         (
                             Backend::Cpu,
                             format!(
-                                "auto: no hardware GPU; the only adapter, '{}' ({:?}), is a software rasteriser, slower than the CPU path on the same cores",
+                                "auto: no hardware GPU{filter}; the only adapter, '{}' ({:?}), is a software rasteriser, slower than the CPU path on the same cores",
                                 i.name, i.backend
                             ),
                             None,
                         )
                     }
-                    None => (Backend::Cpu, "auto: no GPU adapter found".to_string(), None),
+                    None => (
+                        Backend::Cpu,
+                        format!("auto: no GPU adapter{filter} found"),
+                        None,
+                    ),
                 },
             }
         }

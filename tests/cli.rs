@@ -644,6 +644,66 @@ fn threads_are_recorded_and_bad_counts_or_missing_adapters_are_one_line_errors()
 }
 
 #[test]
+fn command_line_errors_are_one_line_with_exit_status_1() {
+    let cases: &[(&[&str], &[&str])] = &[
+        (
+            &["run", "--backend", "foo"],
+            &["'foo'", "--backend", "auto, gpu, cpu"],
+        ),
+        (&["run", "--steps", "-1"], &["'-1'", "usage: palpate run"]),
+        (&["frobnicate"], &["'frobnicate'"]),
+        (&["mesh"], &["<SCENE>", "usage: palpate mesh"]),
+        (&["run", "--duration", "abc"], &["'abc'", "--duration"]),
+        (
+            &["run", "beam", "--steps", "3", "--max-steps", "5"],
+            &["--max-steps", "--until-static"],
+        ),
+    ];
+    for (args, want) in cases {
+        let out = Command::new(env!("CARGO_BIN_EXE_palpate"))
+            .args(*args)
+            .output()
+            .expect("run palpate");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{args:?}: {err}");
+        let lines: Vec<&str> = err.lines().filter(|l| !l.trim().is_empty()).collect();
+        assert_eq!(lines.len(), 1, "{args:?}: not one line: {err}");
+        assert!(lines[0].starts_with("error: "), "{}", lines[0]);
+        for w in *want {
+            assert!(lines[0].contains(w), "{args:?}: {} lacks {w}", lines[0]);
+        }
+    }
+    let help = Command::new(env!("CARGO_BIN_EXE_palpate"))
+        .args(["run", "--help"])
+        .output()
+        .expect("run palpate");
+    assert!(help.status.success());
+    assert!(String::from_utf8_lossy(&help.stdout).contains("--until-static"));
+}
+
+#[test]
+fn palpate_adapter_also_filters_what_auto_picks_from() {
+    let d = tmp("adapterfilter");
+    let out = Command::new(env!("CARGO_BIN_EXE_palpate"))
+        .args(["run", "beam", "--steps", "1", "--out", d.to_str().unwrap()])
+        .env("PALPATE_ADAPTER", "no-such-adapter-xyz")
+        .output()
+        .expect("run palpate");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let first = stdout.lines().next().unwrap_or("");
+    assert!(
+        first.contains("backend cpu")
+            && first.contains("no GPU adapter matching PALPATE_ADAPTER='no-such-adapter-xyz'"),
+        "{first}"
+    );
+}
+
+#[test]
 fn a_tool_that_starts_inside_the_tissue_is_warned_about() {
     let d = tmp("toolinside");
     let cases: &[(&str, Option<&str>)] = &[

@@ -342,10 +342,7 @@ pub fn write(out: &Path, rows: &[LandRun], header: &str) -> Result<()> {
             r.status
         ));
     }
-    let write = |name: &str, bytes: &[u8]| {
-        let path = out.join(name);
-        std::fs::write(&path, bytes).map_err(|source| PalpateError::OutputIo { path, source })
-    };
+    let write = |name: &str, bytes: &[u8]| crate::output::write_atomic(&out.join(name), bytes);
     write("land.csv", csv.as_bytes())?;
     write("land.md", md.as_bytes())?;
     write("land.png", &plot(rows).png())?;

@@ -41,16 +41,16 @@ enum Command {
         /// Run with critical viscous damping until the residual force is below the scene's tolerance.
         #[arg(long)]
         until_static: bool,
-        /// Step cap for --until-static (at least 1).
-        #[arg(long, default_value_t = 200_000, value_parser = clap::value_parser!(u64).range(1..))]
-        max_steps: u64,
+        /// Step cap for --until-static (at least 1; default 200000).
+        #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
+        max_steps: Option<u64>,
         /// Time step, s (overrides the scene).
         #[arg(long)]
         dt: Option<f64>,
         /// Accept a dt (--dt or the scene's) above the stability bound.
         #[arg(long)]
         allow_unstable: bool,
-        /// What to do when the state becomes non-finite.
+        /// What to do when the state diverges (non-finite, or faster than 10x the P-wave speed).
         #[arg(long, value_enum, default_value = "stop")]
         on_diverge: OnDiverge,
         /// Write K frames to series.pvd.
@@ -177,13 +177,60 @@ fn main() -> ExitCode {
     if std::env::var_os("XDG_RUNTIME_DIR").is_none() {
         std::env::set_var("XDG_RUNTIME_DIR", std::env::temp_dir());
     }
-    let cli = Cli::parse();
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) => return command_line_error(e),
+    };
     match execute(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e}");
             ExitCode::FAILURE
         }
+    }
+}
+
+/// Help and version go out as clap writes them; a command-line error becomes one line,
+/// `error: …` with clap's details and usage folded in, and exit status 1 like every other
+/// error of user input.
+fn command_line_error(e: clap::Error) -> ExitCode {
+    use clap::error::ErrorKind;
+    match e.kind() {
+        ErrorKind::DisplayHelp | ErrorKind::DisplayVersion => {
+            let _ = e.print();
+            return ExitCode::SUCCESS;
+        }
+        ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand => {
+            let _ = e.print();
+            return ExitCode::FAILURE;
+        }
+        _ => {}
+    }
+    eprintln!("error: {}", one_line(&e.render().to_string()));
+    ExitCode::FAILURE
+}
+
+/// clap's rendered error on one line: the message, its detail lines after ": " or "; ",
+/// and its usage in parentheses; the "For more information" line left out.
+fn one_line(rendered: &str) -> String {
+    let mut message = String::new();
+    let mut usage = None;
+    for line in rendered.lines().map(str::trim).filter(|l| !l.is_empty()) {
+        if line.starts_with("For more information") {
+            continue;
+        }
+        if let Some(u) = line.strip_prefix("Usage: ") {
+            usage = Some(u.to_string());
+        } else if message.is_empty() {
+            message = line.strip_prefix("error: ").unwrap_or(line).to_string();
+        } else {
+            message.push_str(if message.ends_with(':') { " " } else { "; " });
+            message.push_str(line);
+        }
+    }
+    match usage {
+        Some(u) => format!("{message} (usage: {u}; see --help)"),
+        None => format!("{message} (see --help)"),
     }
 }
 
@@ -220,10 +267,17 @@ fn execute(cli: Cli) -> Result<()> {
             if let Some(tool) = &scene.tool {
                 warn_tool_overlap(&scene, tool.position_at(0.0), "at t = 0");
             }
+            if max_steps.is_some() && !until_static {
+                return Err(PalpateError::Usage(
+                    "--max-steps caps --until-static; without it use --steps or --duration".into(),
+                ));
+            }
             let length = match (steps, duration, until_static) {
                 (Some(n), _, _) => RunLength::Steps(n),
                 (_, Some(t), _) => RunLength::Duration(t),
-                (_, _, true) => RunLength::UntilStatic { max_steps },
+                (_, _, true) => RunLength::UntilStatic {
+                    max_steps: max_steps.unwrap_or(200_000),
+                },
                 _ => scene
                     .solver
                     .duration

@@ -88,18 +88,32 @@ fn enumerate(backends: wgpu::Backends) -> Vec<wgpu::Adapter> {
         .collect()
 }
 
+/// The adapters `PALPATE_ADAPTER` allows (all of [`list_adapters`] when it is unset or
+/// empty: those whose name contains its text, case-insensitively), in the same order.
+pub fn allowed_adapters() -> Result<Vec<wgpu::Adapter>> {
+    let mut adapters = list_adapters()?;
+    if let Some(want) = adapter_filter() {
+        adapters.retain(|a| {
+            a.get_info()
+                .name
+                .to_lowercase()
+                .contains(&want.to_lowercase())
+        });
+    }
+    Ok(adapters)
+}
+
+/// The text of `PALPATE_ADAPTER`, when set and not empty.
+pub fn adapter_filter() -> Option<String> {
+    std::env::var("PALPATE_ADAPTER")
+        .ok()
+        .filter(|a| !a.is_empty())
+}
+
 impl GpuContext {
     /// Pick an adapter (see module docs) and open a device with its full limits.
     pub fn new() -> Result<GpuContext> {
-        let mut adapters = list_adapters()?;
-        if let Ok(want) = std::env::var("PALPATE_ADAPTER") {
-            adapters.retain(|a| {
-                a.get_info()
-                    .name
-                    .to_lowercase()
-                    .contains(&want.to_lowercase())
-            });
-        }
+        let adapters = allowed_adapters()?;
         let adapter = adapters
             .into_iter()
             .next()
@@ -107,7 +121,7 @@ impl GpuContext {
                 detail: format!(
                     "backends {:?}{}",
                     backends_from_env().unwrap_or(wgpu::Backends::all()),
-                    std::env::var("PALPATE_ADAPTER")
+                    adapter_filter()
                         .map(|a| format!(", PALPATE_ADAPTER='{a}'"))
                         .unwrap_or_default()
                 ),
