@@ -22,6 +22,7 @@ use crate::haptics::{
 use crate::output::state::state_vtu;
 use crate::output::summary::RunSummary;
 use crate::output::write_atomic;
+use crate::rest::{pass_time_at_rest, RestWatch};
 use crate::run::{diverged_status, summarize, RunStatus};
 use crate::scene::Scene;
 use crate::sim::{Backend, DivergencePolicy, Guarded, SimOptions, Simulation};
@@ -35,6 +36,9 @@ pub const DEFAULT_HAPTIC_SCENE: &str = "lv_touch";
 
 /// Run length when the device has none of its own (null, udp), s.
 pub const DEFAULT_SECONDS: f64 = 10.0;
+
+/// The longest session, s (the servo loop's limit; about 11.6 days).
+pub const MAX_SECONDS: f64 = 1.0e6;
 
 /// Options of a haptic session.
 #[derive(Clone, Debug)]
@@ -57,6 +61,9 @@ pub struct HapticOptions {
     pub stiffness_period: f64,
     /// Print a first line naming the scene, device and backend.
     pub announce: bool,
+    /// Let the physics sleep while the body is at rest and the tool clear of it
+    /// ([`crate::rest`]); `palpate haptic --no-sleep` turns it off.
+    pub sleep_at_rest: bool,
 }
 
 impl Default for HapticOptions {
@@ -71,6 +78,7 @@ impl Default for HapticOptions {
             batch_seconds: 1.0e-3,
             stiffness_period: 0.01,
             announce: false,
+            sleep_at_rest: true,
         }
     }
 }
@@ -113,9 +121,13 @@ pub struct PhysicsStats {
     /// Fraction of the session's wall time spent running batches (the rest the physics
     /// thread waited for the loop clock): above about 0.9 it can barely keep up.
     pub busy_fraction: f64,
-    /// Simulated seconds per wall second of batch work: the realtime factor the physics
-    /// could reach if it never waited (≥ 1 keeps up with the hand).
+    /// Simulated seconds stepped per wall second of batch work: the realtime factor the
+    /// physics could reach if it never waited or slept (≥ 1 keeps up with the hand).
     pub realtime_capacity: f64,
+    /// Times the body fell asleep (at rest, the tool clear of it; see [`crate::rest`]).
+    pub sleeps: u64,
+    /// Simulated seconds that passed asleep, without steps.
+    pub slept_seconds: f64,
     /// Where the published stiffness comes from: `static` (linear compliance, see
     /// `palpate::compliance`) or `frozen: <why not static>`.
     pub stiffness_model: String,
@@ -209,12 +221,27 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
             )))
         }
         Some(s) => s,
-        None => device.duration().unwrap_or(DEFAULT_SECONDS),
+        None => match device.duration() {
+            Some(d) if d.is_nan() || d <= 0.0 => {
+                return Err(PalpateError::Usage(format!(
+                    "{}: the trajectory lasts {d} s (one time only); give it two or more times, or --seconds",
+                    device.describe()
+                )))
+            }
+            d => d.unwrap_or(DEFAULT_SECONDS),
+        },
     };
-    std::fs::create_dir_all(&opts.out).map_err(|source| PalpateError::OutputIo {
-        path: opts.out.clone(),
-        source,
-    })?;
+    if seconds > MAX_SECONDS {
+        return Err(PalpateError::Usage(format!(
+            "{}: a session of {seconds:e} s is longer than the {MAX_SECONDS:e} s a session may last",
+            if opts.seconds.is_some() {
+                "--seconds".to_string()
+            } else {
+                device.describe()
+            }
+        )));
+    }
+    crate::output::prepare_out_dir(&opts.out)?;
     let threads = opts.threads.or_else(|| {
         (opts.backend != Backend::Gpu).then(|| {
             crate::cpu::stepper::available_cores()
@@ -231,6 +258,13 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
         },
     )?;
     let model = sim.model.clone();
+    let removed = crate::output::remove_earlier_outputs(&opts.out)?;
+    if opts.announce && removed > 0 {
+        eprintln!(
+            "note: removed {removed} output files of an earlier run from {}",
+            opts.out.display()
+        );
+    }
     let home = model.tool.as_ref().map_or(DVec3::ZERO, |t| t.tool.home);
     sim.tool_position = home;
     sim.tool_target = Some(home);
@@ -285,6 +319,7 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
     let mut unrecovered: Option<(u64, u32, f64)> = None;
     let mut published_k = DMat3::ZERO;
     let mut last_refresh: Option<Instant> = None;
+    let mut rest = RestWatch::new(scene);
     let start = Instant::now();
     let sim_start = clock.now();
     let outcome = (|| -> Result<()> {
@@ -302,6 +337,18 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                 std::thread::sleep(Duration::from_secs_f64(ahead));
             }
             let steps = ((opts.batch_seconds / sim.dt).round() as u32).max(1);
+            if rest.is_asleep() && !rest.wakes_for(home + offset) {
+                pass_time_at_rest(&mut sim, steps);
+                stats.slept_seconds += steps as f64 * sim.dt;
+                physics.publish(LocalModel {
+                    proxy: sim.tool_position - home,
+                    stamp: command.stamp,
+                    sim_time: sim.time,
+                    active_particles: 0,
+                    ..Default::default()
+                });
+                continue;
+            }
             let t0 = Instant::now();
             let result = sim.advance_with(steps, DivergencePolicy::HalveDt)?;
             batch_ms.push(t0.elapsed().as_secs_f64() * 1e3);
@@ -384,6 +431,14 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                 penetration: report.max_penetration,
                 active_particles: sim.last_particles.map_or(0, |p| p.dynamic),
             });
+            if let Guarded::Done(s) = result {
+                if opts.sleep_at_rest
+                    && rest.after_batch(&sim, &s, in_contact)
+                    && rest.try_sleep(&sim.state()?, sim.tool_position)
+                {
+                    stats.sleeps += 1;
+                }
+            }
         }
         Ok(())
     })();
@@ -399,7 +454,7 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
     stats.tool_stiffness = published_k.transpose().to_cols_array_2d();
     let busy = batch_ms.iter().sum::<f64>() * 1e-3;
     stats.busy_fraction = busy / wall.max(1e-9);
-    stats.realtime_capacity = sim.time / busy.max(1e-9);
+    stats.realtime_capacity = (sim.time - stats.slept_seconds) / busy.max(1e-9);
     stats.batch_wall_ms = Spread::of(&mut batch_ms);
     stats.stiffness_refresh_ms = Spread::of(&mut refresh_ms);
 

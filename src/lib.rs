@@ -20,6 +20,7 @@ pub mod output;
 pub mod params;
 pub mod particles;
 pub mod plan;
+pub mod rest;
 pub mod run;
 pub mod scene;
 pub mod sim;

@@ -195,29 +195,58 @@ impl Relaxation {
     /// (their residual force, their weight and the tool's contact force as load, their
     /// energy and Σ m|u|² in the Rayleigh quotient).
     fn after_batch(&self, sim: &mut Simulation, s: &BatchStats) -> Result<f64> {
-        let (mut residual2, mut load2) = (s.residual_norm().powi(2), s.external_norm().powi(2));
-        let (mut elastic, mut mu2) = (
-            s.elastic_energy(),
-            s.stats[crate::params::stat::MASS_DISPLACEMENT_SQ] as f64,
-        );
-        if let (Some(p), Some(pd)) = (sim.last_particles, sim.model.particles.as_ref()) {
-            residual2 += p.residual_norm.powi(2);
-            let g = glam::DVec3::from_array(sim.model.gravity.map(|x| x as f64));
-            load2 += p.dynamic as f64 * (pd.mass as f64 * g.length()).powi(2);
-            elastic += p.elastic_energy;
+        let mut mu2 = s.stats[crate::params::stat::MASS_DISPLACEMENT_SQ] as f64;
+        if let (Some(p), Some(_)) = (sim.last_particles, sim.model.particles.as_ref()) {
             mu2 += p.mass_displacement_sq;
-            // The tool's contact forces on particles are load too (the tets' reduction counts
-            // those on vertices only): without gravity or pressure they are the whole load,
-            // and the relative residual would divide by zero. The tool's total force is
-            // their scale.
-            if let Some(t) = sim.last_tool {
-                load2 += t.force.length_squared();
-            }
         }
         if self.adaptive && mu2 > 0.0 {
+            let elastic = BodyEnergy::of(sim, s).elastic;
             sim.set_damping(2.0 * (2.0 * elastic / mu2).sqrt())?;
         }
-        Ok(residual2.sqrt() / load2.sqrt().max(f64::MIN_POSITIVE))
+        Ok(relative_residual(sim, s))
+    }
+}
+
+/// The residual of the last batch `s` of `sim` relative to its load:
+/// ‖f‖ / ‖m g + f_ext‖ over the free vertices and the dynamic particles (whose load also
+/// counts the tool's force: without gravity or pressure it is the whole load). The
+/// `--until-static` test; 0 for a body at rest under no load, and +∞-like (÷ the smallest
+/// positive float) for a body moving under none.
+pub fn relative_residual(sim: &Simulation, s: &BatchStats) -> f64 {
+    let (mut residual2, mut load2) = (s.residual_norm().powi(2), s.external_norm().powi(2));
+    if let (Some(p), Some(pd)) = (sim.last_particles, sim.model.particles.as_ref()) {
+        residual2 += p.residual_norm.powi(2);
+        let g = glam::DVec3::from_array(sim.model.gravity.map(|x| x as f64));
+        load2 += p.dynamic as f64 * (pd.mass as f64 * g.length()).powi(2);
+        // The tool's contact forces on particles are load too (the tets' reduction counts
+        // those on vertices only): without gravity or pressure they are the whole load,
+        // and the relative residual would divide by zero. The tool's total force is
+        // their scale.
+        if let Some(t) = sim.last_tool {
+            load2 += t.force.length_squared();
+        }
+    }
+    residual2.sqrt() / load2.sqrt().max(f64::MIN_POSITIVE)
+}
+
+/// The body's kinetic and elastic energy after a batch (vertices and dynamic particles), J.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BodyEnergy {
+    /// ½ Σ m|v|², J.
+    pub kinetic: f64,
+    /// Strain energy (tets and SPH), J.
+    pub elastic: f64,
+}
+
+impl BodyEnergy {
+    /// The energies of `sim`'s last batch `s`.
+    pub fn of(sim: &Simulation, s: &BatchStats) -> BodyEnergy {
+        let (mut kinetic, mut elastic) = (s.kinetic_energy(), s.elastic_energy());
+        if let (Some(p), Some(_)) = (sim.last_particles, sim.model.particles.as_ref()) {
+            kinetic += p.kinetic_energy;
+            elastic += p.elastic_energy;
+        }
+        BodyEnergy { kinetic, elastic }
     }
 }
 
@@ -231,10 +260,7 @@ pub fn run_with_state(
     scene: &Scene,
     opts: &RunOptions,
 ) -> Result<(RunSummary, crate::stepper::State)> {
-    std::fs::create_dir_all(&opts.out).map_err(|source| PalpateError::OutputIo {
-        path: opts.out.clone(),
-        source,
-    })?;
+    crate::output::prepare_out_dir(&opts.out)?;
     let until_static = matches!(opts.length, RunLength::UntilStatic { .. });
     let relaxed;
     let scene = if until_static {
@@ -254,6 +280,13 @@ pub fn run_with_state(
         },
     )?;
     let model = sim.model.clone();
+    let removed = crate::output::remove_earlier_outputs(&opts.out)?;
+    if opts.announce && removed > 0 {
+        eprintln!(
+            "note: removed {removed} output files of an earlier run from {}",
+            opts.out.display()
+        );
+    }
     if opts.announce {
         println!(
             "{}: {} tets, {} vertices{}; backend {} on {} ({})",

@@ -658,6 +658,10 @@ fn command_line_errors_are_one_line_with_exit_status_1() {
             &["run", "beam", "--steps", "3", "--max-steps", "5"],
             &["--max-steps", "--until-static"],
         ),
+        (
+            &["bench", "stability", "--ed0-steps", "0"],
+            &["'0'", "--ed0-steps"],
+        ),
     ];
     for (args, want) in cases {
         let out = Command::new(env!("CARGO_BIN_EXE_palpate"))
@@ -700,6 +704,99 @@ fn palpate_adapter_also_filters_what_auto_picks_from() {
         first.contains("backend cpu")
             && first.contains("no GPU adapter matching PALPATE_ADAPTER='no-such-adapter-xyz'"),
         "{first}"
+    );
+}
+
+#[test]
+fn a_new_run_removes_the_outputs_an_earlier_run_left_and_nothing_else() {
+    let d = tmp("stale");
+    let out = d.join("out");
+    let o = out.to_str().unwrap();
+    let (ok, _, err) = palpate(&[
+        "run", "lv_touch", "--steps", "20", "--frames", "3", "--out", o,
+    ]);
+    assert!(ok, "{err}");
+    std::fs::write(out.join("notes.txt"), "mine").unwrap();
+    std::fs::write(out.join("frame_12.vtu.bak"), "mine").unwrap();
+    assert!(out.join("particles_series.pvd").exists() && out.join("frame_0002.vtu").exists());
+    let (ok, _, err) = palpate(&["run", "beam", "--steps", "1", "--out", o]);
+    assert!(ok, "{err}");
+    assert!(
+        err.contains("note: removed 11 output files of an earlier run"),
+        "{err}"
+    );
+    let mut left: Vec<String> = std::fs::read_dir(&out)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    left.sort();
+    assert_eq!(
+        left,
+        ["final.vtu", "frame_12.vtu.bak", "notes.txt", "summary.json"],
+        "the beam run's own files and the user's"
+    );
+    assert_eq!(summary(&out)["scene"], "beam");
+}
+
+#[test]
+fn an_output_path_that_cannot_be_written_fails_before_the_work() {
+    let d = tmp("unwritable");
+    let file = d.join("a-file");
+    std::fs::write(&file, "x").unwrap();
+    let f = file.to_str().unwrap();
+    for args in [
+        vec!["bench", "stability", "--quick", "--out", f],
+        vec!["bench", "contact", "--quick", "--out", f],
+        vec!["run", "beam", "--steps", "1", "--out", f],
+    ] {
+        let start = std::time::Instant::now();
+        let (ok, stdout, err) = palpate(&args);
+        assert!(!ok, "{args:?}");
+        assert_eq!(error_lines(&err).len(), 1, "{args:?}: {err}");
+        assert!(err.contains(f), "{args:?}: {err}");
+        assert!(
+            !err.contains("bench stability:")
+                && !err.contains("bench contact:")
+                && stdout.is_empty(),
+            "{args:?} did work before failing: {err}"
+        );
+        assert!(start.elapsed().as_secs_f64() < 5.0, "{args:?}");
+    }
+}
+
+#[test]
+fn haptic_session_lengths_are_checked_before_the_session() {
+    let d = tmp("hapticlength");
+    let zero = d.join("zero.csv");
+    std::fs::write(&zero, "t,x,y,z\n0,0,0,0\n").unwrap();
+    let device = format!("scripted:{}", zero.display());
+    let o = d.join("out");
+    assert_one_line_error(
+        &["haptic", "--device", &device, "--out", o.to_str().unwrap()],
+        &["zero.csv", "lasts 0 s", "--seconds"],
+    );
+    assert_one_line_error(
+        &[
+            "haptic",
+            "--device",
+            "null",
+            "--seconds",
+            "1e300",
+            "--out",
+            o.to_str().unwrap(),
+        ],
+        &["--seconds", "1e300"],
+    );
+    assert_one_line_error(
+        &[
+            "bench",
+            "haptic",
+            "--seconds",
+            "NaN",
+            "--out",
+            o.to_str().unwrap(),
+        ],
+        &["--seconds", "NaN"],
     );
 }
 

@@ -267,6 +267,67 @@ fn lv_held_still_matches_the_static_reaction_and_its_stiffness() {
     );
 }
 
+/// The beam (no load: at rest from the start) with the hand 30 mm above its home for 0.6 s,
+/// then pressing 6 mm over 0.6 s and holding: the physics sleeps while the tool is clear
+/// (its radius, 10 mm, is the wake margin), wakes as it approaches, never sleeps in contact,
+/// and the held force is the one of a session that never sleeps.
+#[test]
+fn the_physics_sleeps_while_the_body_rests_and_wakes_as_the_tool_approaches() {
+    let _one = one_at_a_time();
+    let scene = scene_from(&beam_scene("home = [0.08, 0.01, 0.032]"), "beam_sleep");
+    let session = |sleep: bool, name: &str| {
+        let dir = out_dir(name);
+        let up = DVec3::new(0.0, 0.0, 0.03);
+        let down = DVec3::new(0.0, 0.0, -0.006);
+        let csv = write_trajectory(&dir, &[(0.0, up), (0.6, up), (1.2, down), (2.4, down)]);
+        run_haptic(
+            &scene,
+            &HapticOptions {
+                backend: Backend::Cpu,
+                threads: Some(2),
+                device: format!("scripted:{}", csv.display()),
+                out: dir,
+                sleep_at_rest: sleep,
+                ..Default::default()
+            },
+        )
+        .unwrap()
+    };
+    let asleep = session(true, "sleep");
+    let awake = session(false, "nosleep");
+    for h in [&asleep, &awake] {
+        assert!(h.run.status == "ok", "{}", h.run.status);
+    }
+    let (p, q) = (&asleep.haptic.physics, &awake.haptic.physics);
+    eprintln!(
+        "asleep {:.3} s ({} sleeps), {} batches and {} steps against {} and {}; contact batches {} / {}",
+        p.slept_seconds, p.sleeps, p.batches, asleep.run.steps, q.batches, awake.run.steps,
+        p.contact_batches, q.contact_batches
+    );
+    // Asleep from the second batch until the tool's surface is 10 mm from the beam's top,
+    // the hand 8 mm above home: t = 0.6 + 22 mm / 60 mm/s ≈ 0.967 s.
+    assert_eq!(
+        p.sleeps, 1,
+        "it sleeps once, before the press, never in contact"
+    );
+    assert!(
+        p.slept_seconds > 0.9 && p.slept_seconds < 0.99,
+        "{}",
+        p.slept_seconds
+    );
+    assert_eq!(q.sleeps, 0);
+    assert!(q.slept_seconds == 0.0);
+    assert!(asleep.run.steps < awake.run.steps);
+    assert!(p.contact_batches > 500, "{}", p.contact_batches);
+    let f = DVec3::from_array(asleep.run.tool_force.unwrap());
+    let g = DVec3::from_array(awake.run.tool_force.unwrap());
+    assert!(g.z > 0.0, "the tissue pushes the tool up: {g:?}");
+    assert!(
+        (f - g).length() <= 0.01 * g.length(),
+        "held force {f:?} after sleeping against {g:?} without"
+    );
+}
+
 fn palpate() -> Command {
     Command::new(env!("CARGO_BIN_EXE_palpate"))
 }

@@ -247,6 +247,8 @@ fn udp_drops_bad_packets_by_reason_and_goes_on() {
         long.to_vec(),                            // wrong size
         non_finite.to_vec(),                      // non-finite
         vec![],                                   // empty: short
+        pose(13, 1e300).to_vec(),                 // out of reach
+        pose(14, 0.76).to_vec(),                  // out of reach: > 10 × 0.075 m
     ];
     for d in &datagrams {
         client.send(d).unwrap();
@@ -267,6 +269,7 @@ fn udp_drops_bad_packets_by_reason_and_goes_on() {
             duplicate: 1,
             stale: 1,
             other_sender: 0,
+            out_of_reach: 2,
         }
     );
     assert!(r.fresh);

@@ -323,3 +323,14 @@ fn stop_ends_the_loop_and_bad_configs_are_refused() {
         .to_string()
         .contains("passive limit"));
 }
+
+#[test]
+fn the_log_of_a_long_session_is_capped_at_an_hour() {
+    use palpate::haptics::servo::MAX_LOG_TICKS;
+    let config = ServoConfig::new(DeviceSpec::TOUCH);
+    assert_eq!(config.with_duration(10.0).log_ticks(), 10_016);
+    assert_eq!(config.with_duration(3600.0).log_ticks(), MAX_LOG_TICKS);
+    // 1e5 s used to preallocate 1e8 ticks (gigabytes) before the loop started.
+    assert_eq!(config.with_duration(1.0e5).log_ticks(), MAX_LOG_TICKS);
+    assert_eq!(config.log_ticks(), config.log_capacity);
+}

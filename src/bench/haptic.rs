@@ -85,6 +85,66 @@ fn press_csv(direction: DVec3, depth: f64, seconds: f64) -> String {
     s
 }
 
+/// Hand withdrawn `away` m against `direction` (clear of the wake margin) for the first half
+/// of `seconds`, back to home over 0.5 s, then [`press_csv`]'s sin² presses.
+fn away_then_press_csv(direction: DVec3, depth: f64, away: f64, seconds: f64) -> String {
+    let half = 0.5 * seconds;
+    let mut s = String::from("t,x,y,z\n");
+    let n = (seconds * 100.0).ceil() as usize;
+    for i in 0..=n {
+        let t = i as f64 / 100.0;
+        let x = if t < half {
+            -direction * away
+        } else if t < half + 0.5 {
+            -direction * (away * (1.0 - (t - half) / 0.5))
+        } else {
+            let tp = t - half - 0.5;
+            direction * (depth * (std::f64::consts::PI * tp / 2.0).sin().powi(2))
+        };
+        let _ = writeln!(s, "{t},{},{},{}", x.x, x.y, x.z);
+    }
+    s
+}
+
+/// What sleeping at rest saves: `lv_touch` with the hand 15 mm back from its home for the
+/// first half of `seconds` and pressing 3 mm for the rest, on the CPU with `threads`, with
+/// and without sleep (rows labelled `… sleep` / `… no sleep`).
+pub fn sleep_study(threads: usize, seconds: f64, scratch: &Path) -> Result<Vec<HapticRow>> {
+    std::fs::create_dir_all(scratch).map_err(|source| crate::error::PalpateError::OutputIo {
+        path: scratch.to_path_buf(),
+        source,
+    })?;
+    let scene = Scene::load("lv_touch")?;
+    let csv = scratch.join("lv_touch_away.csv");
+    write_atomic(
+        &csv,
+        away_then_press_csv(DVec3::NEG_X, 0.003, 0.015, seconds).as_bytes(),
+    )?;
+    let mut rows = Vec::new();
+    for sleep in [true, false] {
+        let summary = run_haptic(
+            &scene,
+            &HapticOptions {
+                backend: Backend::Cpu,
+                threads: Some(threads),
+                device: format!("scripted:{}", csv.display()),
+                out: scratch.join(if sleep { "away-sleep" } else { "away-nosleep" }),
+                sleep_at_rest: sleep,
+                ..Default::default()
+            },
+        )?;
+        rows.push(HapticRow {
+            label: "lv_touch, hand away half the time".into(),
+            backend: format!(
+                "cpu ×{threads}, {}",
+                if sleep { "sleep" } else { "no sleep" }
+            ),
+            summary,
+        });
+    }
+    Ok(rows)
+}
+
 /// Run every case on every (backend, threads) of `runs` for `seconds` each.
 pub fn study(
     runs: &[(Backend, Option<usize>)],
@@ -150,10 +210,10 @@ pub fn write(out: &Path, rows: &[HapticRow], header: &str) -> Result<()> {
         source,
     })?;
     let mut csv = String::from(
-        "scene,backend,tets,particles,ticks,rate_hz,lateness_p50_us,lateness_p99_us,lateness_p99_9_us,lateness_max_us,missed_deadlines,model_age_p50_ms,model_age_p99_ms,model_age_max_ms,steps_per_second,dt_s,realtime_factor,realtime_capacity,busy_fraction,active_particles_max,passivity_min_j,status\n",
+        "scene,backend,tets,particles,ticks,rate_hz,lateness_p50_us,lateness_p99_us,lateness_p99_9_us,lateness_max_us,missed_deadlines,model_age_p50_ms,model_age_p99_ms,model_age_max_ms,steps_per_second,dt_s,realtime_factor,realtime_capacity,busy_fraction,active_particles_max,passivity_min_j,status,steps,slept_s\n",
     );
     let mut md = format!(
-        "# Haptic loop\n\n{header}\n\n| scene | backend | tets | particles | rate Hz | lateness p50 / p99 / p99.9 / max µs | missed | model age p50 / p99 / max ms | steps/s | realtime | capacity |\n|---|---|---:|---:|---:|---|---:|---|---:|---:|---:|\n"
+        "# Haptic loop\n\n{header}\n\n| scene | backend | tets | particles | rate Hz | lateness p50 / p99 / p99.9 / max µs | missed | model age p50 / p99 / max ms | steps/s | realtime | capacity | busy | asleep s |\n|---|---|---:|---:|---:|---|---:|---|---:|---:|---:|---:|---:|\n"
     );
     for r in rows {
         let s = &r.summary;
@@ -161,7 +221,7 @@ pub fn write(out: &Path, rows: &[HapticRow], header: &str) -> Result<()> {
         let (l, a) = (&v.lateness_us, &v.model_age_ms);
         let _ = writeln!(
             csv,
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
             r.label,
             r.backend,
             s.run.tets,
@@ -183,11 +243,13 @@ pub fn write(out: &Path, rows: &[HapticRow], header: &str) -> Result<()> {
             s.haptic.physics.busy_fraction,
             s.run.active_particles_max.unwrap_or(0),
             v.passivity_min_energy_j,
-            s.run.status
+            s.run.status,
+            s.run.steps,
+            s.haptic.physics.slept_seconds
         );
         let _ = writeln!(
             md,
-            "| {} | {} | {} | {} | {:.1} | {:.1} / {:.0} / {:.0} / {:.0} | {} | {:.2} / {:.2} / {:.2} | {:.0} | {:.2} | {:.2} |",
+            "| {} | {} | {} | {} | {:.1} | {:.1} / {:.0} / {:.0} / {:.0} | {} | {:.2} / {:.2} / {:.2} | {:.0} | {:.2} | {:.2} | {:.2} | {:.2} |",
             r.label,
             r.backend,
             s.run.tets,
@@ -203,10 +265,12 @@ pub fn write(out: &Path, rows: &[HapticRow], header: &str) -> Result<()> {
             a.max,
             s.run.steps_per_second,
             s.run.realtime_factor,
-            s.haptic.physics.realtime_capacity
+            s.haptic.physics.realtime_capacity,
+            s.haptic.physics.busy_fraction,
+            s.haptic.physics.slept_seconds
         );
     }
-    md.push_str("\nrealtime = simulated / wall seconds (the physics never runs ahead of the loop clock, so at most 1); capacity = simulated seconds per second of batch work (what it could reach; ≥ 1 keeps up with the hand). Lateness: how late each servo tick started after its deadline; model age: servo read of the device → the local model computed from it, as used by a tick.\n");
+    md.push_str("\nrealtime = simulated / wall seconds (the physics never runs ahead of the loop clock, so at most 1); capacity = simulated seconds stepped per second of batch work (what it could reach; ≥ 1 keeps up with the hand); busy = the physics thread's share of wall time spent in batches; asleep = simulated seconds that passed with the body at rest and the tool clear of it, unstepped (`palpate haptic --no-sleep` steps them). Lateness: how late each servo tick started after its deadline; model age: servo read of the device → the local model computed from it, as used by a tick.\n");
     write_atomic(&out.join("haptic_bench.csv"), csv.as_bytes())?;
     write_atomic(&out.join("haptic_bench.md"), md.as_bytes())
 }

@@ -53,7 +53,8 @@ enum Command {
         /// What to do when the state diverges (non-finite, or faster than 10x the P-wave speed).
         #[arg(long, value_enum, default_value = "stop")]
         on_diverge: OnDiverge,
-        /// Write K frames to series.pvd.
+        /// Write K frames to series.pvd, evenly over the run's length and the final state last
+        /// (with --until-static the length is --max-steps: a run that settles sooner has fewer).
         #[arg(long, default_value_t = 0)]
         frames: u32,
         /// Output directory.
@@ -82,6 +83,10 @@ enum Command {
         /// CPU backend threads (default: one fewer than the cores, at least one).
         #[arg(long)]
         threads: Option<usize>,
+        /// Keep stepping while the body is at rest and the tool clear of it (by default the
+        /// physics then sleeps, and wakes as the tool approaches).
+        #[arg(long)]
+        no_sleep: bool,
         /// Output directory.
         #[arg(long, default_value = "out")]
         out: PathBuf,
@@ -115,8 +120,8 @@ enum BenchStudy {
         /// CI-sized run.
         #[arg(long)]
         quick: bool,
-        /// Steps of the long ED0 run.
-        #[arg(long, default_value_t = 1_000_000)]
+        /// Steps of the long ED0 run (at least 1).
+        #[arg(long, default_value_t = 1_000_000, value_parser = clap::value_parser!(u64).range(1..))]
         ed0_steps: u64,
         /// Output directory.
         #[arg(long, default_value = "docs")]
@@ -347,6 +352,7 @@ fn execute(cli: Cli) -> Result<()> {
             seconds,
             backend,
             threads,
+            no_sleep,
             out,
         } => {
             let scene = Scene::load(&scene)?;
@@ -361,6 +367,7 @@ fn execute(cli: Cli) -> Result<()> {
                 seconds,
                 out: out.clone(),
                 announce: true,
+                sleep_at_rest: !no_sleep,
                 ..Default::default()
             };
             let s = palpate::haptic_run::run_haptic(&scene, &opts)?;
@@ -376,14 +383,23 @@ fn execute(cli: Cli) -> Result<()> {
                 a.p50, a.p99, a.max, h.servo.force_clamps, h.servo.passivity_min_energy_j, h.servo.max_force_n
             );
             println!(
-                "physics: {} steps ({:.3} s simulated) in {:.2} s = {:.0} steps/s, realtime factor {:.3}; stiffness {}",
+                "physics: {} steps ({:.3} s simulated, {:.3} s of it asleep at rest) in {:.2} s = {:.0} steps/s, realtime factor {:.3}; stiffness {}",
                 s.run.steps,
                 s.run.sim_seconds,
+                h.physics.slept_seconds,
                 s.run.wall_seconds,
                 s.run.steps_per_second,
                 s.run.realtime_factor,
                 h.physics.stiffness_model
             );
+            if h.servo.unlogged_ticks > 0 {
+                eprintln!(
+                    "warning: haptic.csv holds the session's first {} ticks; the {} after them were not logged (the log holds at most {} ticks)",
+                    h.servo.ticks.saturating_sub(h.servo.unlogged_ticks),
+                    h.servo.unlogged_ticks,
+                    palpate::haptics::servo::MAX_LOG_TICKS
+                );
+            }
             if h.physics.realtime_capacity < 0.95 {
                 eprintln!(
                     "warning: the physics kept up with only {:.2}x real time: the simulated tissue lags the hand, and contact can chatter (make and break) instead of settling; use a coarser mesh, a larger [solver] mass_scaling (statics unchanged) or a GPU",
@@ -418,155 +434,10 @@ fn execute(cli: Cli) -> Result<()> {
             }
             Ok(())
         }
-        Command::Bench { study } => match study {
-            BenchStudy::Stability {
-                backend,
-                quick,
-                ed0_steps,
-                out,
-            } => {
-                use palpate::bench::stability;
-                let opts = stability::StabilityOptions {
-                    backend,
-                    quick,
-                    ed0_steps,
-                };
-                let rows = stability::study(&opts, &mut |s| eprintln!("bench stability: {s}"))?;
-                let header = format!(
-                    "Written by `palpate bench stability --backend {backend:?}{}` on {}. Case letters follow issue 4: (a) critical dt, (b) squash to 10 % and release, (c) random inversion, (d) probe at 10x a {} N device, (e) long ED0 run, (f) Table 1 scenes at the paper's dt.",
-                    if quick { " --quick" } else { "" },
-                    adapter_name(backend),
-                    stability::DEVICE_MAX_FORCE
-                );
-                stability::write(&out, &rows, &header)?;
-                for r in &rows {
-                    println!(
-                        "({}) {:<18} {:<18} {:<60} {:>12.4} {}",
-                        r.case,
-                        r.material,
-                        r.mesh,
-                        r.quantity,
-                        r.value,
-                        if r.ok { "ok" } else { "FAILED" }
-                    );
-                }
-                println!("wrote {0}/stability.csv, {0}/stability.md", out.display());
-                Ok(())
-            }
-            BenchStudy::Contact {
-                backend,
-                quick,
-                out,
-            } => {
-                use palpate::bench::contact;
-                let rows =
-                    contact::study(backend, quick, &mut |s| eprintln!("bench contact: {s}"))?;
-                let header = format!(
-                    "Written by `palpate bench contact{}` on {}. A sphere of radius {} mm pressed into a block of E = {} kPa, nu = {} (bottom held, half-width and depth {} contact radii), relaxed to a static state; error = (F - F_Hertz)/F_Hertz. In the hybrid blocks the particles within 2a of the tool are awake (dynamic) unless the label says otherwise; the rest move with the coarse core, which stiffens the contact the less the more are awake (compare the a/2 rows with 1a, 2a, 4a and all awake).",
-                    if quick { " --quick" } else { "" },
-                    adapter_name(backend),
-                    contact::HertzCase::default().radius * 1e3,
-                    contact::HertzCase::default().youngs_modulus / 1e3,
-                    contact::HertzCase::default().poisson_ratio,
-                    contact::HertzCase::default().block
-                );
-                contact::write(&out, &rows, &header)?;
-                println!("wrote {0}/contact.csv, {0}/contact.md", out.display());
-                Ok(())
-            }
-            BenchStudy::Haptic { seconds, out } => {
-                use palpate::bench::haptic;
-                let cores = palpate::cpu::stepper::available_cores();
-                let mut runs = vec![(Backend::Cpu, Some(cores))];
-                if cores > 1 {
-                    runs.push((Backend::Cpu, Some(cores - 1)));
-                }
-                if palpate::gpu::GpuContext::new().is_ok() {
-                    runs.push((Backend::Gpu, None));
-                }
-                let scratch = std::env::temp_dir()
-                    .join(format!("palpate-bench-haptic-{}", std::process::id()));
-                let rows = haptic::study(&runs, seconds, &scratch, &mut |s| {
-                    eprintln!("bench haptic: {s}")
-                })?;
-                let header = format!(
-                    "Written by `palpate bench haptic --seconds {seconds}` on a machine with {cores} cores; GPU: {}. A scripted device presses each scene at 0.5 Hz (sin², 4 mm into lv, 0.06 into ed0, 3 mm into lv_touch) for {seconds} s; device spec touch (k_c = 360 N/m).",
-                    adapter_name(Backend::Gpu)
-                );
-                haptic::write(&out, &rows, &header)?;
-                println!(
-                    "wrote {0}/haptic_bench.csv, {0}/haptic_bench.md",
-                    out.display()
-                );
-                Ok(())
-            }
-            BenchStudy::Land {
-                backend,
-                quick,
-                out,
-            } => {
-                use palpate::bench::land;
-                let rows = land::study(backend, quick, &mut |s| eprintln!("bench land: {s}"))?;
-                let header = format!(
-                    "Written by `palpate bench land{}` on {} ({} cores). Each row is one `--until-static` solve (relative residual 1e-3, ramped follower pressure, dynamic relaxation with critical mass damping at the Rayleigh-quotient frequency); monitored values are the deformed z of the benchmark's points, interpolated in the containing tet. κ/C is the bulk modulus over Guccione's C (the penalty for incompressibility).",
-                    if quick { " --quick" } else { "" },
-                    adapter_name(backend),
-                    palpate::cpu::stepper::available_cores()
-                );
-                land::write(&out, &rows, &header)?;
-                println!(
-                    "wrote {0}/land.csv, {0}/land.md, {0}/land.png",
-                    out.display()
-                );
-                Ok(())
-            }
-            BenchStudy::Accuracy {
-                backend,
-                quick,
-                out,
-            } => {
-                use palpate::bench::accuracy::{self, Problem};
-                let opts = accuracy::AccuracyOptions { backend, quick };
-                let mut studies = Vec::new();
-                for problem in [Problem::Beam, Problem::Lv] {
-                    studies.push(accuracy::study(problem, &opts, &mut |s| {
-                        eprintln!("bench accuracy: {s}")
-                    })?);
-                }
-                let fronts = accuracy::write(&out, &studies, &adapter_name(backend))?;
-                for (study, front) in studies.iter().zip(&fronts) {
-                    let p = study.problem;
-                    println!(
-                        "{}: reference {} at {} x bound: changes {:.2e} against the next-coarser mesh, {:.2e} against 2x dt",
-                        p.name(),
-                        p.label(study.reference.0),
-                        study.reference.1,
-                        study.reference_mesh_change,
-                        study.reference_dt_change
-                    );
-                    for (i, r) in study.runs.iter().enumerate() {
-                        println!(
-                            "  {:<8} {:>7} tets  dt {:.2} x bound  {:>7} steps  {:>8.3} s  error {:.3e}{}",
-                            p.label(r.cells),
-                            r.tets,
-                            r.safety,
-                            r.steps,
-                            r.wall_seconds,
-                            r.error,
-                            if front.contains(&i) { "  (Pareto)" } else { "" }
-                        );
-                    }
-                    for (c, s) in &study.diverged {
-                        println!("  {} at {s} x bound: diverged", p.label(*c));
-                    }
-                }
-                println!(
-                    "wrote {0}/accuracy.csv, {0}/accuracy.png, {0}/accuracy_lv.png",
-                    out.display()
-                );
-                Ok(())
-            }
-        },
+        Command::Bench { study } => {
+            palpate::output::prepare_out_dir(study.out())?;
+            bench(study)
+        }
         Command::Scenes => {
             for (name, desc) in scene::builtin_list() {
                 println!("{name:<10} {desc}");
@@ -621,6 +492,189 @@ fn execute(cli: Cli) -> Result<()> {
             for line in palpate::plan::StepPlan::for_model(&model).describe() {
                 println!("  {line}");
             }
+            Ok(())
+        }
+    }
+}
+
+impl BenchStudy {
+    /// The study's output directory.
+    fn out(&self) -> &std::path::Path {
+        match self {
+            BenchStudy::Stability { out, .. }
+            | BenchStudy::Contact { out, .. }
+            | BenchStudy::Haptic { out, .. }
+            | BenchStudy::Land { out, .. }
+            | BenchStudy::Accuracy { out, .. } => out,
+        }
+    }
+}
+
+/// Run a benchmark study and write its tables and plots.
+fn bench(study: BenchStudy) -> Result<()> {
+    match study {
+        BenchStudy::Stability {
+            backend,
+            quick,
+            ed0_steps,
+            out,
+        } => {
+            use palpate::bench::stability;
+            let opts = stability::StabilityOptions {
+                backend,
+                quick,
+                ed0_steps,
+            };
+            let rows = stability::study(&opts, &mut |s| eprintln!("bench stability: {s}"))?;
+            let header = format!(
+                "Written by `palpate bench stability --backend {}{}{}` on {}. Case letters follow issue 4: (a) critical dt, (b) squash to 10 % and release, (c) random inversion, (d) probe at 10x a {} N device, (e) long ED0 run, (f) Table 1 scenes at the paper's dt.",
+                clap::ValueEnum::to_possible_value(&backend)
+                    .map_or_else(String::new, |v| v.get_name().to_string()),
+                if ed0_steps == 1_000_000 {
+                    String::new()
+                } else {
+                    format!(" --ed0-steps {ed0_steps}")
+                },
+                if quick { " --quick" } else { "" },
+                adapter_name(backend),
+                stability::DEVICE_MAX_FORCE
+            );
+            stability::write(&out, &rows, &header)?;
+            for r in &rows {
+                println!(
+                    "({}) {:<18} {:<18} {:<60} {:>12.4} {}",
+                    r.case,
+                    r.material,
+                    r.mesh,
+                    r.quantity,
+                    r.value,
+                    if r.ok { "ok" } else { "FAILED" }
+                );
+            }
+            println!("wrote {0}/stability.csv, {0}/stability.md", out.display());
+            Ok(())
+        }
+        BenchStudy::Contact {
+            backend,
+            quick,
+            out,
+        } => {
+            use palpate::bench::contact;
+            let rows = contact::study(backend, quick, &mut |s| eprintln!("bench contact: {s}"))?;
+            let header = format!(
+                "Written by `palpate bench contact{}` on {}. A sphere of radius {} mm pressed into a block of E = {} kPa, nu = {} (bottom held, half-width and depth {} contact radii), relaxed to a static state; error = (F - F_Hertz)/F_Hertz. In the hybrid blocks the particles within 2a of the tool are awake (dynamic) unless the label says otherwise; the rest move with the coarse core, which stiffens the contact the less the more are awake (compare the a/2 rows with 1a, 2a, 4a and all awake).",
+                if quick { " --quick" } else { "" },
+                adapter_name(backend),
+                contact::HertzCase::default().radius * 1e3,
+                contact::HertzCase::default().youngs_modulus / 1e3,
+                contact::HertzCase::default().poisson_ratio,
+                contact::HertzCase::default().block
+            );
+            contact::write(&out, &rows, &header)?;
+            println!("wrote {0}/contact.csv, {0}/contact.md", out.display());
+            Ok(())
+        }
+        BenchStudy::Haptic { seconds, out } => {
+            use palpate::bench::haptic;
+            if !(1.0..=3600.0).contains(&seconds) {
+                return Err(PalpateError::Usage(format!(
+                    "bench haptic: --seconds {seconds} must be between 1 and 3600 s"
+                )));
+            }
+            let cores = palpate::cpu::stepper::available_cores();
+            let mut runs = vec![(Backend::Cpu, Some(cores))];
+            if cores > 1 {
+                runs.push((Backend::Cpu, Some(cores - 1)));
+            }
+            if palpate::gpu::GpuContext::new().is_ok() {
+                runs.push((Backend::Gpu, None));
+            }
+            let scratch =
+                std::env::temp_dir().join(format!("palpate-bench-haptic-{}", std::process::id()));
+            let mut rows = haptic::study(&runs, seconds, &scratch, &mut |s| {
+                eprintln!("bench haptic: {s}")
+            })?;
+            eprintln!("bench haptic: lv_touch with the hand away half the time, sleep on and off");
+            rows.extend(haptic::sleep_study(
+                cores.saturating_sub(1).max(1),
+                seconds,
+                &scratch,
+            )?);
+            let header = format!(
+                "Written by `palpate bench haptic --seconds {seconds}` on a machine with {cores} cores; GPU: {}. A scripted device presses each scene at 0.5 Hz (sin², 4 mm into lv, 0.06 into ed0, 3 mm into lv_touch) for {seconds} s; device spec touch (k_c = 360 N/m). The last two rows hold the hand 15 mm back from lv_touch for the first half, then press as above: with sleep the body rests unstepped while the tool is clear of it.",
+                adapter_name(Backend::Gpu)
+            );
+            haptic::write(&out, &rows, &header)?;
+            println!(
+                "wrote {0}/haptic_bench.csv, {0}/haptic_bench.md",
+                out.display()
+            );
+            Ok(())
+        }
+        BenchStudy::Land {
+            backend,
+            quick,
+            out,
+        } => {
+            use palpate::bench::land;
+            let rows = land::study(backend, quick, &mut |s| eprintln!("bench land: {s}"))?;
+            let header = format!(
+                "Written by `palpate bench land{}` on {} ({} cores). Each row is one `--until-static` solve (relative residual 1e-3, ramped follower pressure, dynamic relaxation with critical mass damping at the Rayleigh-quotient frequency); monitored values are the deformed z of the benchmark's points, interpolated in the containing tet. κ/C is the bulk modulus over Guccione's C (the penalty for incompressibility).",
+                if quick { " --quick" } else { "" },
+                adapter_name(backend),
+                palpate::cpu::stepper::available_cores()
+            );
+            land::write(&out, &rows, &header)?;
+            println!(
+                "wrote {0}/land.csv, {0}/land.md, {0}/land.png",
+                out.display()
+            );
+            Ok(())
+        }
+        BenchStudy::Accuracy {
+            backend,
+            quick,
+            out,
+        } => {
+            use palpate::bench::accuracy::{self, Problem};
+            let opts = accuracy::AccuracyOptions { backend, quick };
+            let mut studies = Vec::new();
+            for problem in [Problem::Beam, Problem::Lv] {
+                studies.push(accuracy::study(problem, &opts, &mut |s| {
+                    eprintln!("bench accuracy: {s}")
+                })?);
+            }
+            let fronts = accuracy::write(&out, &studies, &adapter_name(backend))?;
+            for (study, front) in studies.iter().zip(&fronts) {
+                let p = study.problem;
+                println!(
+                    "{}: reference {} at {} x bound: changes {:.2e} against the next-coarser mesh, {:.2e} against 2x dt",
+                    p.name(),
+                    p.label(study.reference.0),
+                    study.reference.1,
+                    study.reference_mesh_change,
+                    study.reference_dt_change
+                );
+                for (i, r) in study.runs.iter().enumerate() {
+                    println!(
+                        "  {:<8} {:>7} tets  dt {:.2} x bound  {:>7} steps  {:>8.3} s  error {:.3e}{}",
+                        p.label(r.cells),
+                        r.tets,
+                        r.safety,
+                        r.steps,
+                        r.wall_seconds,
+                        r.error,
+                        if front.contains(&i) { "  (Pareto)" } else { "" }
+                    );
+                }
+                for (c, s) in &study.diverged {
+                    println!("  {} at {s} x bound: diverged", p.label(*c));
+                }
+            }
+            println!(
+                "wrote {0}/accuracy.csv, {0}/accuracy.png, {0}/accuracy_lv.png",
+                out.display()
+            );
             Ok(())
         }
     }

@@ -27,6 +27,10 @@ pub struct DeviceSpec {
 }
 
 impl DeviceSpec {
+    /// How far from the origin any reading may lie, in workspace radii: scripted keyframes
+    /// beyond it are refused and network poses dropped.
+    pub const REACH: f64 = 10.0;
+
     /// Geomagic Touch.
     pub const TOUCH: DeviceSpec = DeviceSpec {
         name: "touch",

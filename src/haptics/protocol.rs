@@ -54,6 +54,9 @@ pub enum DropReason {
     Stale,
     /// From another address than the current peer while the peer is alive.
     OtherSender,
+    /// A position more than [`crate::haptics::device::DeviceSpec::REACH`] workspace radii
+    /// from the tool's home: no device gets there (a corrupt or mis-scaled pose).
+    OutOfReach,
 }
 
 impl fmt::Display for DropReason {
@@ -68,6 +71,7 @@ impl fmt::Display for DropReason {
             DropReason::Duplicate => "duplicate sequence number",
             DropReason::Stale => "older sequence number",
             DropReason::OtherSender => "other sender",
+            DropReason::OutOfReach => "position beyond the device's reach",
         })
     }
 }
@@ -93,6 +97,8 @@ pub struct DropCounts {
     pub stale: u64,
     /// [`DropReason::OtherSender`].
     pub other_sender: u64,
+    /// [`DropReason::OutOfReach`].
+    pub out_of_reach: u64,
 }
 
 impl DropCounts {
@@ -108,6 +114,7 @@ impl DropCounts {
             DropReason::Duplicate => &mut self.duplicate,
             DropReason::Stale => &mut self.stale,
             DropReason::OtherSender => &mut self.other_sender,
+            DropReason::OutOfReach => &mut self.out_of_reach,
         } += 1;
     }
 
@@ -122,6 +129,7 @@ impl DropCounts {
             + self.duplicate
             + self.stale
             + self.other_sender
+            + self.out_of_reach
     }
 }
 

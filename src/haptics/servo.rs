@@ -39,6 +39,10 @@ pub enum RenderMode {
     Raw,
 }
 
+/// The most ticks a session's log holds: one hour at 1 kHz (about 350 MB, preallocated).
+/// A longer session logs its first hour and counts the rest in `unlogged_ticks`.
+pub const MAX_LOG_TICKS: usize = 3_600_000;
+
 /// Servo loop parameters.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ServoConfig {
@@ -64,7 +68,7 @@ pub struct ServoConfig {
     /// Coupled (default) or raw rendering.
     pub mode: RenderMode,
     /// Ticks the log holds when `duration` is `None` (default 600 000: 10 min at 1 kHz,
-    /// ≈ 50 MB); with a duration the log holds the whole run.
+    /// ≈ 58 MB); with a duration the log holds the whole run up to [`MAX_LOG_TICKS`].
     pub log_capacity: usize,
 }
 
@@ -104,10 +108,11 @@ impl ServoConfig {
         colgate.min(self.spec.max_stiffness).max(0.0)
     }
 
-    /// Ticks the log is allocated for.
+    /// Ticks the log is allocated for: the whole run, at most [`MAX_LOG_TICKS`] (later
+    /// ticks are counted in `unlogged_ticks`, not logged).
     pub fn log_ticks(&self) -> usize {
         match self.duration {
-            Some(d) => (d * self.rate_hz).ceil() as usize + 16,
+            Some(d) => ((d * self.rate_hz).ceil() as usize + 16).min(MAX_LOG_TICKS),
             None => self.log_capacity,
         }
     }

@@ -13,6 +13,57 @@ pub mod vtu;
 use crate::error::{PalpateError, Result};
 use std::path::Path;
 
+/// Create the output directory `dir` if needed and check that files can be written in it
+/// (a probe file, created and removed), so that a run finds out before it starts, not after.
+pub fn prepare_out_dir(dir: &Path) -> Result<()> {
+    let err = |source| PalpateError::OutputIo {
+        path: dir.to_path_buf(),
+        source,
+    };
+    std::fs::create_dir_all(dir).map_err(err)?;
+    let probe = dir.join(format!(".palpate-write-probe-{}", std::process::id()));
+    std::fs::write(&probe, b"").map_err(err)?;
+    std::fs::remove_file(&probe).map_err(err)
+}
+
+/// Whether `name` is a file `palpate run` or `palpate haptic` writes: `final.vtu`,
+/// `summary.json`, `haptic.csv`, `series.pvd`, `frame_NNNN.vtu`, and the particles'
+/// `particles_final.vtu`, `particles_series.pvd`, `particles_frame_NNNN.vtu`.
+pub fn is_run_output(name: &str) -> bool {
+    let frame = |rest: &str| {
+        rest.strip_prefix("frame_")
+            .and_then(|r| r.strip_suffix(".vtu"))
+            .is_some_and(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()))
+    };
+    let own = |n: &str| matches!(n, "final.vtu" | "series.pvd") || frame(n);
+    matches!(name, "summary.json" | "haptic.csv")
+        || own(name)
+        || name.strip_prefix("particles_").is_some_and(own)
+}
+
+/// Remove what an earlier run left in `dir` ([`is_run_output`] names only, nothing else),
+/// so that its frames or particle files are not mixed with the new run's in ParaView.
+/// Returns how many files were removed.
+pub fn remove_earlier_outputs(dir: &Path) -> Result<usize> {
+    let err = |source| PalpateError::OutputIo {
+        path: dir.to_path_buf(),
+        source,
+    };
+    let mut removed = 0;
+    for entry in std::fs::read_dir(dir).map_err(err)? {
+        let entry = entry.map_err(err)?;
+        let name = entry.file_name();
+        let is_file = entry.file_type().map_err(err)?.is_file();
+        if is_file && name.to_str().is_some_and(is_run_output) {
+            let path = entry.path();
+            std::fs::remove_file(&path)
+                .map_err(|source| PalpateError::OutputIo { path, source })?;
+            removed += 1;
+        }
+    }
+    Ok(removed)
+}
+
 /// Write `bytes` to `path` atomically (temporary file + rename).
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     let err = |source| PalpateError::OutputIo {

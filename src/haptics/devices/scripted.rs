@@ -163,9 +163,6 @@ pub struct ScriptedDevice {
 }
 
 impl ScriptedDevice {
-    /// How far a scripted row may lie from the device's origin, in workspace radii.
-    pub const REACH: f64 = 10.0;
-
     /// Play `trajectory`; `source` names it in [`HapticDevice::describe`].
     pub fn new(trajectory: Trajectory, spec: DeviceSpec, source: &str) -> Self {
         ScriptedDevice {
@@ -178,12 +175,12 @@ impl ScriptedDevice {
         }
     }
 
-    /// Read the trajectory CSV at `path`. A row farther than [`Self::REACH`] workspace radii
+    /// Read the trajectory CSV at `path`. A row farther than [`DeviceSpec::REACH`] workspace radii
     /// from the device's origin is refused: no device moves there (within that, the physics
     /// clamps the tool to the workspace and counts it).
     pub fn from_file(path: &Path, spec: DeviceSpec) -> Result<Self> {
         let trajectory = Trajectory::from_file(path)?;
-        let reach = Self::REACH * spec.workspace_radius;
+        let reach = DeviceSpec::REACH * spec.workspace_radius;
         if let Some(k) = trajectory.points.iter().position(|x| x.length() > reach) {
             return Err(PalpateError::Usage(format!(
                 "{}: keyframe {} (t = {} s): |x| = {:e} m is beyond any reach of the device (workspace radius {} m)",

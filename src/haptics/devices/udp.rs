@@ -103,6 +103,9 @@ impl UdpDevice {
         now: f64,
     ) -> std::result::Result<(), DropReason> {
         let pose = PosePacket::decode(bytes)?;
+        if pose.position.length() > DeviceSpec::REACH * self.spec.workspace_radius {
+            return Err(DropReason::OutOfReach);
+        }
         if self.alive(now) {
             if Some(from) != self.peer {
                 return Err(DropReason::OtherSender);

@@ -1,0 +1,168 @@
+//! Sleep and wake for a haptic session's physics (DESIGN §1: "a body at rest with no load
+//! sleeps and wakes on contact"). While the body sits in equilibrium under constant loads and
+//! the tool is well clear of it, stepping it changes nothing the hand can feel, so the physics
+//! thread only lets simulated time pass; it steps again as soon as the tool comes within
+//! [`RestWatch::wake_margin`] of the tissue's surface.
+//!
+//! At rest means, for two batches running: no contact, no dynamic particle and none released
+//! within the blend time, loads no longer ramping, the residual force below the scene's
+//! static tolerance relative to the load (the `--until-static` test), and
+//! kinetic ≤ tolerance² × elastic energy (an oscillation about equilibrium of relative
+//! amplitude a has KE/E ≈ a² as it crosses it, where the residual alone reads zero). A body
+//! under no load at all is at rest only exactly so (zero residual and kinetic energy).
+
+use crate::particles::sampling::closest_on_triangle;
+use crate::run::{relative_residual, BodyEnergy};
+use crate::scene::Scene;
+use crate::sim::Simulation;
+use crate::stepper::{BatchStats, State};
+use glam::DVec3;
+
+/// Batches in a row that must find the body at rest before it sleeps.
+pub const CALM_BATCHES: u32 = 2;
+
+/// Batches to wait after the tool was found too close to sleep before trying again (each
+/// try reads the state back and measures the tool's clearance over the whole surface).
+pub const RETRY_BATCHES: u32 = 50;
+
+/// Watches a haptic session's batches and decides when its physics sleeps and wakes.
+pub struct RestWatch {
+    tolerance: f64,
+    loads_settle_at: f64,
+    particle_quiet: f64,
+    last_particle_activity: f64,
+    wake_margin: f64,
+    tool_radius: f64,
+    faces: Vec<[u32; 3]>,
+    rest_positions: Vec<DVec3>,
+    calm: u32,
+    retry_in: u32,
+    /// The deformed surface while asleep (None: awake).
+    asleep: Option<Vec<[DVec3; 3]>>,
+}
+
+/// Whether a batch finds the body at rest: relative residual ≤ `tolerance` and
+/// kinetic ≤ `tolerance`² × elastic energy.
+pub fn at_rest(relative_residual: f64, energy: BodyEnergy, tolerance: f64) -> bool {
+    relative_residual <= tolerance && energy.kinetic <= tolerance * tolerance * energy.elastic
+}
+
+impl RestWatch {
+    /// The watch for `scene` (which has a tool), awake.
+    pub fn new(scene: &Scene) -> RestWatch {
+        let tool_radius = scene.tool.as_ref().map_or(0.0, |t| t.radius);
+        let (activation, particle_quiet) = scene
+            .particles
+            .as_ref()
+            .map_or((0.0, 0.0), |p| (p.activation_radius, p.blend));
+        RestWatch {
+            tolerance: scene.solver.static_tolerance,
+            loads_settle_at: scene.follower.as_ref().map_or(0.0, |f| f.ramp_seconds),
+            particle_quiet,
+            last_particle_activity: 0.0,
+            // The tool's radius again as slack: it would have to cross that in one batch
+            // (about 1 ms; 4 mm in 1 ms is 4 m/s) to touch before the physics wakes.
+            wake_margin: activation + tool_radius,
+            tool_radius,
+            faces: scene.mesh.boundary_faces(),
+            rest_positions: scene.mesh.positions.clone(),
+            calm: 0,
+            retry_in: 0,
+            asleep: None,
+        }
+    }
+
+    /// Distance from the tool's surface to the tissue's surface at which a sleeping body
+    /// wakes: the particles' activation radius plus the tool's radius.
+    pub fn wake_margin(&self) -> f64 {
+        self.wake_margin
+    }
+
+    /// Whether the physics sleeps.
+    pub fn is_asleep(&self) -> bool {
+        self.asleep.is_some()
+    }
+
+    /// After an awake batch `s` of `sim` (`in_contact`: it ended with the tool touching):
+    /// true when the body has now been at rest for [`CALM_BATCHES`] batches (and no try to
+    /// sleep failed in the last [`RETRY_BATCHES`]).
+    pub fn after_batch(&mut self, sim: &Simulation, s: &BatchStats, in_contact: bool) -> bool {
+        let particles_busy = sim.last_particles.is_some_and(|p| p.dynamic > 0);
+        if particles_busy {
+            self.last_particle_activity = sim.time;
+        }
+        let calm = !in_contact
+            && !particles_busy
+            && sim.time - self.last_particle_activity >= self.particle_quiet
+            && sim.time >= self.loads_settle_at
+            && at_rest(
+                relative_residual(sim, s),
+                BodyEnergy::of(sim, s),
+                self.tolerance,
+            );
+        self.calm = if calm { self.calm + 1 } else { 0 };
+        self.retry_in = self.retry_in.saturating_sub(1);
+        self.calm >= CALM_BATCHES && self.retry_in == 0
+    }
+
+    /// Distance from a tool centred at `centre` to the surface of the body in `state`, less
+    /// the tool's radius (negative: it overlaps).
+    pub fn clearance(&self, state: &State, centre: DVec3) -> f64 {
+        self.clearance_to(&self.surface(state), centre)
+    }
+
+    fn surface(&self, state: &State) -> Vec<[DVec3; 3]> {
+        let at = |i: u32| {
+            let i = i as usize;
+            let u = &state.displacements[3 * i..3 * i + 3];
+            self.rest_positions[i] + DVec3::new(u[0] as f64, u[1] as f64, u[2] as f64)
+        };
+        self.faces
+            .iter()
+            .map(|f| [at(f[0]), at(f[1]), at(f[2])])
+            .collect()
+    }
+
+    fn clearance_to(&self, surface: &[[DVec3; 3]], centre: DVec3) -> f64 {
+        surface
+            .iter()
+            .map(|[a, b, c]| (closest_on_triangle(centre, *a, *b, *c) - centre).length())
+            .fold(f64::INFINITY, f64::min)
+            - self.tool_radius
+    }
+
+    /// Sleep, with the body as it is in `state`, if the tool at `tool` is clear of it by
+    /// more than the wake margin; returns whether it sleeps.
+    pub fn try_sleep(&mut self, state: &State, tool: DVec3) -> bool {
+        let surface = self.surface(state);
+        if self.clearance_to(&surface, tool) > self.wake_margin {
+            self.asleep = Some(surface);
+        } else {
+            self.retry_in = RETRY_BATCHES;
+        }
+        self.is_asleep()
+    }
+
+    /// While asleep: wake (and return true) when the tool at `tool` has come within the wake
+    /// margin of the sleeping body's surface.
+    pub fn wakes_for(&mut self, tool: DVec3) -> bool {
+        let near = self
+            .asleep
+            .as_ref()
+            .is_some_and(|s| self.clearance_to(s, tool) <= self.wake_margin);
+        if near {
+            self.asleep = None;
+            self.calm = 0;
+        }
+        near
+    }
+}
+
+/// Let `steps` steps of simulated time pass on a sleeping `sim`: the time advances and the
+/// tool moves to its target; the body's state is left as it is.
+pub fn pass_time_at_rest(sim: &mut Simulation, steps: u32) {
+    sim.time += steps as f64 * sim.dt;
+    if let Some(target) = sim.tool_target {
+        sim.tool_position = target;
+    }
+}
