@@ -324,6 +324,13 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
     let sim_start = clock.now();
     let outcome = (|| -> Result<()> {
         while !servo.is_finished() {
+            if crate::interrupt::requested() {
+                status = RunStatus::Interrupted {
+                    at_seconds: sim.time,
+                };
+                servo.stop();
+                break;
+            }
             let (command, _) = physics.tool();
             let mut offset = command.position;
             if offset.length() > spec.workspace_radius {

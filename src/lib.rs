@@ -13,6 +13,7 @@ pub mod error;
 pub mod gpu;
 pub mod haptic_run;
 pub mod haptics;
+pub mod interrupt;
 pub mod material;
 pub mod mesh;
 pub mod model;

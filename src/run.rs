@@ -351,6 +351,12 @@ pub fn run_with_state(
         if until_static && is_static(residual, sim.time) {
             break;
         }
+        if crate::interrupt::requested() {
+            status = RunStatus::Interrupted {
+                at_seconds: sim.time,
+            };
+            break;
+        }
         let mut batch = (target_steps - sim.steps_done).min(opts.batch.max(1) as u64);
         if next_frame_time.is_finite() {
             let to_frame = ((next_frame_time - sim.time) / sim.dt - 1e-6)

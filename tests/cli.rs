@@ -1199,3 +1199,70 @@ fn the_default_haptic_scene_runs_when_no_scene_is_given() {
         assert!(d.join(f).exists(), "{f} missing");
     }
 }
+
+/// Ctrl-C (here SIGINT from `kill`) stops a run or a haptic session after its batch: the
+/// outputs are written with status `interrupted`, and the exit status is 130.
+#[cfg(unix)]
+#[test]
+fn ctrl_c_stops_after_the_batch_and_writes_the_outputs() {
+    use std::io::Read;
+    let d = tmp("interrupt");
+    for (name, args) in [
+        (
+            "run",
+            vec!["run", "lv", "--duration", "1000", "--frames", "4"],
+        ),
+        (
+            "haptic",
+            vec!["haptic", "--device", "null", "--seconds", "60"],
+        ),
+    ] {
+        let out = d.join(name);
+        let mut child = Command::new(env!("CARGO_BIN_EXE_palpate"))
+            .args(&args)
+            .args(["--out", out.to_str().unwrap()])
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .expect("start palpate");
+        // The first line on stdout comes once the job has started stepping.
+        let mut stdout = child.stdout.take().unwrap();
+        let mut first = [0u8; 1];
+        stdout
+            .read_exact(&mut first)
+            .expect("the job announces itself");
+        std::thread::sleep(std::time::Duration::from_millis(1500));
+        let killed = Command::new("kill")
+            .args(["-INT", &child.id().to_string()])
+            .status()
+            .expect("kill");
+        assert!(killed.success());
+        let start = std::time::Instant::now();
+        let status = child.wait().expect("wait");
+        let mut err = String::new();
+        child
+            .stderr
+            .take()
+            .unwrap()
+            .read_to_string(&mut err)
+            .unwrap();
+        assert_eq!(status.code(), Some(130), "{name}: {err}");
+        assert!(start.elapsed().as_secs_f64() < 10.0, "{name}: slow to stop");
+        assert!(err.contains("interrupted at t = "), "{name}: {err}");
+        let s = summary(&out);
+        let text = s["status"].as_str().unwrap();
+        assert!(text.starts_with("interrupted at t = "), "{name}: {text}");
+        assert!(s["sim_seconds"].as_f64().unwrap() > 0.0);
+        assert!(out.join("final.vtu").exists(), "{name}");
+        if name == "haptic" {
+            let rows = std::fs::read_to_string(out.join("haptic.csv")).unwrap();
+            assert!(
+                rows.lines().count() > 500,
+                "{name}: {} rows",
+                rows.lines().count()
+            );
+        } else {
+            assert!(out.join("series.pvd").exists(), "the series is closed");
+        }
+    }
+}

@@ -2,7 +2,7 @@
 
 use clap::{Parser, Subcommand};
 use palpate::error::{PalpateError, Result};
-use palpate::run::{OnDiverge, RunLength, RunOptions};
+use palpate::run::{OnDiverge, RunLength, RunOptions, RunStatus};
 use palpate::scene::{self, Scene};
 use palpate::sim::Backend;
 use std::path::PathBuf;
@@ -187,6 +187,9 @@ fn main() -> ExitCode {
         Err(e) => return command_line_error(e),
     };
     match execute(cli) {
+        Ok(()) if palpate::interrupt::requested() => {
+            ExitCode::from(palpate::interrupt::EXIT_STATUS)
+        }
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e}");
@@ -256,6 +259,7 @@ fn execute(cli: Cli) -> Result<()> {
             out,
         } => {
             let scene = Scene::load(&scene)?;
+            palpate::interrupt::install();
             for t in scene.mesh_report.reoriented.iter().take(3) {
                 eprintln!(
                     "warning: {}: tet {t} was inverted and has been reoriented",
@@ -337,7 +341,9 @@ fn execute(cli: Cli) -> Result<()> {
                 wrote.join(", "),
                 s.realtime_factor
             );
-            if !s.status.is_ok() {
+            if let RunStatus::Interrupted { .. } = s.status {
+                eprintln!("{}; outputs written", s.status);
+            } else if !s.status.is_ok() {
                 return Err(PalpateError::Usage(format!(
                     "run did not finish cleanly: {}",
                     s.status
@@ -356,6 +362,7 @@ fn execute(cli: Cli) -> Result<()> {
             out,
         } => {
             let scene = Scene::load(&scene)?;
+            palpate::interrupt::install();
             if let Some(tool) = &scene.tool {
                 warn_tool_overlap(&scene, tool.home, "at home");
             }
@@ -416,7 +423,9 @@ fn execute(cli: Cli) -> Result<()> {
                 },
                 s.run.status
             );
-            if !s.run.status.is_ok() {
+            if let RunStatus::Interrupted { .. } = s.run.status {
+                eprintln!("{}; outputs written", s.run.status);
+            } else if !s.run.status.is_ok() {
                 return Err(PalpateError::Usage(format!(
                     "haptic session did not finish cleanly: {}",
                     s.run.status

@@ -28,6 +28,11 @@ pub enum RunStatus {
         /// The stability bound, s.
         dt_bound: f64,
     },
+    /// Stopped by Ctrl-C or SIGTERM ([`crate::interrupt`]) after a batch; outputs written.
+    Interrupted {
+        /// Simulated time reached, s.
+        at_seconds: f64,
+    },
     /// `--until-static` reached its step cap above the tolerance.
     NotStatic {
         /// Steps taken.
@@ -84,6 +89,9 @@ impl fmt::Display for RunStatus {
                 "{}; last finite state written",
                 self.divergence().unwrap_or_default()
             ),
+            RunStatus::Interrupted { at_seconds } => {
+                write!(f, "interrupted at t = {at_seconds:.4e} s (Ctrl-C or SIGTERM)")
+            }
             RunStatus::NotStatic {
                 steps,
                 residual,

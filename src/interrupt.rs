@@ -1,0 +1,47 @@
+//! Ctrl-C (SIGINT) and SIGTERM end a `palpate run` or `palpate haptic` cleanly: the first
+//! signal asks the job to stop after its current batch and write its outputs as usual (status
+//! `interrupted`, exit status 130); a second one ends the process at once. Nothing is
+//! installed unless [`install`] is called (the command line does; a library user keeps the
+//! default behaviour). Unix only: elsewhere [`install`] does nothing.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+
+static REQUESTED: AtomicBool = AtomicBool::new(false);
+
+/// Exit status of a job ended by a signal (128 + SIGINT).
+pub const EXIT_STATUS: u8 = 130;
+
+/// Whether a stop was asked for (by a signal, or [`request`]).
+pub fn requested() -> bool {
+    REQUESTED.load(Ordering::SeqCst)
+}
+
+/// Ask the running job to stop after its current batch (what the first signal does).
+pub fn request() {
+    REQUESTED.store(true, Ordering::SeqCst);
+}
+
+#[cfg(unix)]
+extern "C" fn on_signal(_: libc::c_int) {
+    // Only async-signal-safe calls here: an atomic swap and _exit.
+    if REQUESTED.swap(true, Ordering::SeqCst) {
+        unsafe { libc::_exit(EXIT_STATUS as libc::c_int) };
+    }
+}
+
+/// Route SIGINT and SIGTERM to [`requested`]; returns whether handlers were installed.
+pub fn install() -> bool {
+    #[cfg(unix)]
+    {
+        let handler = on_signal as extern "C" fn(libc::c_int) as libc::sighandler_t;
+        // SAFETY: `on_signal` only touches an atomic and calls `_exit`, both
+        // async-signal-safe; `signal` is called with valid signal numbers.
+        [libc::SIGINT, libc::SIGTERM]
+            .iter()
+            .all(|&sig| unsafe { libc::signal(sig, handler) } != libc::SIG_ERR)
+    }
+    #[cfg(not(unix))]
+    {
+        false
+    }
+}
