@@ -164,6 +164,12 @@ fn scripted_trajectory_errors_name_the_file_and_line() {
             "no data rows",
             "no data rows",
         ),
+        (
+            "columns.csv",
+            "x,y,z,t\n0,0,0,0\n1,0,0,0.01\n",
+            "line 1",
+            "does not name the columns t,x,y,z",
+        ),
     ];
     for (name, text, at, what) in cases {
         let path = write(name, text);

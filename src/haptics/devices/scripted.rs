@@ -80,7 +80,17 @@ impl Trajectory {
             }
             let parsed: Vec<Option<f64>> = fields.iter().map(|f| f.parse().ok()).collect();
             if first_content && parsed.iter().all(Option::is_none) {
-                continue; // header
+                // A header: it must name the columns in the order they are read.
+                let names: Vec<String> = fields.iter().map(|f| f.to_lowercase()).collect();
+                if names != ["t", "x", "y", "z"] {
+                    return Err(err(
+                        line_no,
+                        format!(
+                            "header '{line}' does not name the columns t,x,y,z (in that order; they are read in that order)"
+                        ),
+                    ));
+                }
+                continue;
             }
             let mut row = [0.0; 4];
             for (k, (value, name)) in parsed.iter().zip(["t", "x", "y", "z"]).enumerate() {
