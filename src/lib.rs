@@ -1,7 +1,8 @@
 //! palpate: a GPU compute-first engine for deformable soft tissue under haptic interaction,
 //! after Mero & Susin, "Deformable Hybrid Model for Haptic Interaction".
 //!
-//! The public path is [`scene::Scene`] → [`sim::Simulation`] → `advance` / `state`. Every
+//! The public path is [`scene::Scene`] → [`sim::Simulation`] → `advance` (DESIGN's "step":
+//! a batch of steps) / `state` / `contact`. Every
 //! per-element and per-vertex stage is a WGSL kernel in `kernels/` with a CPU twin in
 //! [`cpu`]; see `ARCHITECTURE.md`.
 

@@ -503,6 +503,13 @@ impl Simulation {
         self.stepper.read_particle_state()
     }
 
+    /// The tool's contact after the last batch: the force of the tissue on the tool, its
+    /// frozen stiffness, penetration and contact count (None without a tool or before the
+    /// first batch).
+    pub fn contact(&self) -> Option<ToolReport> {
+        self.last_tool
+    }
+
     /// Current displacements and velocities.
     pub fn state(&mut self) -> Result<State> {
         self.stepper.read_state()

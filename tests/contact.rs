@@ -215,7 +215,7 @@ fn pressed_tool_trajectory_gpu_matches_cpu() {
         let mut out = Vec::new();
         for _ in 0..3 {
             assert!(matches!(sim.advance(100).unwrap(), Advance::Done(_)));
-            let f = sim.last_tool.unwrap().force;
+            let f = sim.contact().unwrap().force;
             out.push((sim.state().unwrap().displacements, f));
         }
         out
