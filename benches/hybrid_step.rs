@@ -10,7 +10,7 @@
 
 mod common;
 
-use common::median;
+use common::{backends, median};
 use criterion::{criterion_group, BenchmarkId, Criterion};
 use palpate::sim::{Backend, SimOptions, Simulation};
 use palpate::Scene;
@@ -40,15 +40,6 @@ fn variants() -> Vec<(&'static str, Scene)> {
             Scene::from_toml(&all, "hm1 all active", "hm1", None).unwrap(),
         ),
     ]
-}
-
-fn backends() -> Vec<Backend> {
-    let want = std::env::var("PALPATE_BENCH_BACKENDS").unwrap_or_default();
-    [(Backend::Cpu, "cpu"), (Backend::Gpu, "gpu")]
-        .into_iter()
-        .filter(|(_, n)| want.is_empty() || want.split(',').any(|w| w == *n))
-        .map(|(b, _)| b)
-        .collect()
 }
 
 /// A simulation of `scene` with the tool pressed to its deepest hold (t = 3.5 time units,

@@ -10,7 +10,7 @@
 
 mod common;
 
-use common::median;
+use common::{backends, median};
 use criterion::{criterion_group, BenchmarkId, Criterion};
 use palpate::sim::{Backend, SimOptions, Simulation};
 use palpate::Scene;
@@ -41,15 +41,6 @@ fn variants() -> Vec<(&'static str, Scene)> {
         ("viscous", load(&viscous, "beam viscous")),
         ("far_tool", load(&tool, "beam with a far tool")),
     ]
-}
-
-fn backends() -> Vec<Backend> {
-    let want = std::env::var("PALPATE_BENCH_BACKENDS").unwrap_or_default();
-    [(Backend::Cpu, "cpu"), (Backend::Gpu, "gpu")]
-        .into_iter()
-        .filter(|(_, n)| want.is_empty() || want.split(',').any(|w| w == *n))
-        .map(|(b, _)| b)
-        .collect()
 }
 
 fn simulation(scene: &Scene, backend: Backend) -> Simulation {
