@@ -320,6 +320,8 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
     let mut published_k = DMat3::ZERO;
     let mut last_refresh: Option<Instant> = None;
     let mut rest = RestWatch::new(scene);
+    let period = Duration::from_secs_f64(config.period());
+    let mut last_used = 0u64;
     let start = Instant::now();
     let sim_start = clock.now();
     let outcome = (|| -> Result<()> {
@@ -331,18 +333,30 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                 servo.stop();
                 break;
             }
-            let (command, _) = physics.tool();
+            // Never run ahead of the loop clock. Unless a period or more behind it, start on a
+            // fresh pose: when the newest was used already or is more than 10 % of a period
+            // old, wait for the next servo tick. A batch that starts just after a tick
+            // publishes its model before the following tick, so the servo renders a model one
+            // period old, not two.
+            let ahead = sim.time - (clock.now() - sim_start);
+            if ahead > 0.0 {
+                std::thread::sleep(Duration::from_secs_f64(ahead));
+            }
+            let t_period = period.as_secs_f64();
+            if (clock.now() - sim_start) - sim.time < t_period {
+                let (newest, tick) = physics.tool();
+                if tick == last_used || clock.now() - newest.stamp > 0.1 * t_period {
+                    wait_for_a_tick(&mut physics, tick, period);
+                }
+            }
+            let (command, tick) = physics.tool();
+            last_used = tick;
             let mut offset = command.position;
             if offset.length() > spec.workspace_radius {
                 offset *= spec.workspace_radius / offset.length();
                 stats.workspace_clamps += 1;
             }
             sim.tool_target = Some(home + offset);
-            // Never run ahead of the loop clock.
-            let ahead = sim.time - (clock.now() - sim_start);
-            if ahead > 0.0 {
-                std::thread::sleep(Duration::from_secs_f64(ahead));
-            }
             let steps = ((opts.batch_seconds / sim.dt).round() as u32).max(1);
             if rest.is_asleep() && !rest.wakes_for(home + offset) {
                 pass_time_at_rest(&mut sim, steps);
@@ -489,4 +503,13 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
     };
     summary.write(&opts.out)?;
     Ok(summary)
+}
+
+/// Wait until the servo publishes a tool command newer than `seen` (polled every 50 µs), at
+/// most `period`.
+fn wait_for_a_tick(physics: &mut crate::haptics::PhysicsLink, seen: u64, period: Duration) {
+    let until = Instant::now() + period;
+    while physics.tool().1 <= seen && Instant::now() < until {
+        std::thread::sleep(Duration::from_micros(50));
+    }
 }

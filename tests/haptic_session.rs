@@ -182,6 +182,13 @@ fn held_still_matches_statics(
         "{name}: passivity observer reached {} J",
         servo.passivity_min_energy_j
     );
+    // Each batch starts on the newest tick's pose, so the model a tick renders is one period
+    // old (it was two when the physics read the pose before waiting for the clock).
+    assert!(
+        servo.model_age_ms.p50 < 1.5,
+        "{name}: model age p50 {} ms",
+        servo.model_age_ms.p50
+    );
     let at = DVec3::from_array(h.run.tool_position.unwrap());
     let force = DVec3::from_array(h.run.tool_force.unwrap());
     let k = h.haptic.physics.tool_stiffness;
