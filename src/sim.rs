@@ -237,6 +237,12 @@ impl Simulation {
             )));
         }
         let params = model.step_params(dt, damping);
+        if backend == Backend::Gpu && opts.threads.is_some() {
+            return Err(PalpateError::Usage(
+                "--threads sets the CPU backend's threads; it does not apply to --backend gpu"
+                    .into(),
+            ));
+        }
         let (backend, backend_reason, adapter) = match backend {
             Backend::Auto if opts.gpu.is_some() => (
                 Backend::Gpu,

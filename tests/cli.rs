@@ -616,6 +616,21 @@ fn threads_are_recorded_and_bad_counts_or_missing_adapters_are_one_line_errors()
         ],
         &["--threads 100000", "cores"],
     );
+    assert_one_line_error(
+        &[
+            "run",
+            "beam",
+            "--steps",
+            "10",
+            "--backend",
+            "gpu",
+            "--threads",
+            "2",
+            "--out",
+            out,
+        ],
+        &["--threads", "--backend gpu"],
+    );
     // No adapter at all: a backend set that this platform does not have.
     let o = Command::new(env!("CARGO_BIN_EXE_palpate"))
         .args([

@@ -29,7 +29,8 @@ enum Command {
         /// Backend that steps the model (auto: a hardware GPU, else the CPU).
         #[arg(long, value_enum, default_value = "auto")]
         backend: Backend,
-        /// CPU backend threads (default: all cores). Results do not depend on it.
+        /// CPU backend threads (default: all cores; refused with --backend gpu). Results do
+        /// not depend on it.
         #[arg(long)]
         threads: Option<usize>,
         /// Number of steps (0 writes the initial state).
