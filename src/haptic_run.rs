@@ -37,6 +37,10 @@ pub const DEFAULT_HAPTIC_SCENE: &str = "lv_touch";
 /// Run length when the device has none of its own (null, udp), s.
 pub const DEFAULT_SECONDS: f64 = 10.0;
 
+/// Batch and stiffness-refresh timings kept for their percentiles: those of the session's
+/// first hour of 1 ms batches (the busy time counts every batch).
+const MAX_TIMINGS: usize = crate::haptics::servo::MAX_LOG_TICKS;
+
 /// The longest session, s (the servo loop's limit; about 11.6 days).
 pub const MAX_SECONDS: f64 = 1.0e6;
 
@@ -112,14 +116,16 @@ impl Spread {
 /// What the physics thread did during a haptic session.
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
 pub struct PhysicsStats {
-    /// Batches run (= local models published).
+    /// Batches run (each publishes a local model; asleep, a contact-free model is published
+    /// per servo tick without a batch, not counted here).
     pub batches: u64,
     /// Steps per batch (at the initial dt).
     pub steps_per_batch: u32,
     /// Wall time per batch, ms.
     pub batch_wall_ms: Spread,
     /// Fraction of the session's wall time spent running batches (the rest the physics
-    /// thread waited for the loop clock): above about 0.9 it can barely keep up.
+    /// thread waited for the loop clock or a servo tick, or slept at rest): above about 0.9
+    /// it can barely keep up.
     pub busy_fraction: f64,
     /// Simulated seconds stepped per wall second of batch work: the realtime factor the
     /// physics could reach if it never waited or slept (≥ 1 keeps up with the hand).
@@ -258,13 +264,6 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
         },
     )?;
     let model = sim.model.clone();
-    let removed = crate::output::remove_earlier_outputs(&opts.out)?;
-    if opts.announce && removed > 0 {
-        eprintln!(
-            "note: removed {removed} output files of an earlier run from {}",
-            opts.out.display()
-        );
-    }
     let home = model.tool.as_ref().map_or(DVec3::ZERO, |t| t.tool.home);
     sim.tool_position = home;
     sim.tool_target = Some(home);
@@ -300,6 +299,21 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
     let clock = LoopClock::new();
     let (servo_end, mut physics) = haptics::link(clock);
     let servo = haptics::spawn_servo(device, servo_end, config)?;
+    // The session has started: now the earlier run's files may go.
+    let removed = match crate::output::remove_earlier_outputs(&opts.out) {
+        Ok(n) => n,
+        Err(e) => {
+            servo.stop();
+            let _ = servo.join();
+            return Err(e);
+        }
+    };
+    if opts.announce && removed > 0 {
+        eprintln!(
+            "note: removed {removed} output files of an earlier run from {}",
+            opts.out.display()
+        );
+    }
     let mut stats = PhysicsStats {
         steps_per_batch,
         stiffness_model: match &stiffness {
@@ -312,6 +326,7 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
         ..Default::default()
     };
     let mut batch_ms = Vec::new();
+    let mut busy_seconds = 0.0f64;
     let mut refresh_ms = Vec::new();
     let mut status = RunStatus::Ok;
     // The last divergence not yet followed by a good batch (the session may end while dt is
@@ -372,7 +387,11 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
             }
             let t0 = Instant::now();
             let result = sim.advance_with(steps, DivergencePolicy::HalveDt)?;
-            batch_ms.push(t0.elapsed().as_secs_f64() * 1e3);
+            let elapsed = t0.elapsed().as_secs_f64();
+            busy_seconds += elapsed;
+            if batch_ms.len() < MAX_TIMINGS {
+                batch_ms.push(elapsed * 1e3);
+            }
             stats.batches += 1;
             let diverged = match result {
                 Guarded::Done(_) => {
@@ -430,7 +449,9 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                                 compliance.stiffness(&points)
                             };
                             stats.stiffness_refreshes += 1;
-                            refresh_ms.push(t.elapsed().as_secs_f64() * 1e3);
+                            if refresh_ms.len() < MAX_TIMINGS {
+                                refresh_ms.push(t.elapsed().as_secs_f64() * 1e3);
+                            }
                             last_refresh = Some(Instant::now());
                         }
                     }
@@ -473,7 +494,7 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
     }
     let wall = start.elapsed().as_secs_f64();
     stats.tool_stiffness = published_k.transpose().to_cols_array_2d();
-    let busy = batch_ms.iter().sum::<f64>() * 1e-3;
+    let busy = busy_seconds;
     stats.busy_fraction = busy / wall.max(1e-9);
     stats.realtime_capacity = (sim.time - stats.slept_seconds) / busy.max(1e-9);
     stats.batch_wall_ms = Spread::of(&mut batch_ms);

@@ -2,7 +2,9 @@
 //! signal asks the job to stop after its current batch and write its outputs as usual (status
 //! `interrupted`, exit status 130); a second one ends the process at once. Nothing is
 //! installed unless [`install`] is called (the command line does; a library user keeps the
-//! default behaviour). Unix only: elsewhere [`install`] does nothing.
+//! default behaviour), and a signal the process inherited as ignored (a background job of a
+//! non-interactive shell) stays ignored. A stop asked for stays asked for until [`clear`].
+//! Unix only: elsewhere [`install`] does nothing.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 
@@ -21,6 +23,11 @@ pub fn request() {
     REQUESTED.store(true, Ordering::SeqCst);
 }
 
+/// Forget a stop asked for (before starting another job in the same process).
+pub fn clear() {
+    REQUESTED.store(false, Ordering::SeqCst);
+}
+
 #[cfg(unix)]
 extern "C" fn on_signal(_: libc::c_int) {
     // Only async-signal-safe calls here: an atomic swap and _exit.
@@ -29,16 +36,24 @@ extern "C" fn on_signal(_: libc::c_int) {
     }
 }
 
-/// Route SIGINT and SIGTERM to [`requested`]; returns whether handlers were installed.
+/// Route SIGINT and SIGTERM to [`requested`] (each unless inherited as ignored); returns
+/// whether a handler was installed for both.
 pub fn install() -> bool {
     #[cfg(unix)]
     {
         let handler = on_signal as extern "C" fn(libc::c_int) as libc::sighandler_t;
         // SAFETY: `on_signal` only touches an atomic and calls `_exit`, both
-        // async-signal-safe; `signal` is called with valid signal numbers.
-        [libc::SIGINT, libc::SIGTERM]
-            .iter()
-            .all(|&sig| unsafe { libc::signal(sig, handler) } != libc::SIG_ERR)
+        // async-signal-safe; `signal` is called with valid signal numbers and with the
+        // disposition it returned.
+        let installed = [libc::SIGINT, libc::SIGTERM].map(|sig| unsafe {
+            let before = libc::signal(sig, handler);
+            if before == libc::SIG_IGN {
+                libc::signal(sig, libc::SIG_IGN);
+                return false;
+            }
+            before != libc::SIG_ERR
+        });
+        installed.iter().all(|&ok| ok)
     }
     #[cfg(not(unix))]
     {

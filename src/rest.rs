@@ -8,11 +8,14 @@
 //! within the blend time, loads no longer ramping, the residual force below the scene's
 //! static tolerance relative to the load (the `--until-static` test), and
 //! kinetic ≤ tolerance² × elastic energy (an oscillation about equilibrium of relative
-//! amplitude a has KE/E ≈ a² as it crosses it, where the residual alone reads zero). A body
-//! under no load at all is at rest only exactly so (zero residual and kinetic energy).
+//! amplitude a has KE/E ≈ a² as it crosses it, where the residual alone reads zero). The load
+//! and the elastic energy are taken as at least the largest tool force and elastic energy of
+//! the session so far: after a touch, a body under no other load rests when what is left of
+//! the touch is small against the touch itself. Before any touch, a body under no load at
+//! all is at rest only exactly so (zero residual and kinetic energy).
 
 use crate::particles::sampling::closest_on_triangle;
-use crate::run::{relative_residual, BodyEnergy};
+use crate::run::{BodyEnergy, ResidualAndLoad};
 use crate::scene::Scene;
 use crate::sim::Simulation;
 use crate::stepper::{BatchStats, State};
@@ -37,14 +40,26 @@ pub struct RestWatch {
     rest_positions: Vec<DVec3>,
     calm: u32,
     retry_in: u32,
-    /// The deformed surface while asleep (None: awake).
-    asleep: Option<Vec<[DVec3; 3]>>,
+    peak_tool_force: f64,
+    peak_elastic: f64,
+    /// The body while asleep (None: awake).
+    asleep: Option<Sleeping>,
 }
 
-/// Whether a batch finds the body at rest: relative residual ≤ `tolerance` and
+/// The sleeping body: its deformed surface, that surface's bounding box, and where the tool
+/// was at the last check.
+struct Sleeping {
+    surface: Vec<[DVec3; 3]>,
+    min: DVec3,
+    max: DVec3,
+    tool: DVec3,
+}
+
+/// Whether a batch finds the body at rest: residual ≤ `tolerance` × load and
 /// kinetic ≤ `tolerance`² × elastic energy.
-pub fn at_rest(relative_residual: f64, energy: BodyEnergy, tolerance: f64) -> bool {
-    relative_residual <= tolerance && energy.kinetic <= tolerance * tolerance * energy.elastic
+pub fn at_rest(force: ResidualAndLoad, energy: BodyEnergy, tolerance: f64) -> bool {
+    force.residual <= tolerance * force.load
+        && energy.kinetic <= tolerance * tolerance * energy.elastic
 }
 
 impl RestWatch {
@@ -60,14 +75,16 @@ impl RestWatch {
             loads_settle_at: scene.follower.as_ref().map_or(0.0, |f| f.ramp_seconds),
             particle_quiet,
             last_particle_activity: 0.0,
-            // The tool's radius again as slack: it would have to cross that in one batch
-            // (about 1 ms; 4 mm in 1 ms is 4 m/s) to touch before the physics wakes.
+            // The tool's radius again as slack: the tool is checked where each batch leaves
+            // it, and a jump longer than the margin wakes the body too.
             wake_margin: activation + tool_radius,
             tool_radius,
             faces: scene.mesh.boundary_faces(),
             rest_positions: scene.mesh.positions.clone(),
             calm: 0,
             retry_in: 0,
+            peak_tool_force: 0.0,
+            peak_elastic: 0.0,
             asleep: None,
         }
     }
@@ -91,15 +108,19 @@ impl RestWatch {
         if particles_busy {
             self.last_particle_activity = sim.time;
         }
+        let mut force = ResidualAndLoad::of(sim, s);
+        let mut energy = BodyEnergy::of(sim, s);
+        if let Some(t) = sim.last_tool {
+            self.peak_tool_force = self.peak_tool_force.max(t.force.length());
+        }
+        self.peak_elastic = self.peak_elastic.max(energy.elastic);
+        force.load = force.load.max(self.peak_tool_force);
+        energy.elastic = energy.elastic.max(self.peak_elastic);
         let calm = !in_contact
             && !particles_busy
             && sim.time - self.last_particle_activity >= self.particle_quiet
             && sim.time >= self.loads_settle_at
-            && at_rest(
-                relative_residual(sim, s),
-                BodyEnergy::of(sim, s),
-                self.tolerance,
-            );
+            && at_rest(force, energy, self.tolerance);
         self.calm = if calm { self.calm + 1 } else { 0 };
         self.retry_in = self.retry_in.saturating_sub(1);
         self.calm >= CALM_BATCHES && self.retry_in == 0
@@ -136,23 +157,39 @@ impl RestWatch {
     pub fn try_sleep(&mut self, state: &State, tool: DVec3) -> bool {
         let surface = self.surface(state);
         if self.clearance_to(&surface, tool) > self.wake_margin {
-            self.asleep = Some(surface);
+            let corners = surface.iter().flatten();
+            let min = corners.clone().fold(DVec3::INFINITY, |m, p| m.min(*p));
+            let max = corners.fold(DVec3::NEG_INFINITY, |m, p| m.max(*p));
+            self.asleep = Some(Sleeping {
+                surface,
+                min,
+                max,
+                tool,
+            });
         } else {
             self.retry_in = RETRY_BATCHES;
         }
         self.is_asleep()
     }
 
-    /// While asleep: wake (and return true) when the tool at `tool` has come within the wake
-    /// margin of the sleeping body's surface.
+    /// While asleep: wake (and return true) when the tool, now at `tool`, has come within
+    /// the wake margin of the sleeping body's surface, or jumped farther than the margin
+    /// since the last check (it may have crossed the body in between). The surface is
+    /// searched only when the tool is that close to its bounding box.
     pub fn wakes_for(&mut self, tool: DVec3) -> bool {
-        let near = self
-            .asleep
-            .as_ref()
-            .is_some_and(|s| self.clearance_to(s, tool) <= self.wake_margin);
-        if near {
-            self.asleep = None;
-            self.calm = 0;
+        let reach = self.wake_margin + self.tool_radius;
+        let near = self.asleep.as_ref().is_some_and(|s| {
+            let jumped = (tool - s.tool).length() > self.wake_margin;
+            let to_box = (tool.clamp(s.min, s.max) - tool).length();
+            jumped || (to_box <= reach && self.clearance_to(&s.surface, tool) <= self.wake_margin)
+        });
+        match &mut self.asleep {
+            Some(_) if near => {
+                self.asleep = None;
+                self.calm = 0;
+            }
+            Some(s) => s.tool = tool,
+            None => {}
         }
         near
     }

@@ -213,20 +213,40 @@ impl Relaxation {
 /// `--until-static` test; 0 for a body at rest under no load, and +∞-like (÷ the smallest
 /// positive float) for a body moving under none.
 pub fn relative_residual(sim: &Simulation, s: &BatchStats) -> f64 {
-    let (mut residual2, mut load2) = (s.residual_norm().powi(2), s.external_norm().powi(2));
-    if let (Some(p), Some(pd)) = (sim.last_particles, sim.model.particles.as_ref()) {
-        residual2 += p.residual_norm.powi(2);
-        let g = glam::DVec3::from_array(sim.model.gravity.map(|x| x as f64));
-        load2 += p.dynamic as f64 * (pd.mass as f64 * g.length()).powi(2);
-        // The tool's contact forces on particles are load too (the tets' reduction counts
-        // those on vertices only): without gravity or pressure they are the whole load,
-        // and the relative residual would divide by zero. The tool's total force is
-        // their scale.
-        if let Some(t) = sim.last_tool {
-            load2 += t.force.length_squared();
+    let f = ResidualAndLoad::of(sim, s);
+    f.residual / f.load.max(f64::MIN_POSITIVE)
+}
+
+/// The residual force of a batch and the load it is measured against, N.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ResidualAndLoad {
+    /// ‖f‖₂ over the free vertices and the dynamic particles.
+    pub residual: f64,
+    /// ‖m g + f_ext‖₂ over the same, with the tool's force when there are particles.
+    pub load: f64,
+}
+
+impl ResidualAndLoad {
+    /// The residual and load of `sim`'s last batch `s`.
+    pub fn of(sim: &Simulation, s: &BatchStats) -> ResidualAndLoad {
+        let (mut residual2, mut load2) = (s.residual_norm().powi(2), s.external_norm().powi(2));
+        if let (Some(p), Some(pd)) = (sim.last_particles, sim.model.particles.as_ref()) {
+            residual2 += p.residual_norm.powi(2);
+            let g = glam::DVec3::from_array(sim.model.gravity.map(|x| x as f64));
+            load2 += p.dynamic as f64 * (pd.mass as f64 * g.length()).powi(2);
+            // The tool's contact forces on particles are load too (the tets' reduction
+            // counts those on vertices only): without gravity or pressure they are the
+            // whole load, and the relative residual would divide by zero. The tool's total
+            // force is their scale.
+            if let Some(t) = sim.last_tool {
+                load2 += t.force.length_squared();
+            }
+        }
+        ResidualAndLoad {
+            residual: residual2.sqrt(),
+            load: load2.sqrt(),
         }
     }
-    residual2.sqrt() / load2.sqrt().max(f64::MIN_POSITIVE)
 }
 
 /// The body's kinetic and elastic energy after a batch (vertices and dynamic particles), J.

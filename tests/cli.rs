@@ -733,6 +733,7 @@ fn a_new_run_removes_the_outputs_an_earlier_run_left_and_nothing_else() {
     assert!(ok, "{err}");
     std::fs::write(out.join("notes.txt"), "mine").unwrap();
     std::fs::write(out.join("frame_12.vtu.bak"), "mine").unwrap();
+    std::fs::write(out.join("frame_1.vtu"), "mine: palpate writes four digits").unwrap();
     assert!(out.join("particles_series.pvd").exists() && out.join("frame_0002.vtu").exists());
     let (ok, _, err) = palpate(&["run", "beam", "--steps", "1", "--out", o]);
     assert!(ok, "{err}");
@@ -747,10 +748,33 @@ fn a_new_run_removes_the_outputs_an_earlier_run_left_and_nothing_else() {
     left.sort();
     assert_eq!(
         left,
-        ["final.vtu", "frame_12.vtu.bak", "notes.txt", "summary.json"],
+        [
+            "final.vtu",
+            "frame_1.vtu",
+            "frame_12.vtu.bak",
+            "notes.txt",
+            "summary.json"
+        ],
         "the beam run's own files and the user's"
     );
     assert_eq!(summary(&out)["scene"], "beam");
+
+    // A folder whose summary.json is not an earlier run's: nothing is removed.
+    let mine = d.join("mine");
+    std::fs::create_dir_all(&mine).unwrap();
+    std::fs::write(mine.join("summary.json"), "{\"notes\": 1}").unwrap();
+    std::fs::write(mine.join("frame_0001.vtu"), "mine").unwrap();
+    let (ok, _, err) = palpate(&[
+        "run",
+        "beam",
+        "--steps",
+        "1",
+        "--out",
+        mine.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    assert!(!err.contains("note: removed"), "{err}");
+    assert!(mine.join("frame_0001.vtu").exists());
 }
 
 #[test]
@@ -820,7 +844,15 @@ fn a_tool_that_starts_inside_the_tissue_is_warned_about() {
     let d = tmp("toolinside");
     let cases: &[(&str, Option<&str>)] = &[
         ("[0.05, 0.01, 0.03]", None),
-        ("[0.05, 0.01, 0.0225]", Some("lies 1.500e-3 inside it")),
+        (
+            "[0.05, 0.01, 0.0225]",
+            Some("the surface reaches 1.500e-3 into it"),
+        ),
+        // Between the top face's vertices (5 mm apart): no vertex inside, the face is.
+        (
+            "[0.0525, 0.0125, 0.0235]",
+            Some("the surface reaches 5.000e-4 into it"),
+        ),
         (
             "[0.05, 0.01, 0.01]",
             Some("its centre lies inside the tissue (tet"),

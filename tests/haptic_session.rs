@@ -275,9 +275,11 @@ fn lv_held_still_matches_the_static_reaction_and_its_stiffness() {
 }
 
 /// The beam (no load: at rest from the start) with the hand 30 mm above its home for 0.6 s,
-/// then pressing 6 mm over 0.6 s and holding: the physics sleeps while the tool is clear
-/// (its radius, 10 mm, is the wake margin), wakes as it approaches, never sleeps in contact,
-/// and the held force is the one of a session that never sleeps.
+/// then pressing 6 mm over 0.6 s, holding to 2.4 s and going back up by 2.7 s: the physics
+/// sleeps while the tool is clear (its radius, 10 mm, is the wake margin), wakes as it
+/// approaches, never sleeps in contact, sleeps again once the beam has settled after the
+/// touch (a body under no load, whose energies then decay towards zero), and the force of the
+/// press is the one of a session that never sleeps.
 #[test]
 fn the_physics_sleeps_while_the_body_rests_and_wakes_as_the_tool_approaches() {
     let _one = one_at_a_time();
@@ -286,7 +288,17 @@ fn the_physics_sleeps_while_the_body_rests_and_wakes_as_the_tool_approaches() {
         let dir = out_dir(name);
         let up = DVec3::new(0.0, 0.0, 0.03);
         let down = DVec3::new(0.0, 0.0, -0.006);
-        let csv = write_trajectory(&dir, &[(0.0, up), (0.6, up), (1.2, down), (2.4, down)]);
+        let csv = write_trajectory(
+            &dir,
+            &[
+                (0.0, up),
+                (0.6, up),
+                (1.2, down),
+                (2.4, down),
+                (2.7, up),
+                (3.6, up),
+            ],
+        );
         run_haptic(
             &scene,
             &HapticOptions {
@@ -312,13 +324,15 @@ fn the_physics_sleeps_while_the_body_rests_and_wakes_as_the_tool_approaches() {
         p.contact_batches, q.contact_batches
     );
     // Asleep from the second batch until the tool's surface is 10 mm from the beam's top,
-    // the hand 8 mm above home: t = 0.6 + 22 mm / 60 mm/s ≈ 0.967 s.
+    // the hand 8 mm above home: t = 0.6 + 22 mm / 60 mm/s ≈ 0.967 s; then again from when
+    // the beam has settled after the withdrawal (the tool is 10 mm clear at t ≈ 2.52 s) to
+    // 3.6 s: at most 0.967 + 1.08 s in all.
     assert_eq!(
-        p.sleeps, 1,
-        "it sleeps once, before the press, never in contact"
+        p.sleeps, 2,
+        "it sleeps before the press and after it, never in contact"
     );
     assert!(
-        p.slept_seconds > 0.9 && p.slept_seconds < 0.99,
+        p.slept_seconds > 1.5 && p.slept_seconds < 2.05,
         "{}",
         p.slept_seconds
     );
@@ -326,12 +340,15 @@ fn the_physics_sleeps_while_the_body_rests_and_wakes_as_the_tool_approaches() {
     assert!(q.slept_seconds == 0.0);
     assert!(asleep.run.steps < awake.run.steps);
     assert!(p.contact_batches > 500, "{}", p.contact_batches);
-    let f = DVec3::from_array(asleep.run.tool_force.unwrap());
-    let g = DVec3::from_array(awake.run.tool_force.unwrap());
+    let f = DVec3::from_array(p.peak_tool_force);
+    let g = DVec3::from_array(q.peak_tool_force);
     assert!(g.z > 0.0, "the tissue pushes the tool up: {g:?}");
+    eprintln!("peak force {f:?} after sleeping, {g:?} without");
+    // The peak over the press and hold moves a little with where the batches fall against
+    // the script (about 1 % from session to session).
     assert!(
-        (f - g).length() <= 0.01 * g.length(),
-        "held force {f:?} after sleeping against {g:?} without"
+        (f - g).length() <= 0.03 * g.length(),
+        "peak force {f:?} after sleeping against {g:?} without"
     );
 }
 

@@ -122,6 +122,12 @@ fn scripted_trajectory_interpolates_and_holds() {
         r.velocity
     );
     std::fs::remove_file(path).ok();
+
+    // Saved by a spreadsheet: a byte-order mark before the header, CRLF line ends.
+    let bom = write("bom.csv", "\u{feff}t,x,y,z\r\n0,0,0,0\r\n1,0,0,0.001\r\n");
+    let t = Trajectory::from_file(&bom).unwrap();
+    assert_eq!((t.len(), t.end_time()), (2, 1.0));
+    std::fs::remove_file(bom).ok();
 }
 
 #[test]

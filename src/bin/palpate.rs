@@ -177,6 +177,9 @@ enum BenchStudy {
     },
 }
 
+/// Set when a run or session ended early on Ctrl-C / SIGTERM (exit status 130, not 0).
+static STOPPED_BY_SIGNAL: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
 fn main() -> ExitCode {
     // Mesa's Vulkan WSI probes Wayland and prints a spurious "XDG_RUNTIME_DIR is invalid"
     // line when the variable is unset (headless machines); point it at the temp dir.
@@ -188,7 +191,7 @@ fn main() -> ExitCode {
         Err(e) => return command_line_error(e),
     };
     match execute(cli) {
-        Ok(()) if palpate::interrupt::requested() => {
+        Ok(()) if STOPPED_BY_SIGNAL.load(std::sync::atomic::Ordering::SeqCst) => {
             ExitCode::from(palpate::interrupt::EXIT_STATUS)
         }
         Ok(()) => ExitCode::SUCCESS,
@@ -343,6 +346,7 @@ fn execute(cli: Cli) -> Result<()> {
                 s.realtime_factor
             );
             if let RunStatus::Interrupted { .. } = s.status {
+                STOPPED_BY_SIGNAL.store(true, std::sync::atomic::Ordering::SeqCst);
                 eprintln!("{}; outputs written", s.status);
             } else if !s.status.is_ok() {
                 return Err(PalpateError::Usage(format!(
@@ -425,6 +429,7 @@ fn execute(cli: Cli) -> Result<()> {
                 s.run.status
             );
             if let RunStatus::Interrupted { .. } = s.run.status {
+                STOPPED_BY_SIGNAL.store(true, std::sync::atomic::Ordering::SeqCst);
                 eprintln!("{}; outputs written", s.run.status);
             } else if !s.run.status.is_ok() {
                 return Err(PalpateError::Usage(format!(

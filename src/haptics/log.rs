@@ -3,7 +3,6 @@
 
 use super::model::flags;
 use crate::error::Result;
-use std::fmt::Write as _;
 use std::path::Path;
 
 /// One servo tick (f32 where logging precision suffices, to keep a long run small).
@@ -78,13 +77,19 @@ impl TickLog {
 
     /// The log as CSV text, header [`CSV_HEADER`], one row per tick.
     pub fn to_csv(&self) -> String {
-        let mut s = String::with_capacity(160 * (self.len + 1));
-        s.push_str(CSV_HEADER);
-        s.push('\n');
+        let mut bytes = Vec::with_capacity(160 * (self.len + 1));
+        self.write_rows(&mut bytes)
+            .expect("writing to a Vec cannot fail");
+        String::from_utf8(bytes).expect("the rows are ASCII")
+    }
+
+    /// Write the CSV (header and one row per tick) to `out`.
+    fn write_rows(&self, out: &mut impl std::io::Write) -> std::io::Result<()> {
+        writeln!(out, "{CSV_HEADER}")?;
         for r in self.records() {
             let bit = |b: u32| u8::from(r.flags & b != 0);
-            let _ = writeln!(
-                s,
+            writeln!(
+                out,
                 "{:.6},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
                 r.time,
                 r.device[0],
@@ -108,13 +113,14 @@ impl TickLog {
                 bit(flags::CLAMPED),
                 bit(flags::FADING),
                 1 - bit(flags::DEVICE_STALE),
-            );
+            )?;
         }
-        s
+        Ok(())
     }
 
-    /// Write the CSV to `path` atomically (`*.partial`, then rename).
+    /// Write the CSV to `path` atomically (`*.partial`, then rename), streamed: an hour of
+    /// ticks is about 0.6 GB of text, which is not built in memory.
     pub fn write_csv(&self, path: &Path) -> Result<()> {
-        crate::output::write_atomic(path, self.to_csv().as_bytes())
+        crate::output::write_atomic_with(path, |w| self.write_rows(w))
     }
 }

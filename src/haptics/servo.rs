@@ -39,7 +39,8 @@ pub enum RenderMode {
     Raw,
 }
 
-/// The most ticks a session's log holds: one hour at 1 kHz (about 350 MB, preallocated).
+/// The most ticks a session's log holds: one hour at 1 kHz (80 B a tick: about 290 MB,
+/// preallocated; `haptic.csv` is streamed to disk, about 0.6 GB for an hour).
 /// A longer session logs its first hour and counts the rest in `unlogged_ticks`.
 pub const MAX_LOG_TICKS: usize = 3_600_000;
 
@@ -68,7 +69,7 @@ pub struct ServoConfig {
     /// Coupled (default) or raw rendering.
     pub mode: RenderMode,
     /// Ticks the log holds when `duration` is `None` (default 600 000: 10 min at 1 kHz,
-    /// ≈ 58 MB); with a duration the log holds the whole run up to [`MAX_LOG_TICKS`].
+    /// ≈ 48 MB); with a duration the log holds the whole run up to [`MAX_LOG_TICKS`].
     pub log_capacity: usize,
 }
 

@@ -27,13 +27,13 @@ pub fn prepare_out_dir(dir: &Path) -> Result<()> {
 }
 
 /// Whether `name` is a file `palpate run` or `palpate haptic` writes: `final.vtu`,
-/// `summary.json`, `haptic.csv`, `series.pvd`, `frame_NNNN.vtu`, and the particles'
-/// `particles_final.vtu`, `particles_series.pvd`, `particles_frame_NNNN.vtu`.
+/// `summary.json`, `haptic.csv`, `series.pvd`, `frame_NNNN.vtu` (four digits or more), and
+/// the particles' `particles_final.vtu`, `particles_series.pvd`, `particles_frame_NNNN.vtu`.
 pub fn is_run_output(name: &str) -> bool {
     let frame = |rest: &str| {
         rest.strip_prefix("frame_")
             .and_then(|r| r.strip_suffix(".vtu"))
-            .is_some_and(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()))
+            .is_some_and(|n| n.len() >= 4 && n.bytes().all(|b| b.is_ascii_digit()))
     };
     let own = |n: &str| matches!(n, "final.vtu" | "series.pvd") || frame(n);
     matches!(name, "summary.json" | "haptic.csv")
@@ -41,14 +41,26 @@ pub fn is_run_output(name: &str) -> bool {
         || name.strip_prefix("particles_").is_some_and(own)
 }
 
-/// Remove what an earlier run left in `dir` ([`is_run_output`] names only, nothing else),
-/// so that its frames or particle files are not mixed with the new run's in ParaView.
-/// Returns how many files were removed.
+/// Remove what an earlier run left in `dir`, so that its frames or particle files are not
+/// mixed with the new run's in ParaView: only when `dir` holds an earlier run's
+/// `summary.json` (a JSON object with `scene`, `backend` and `status`), and only files
+/// [`is_run_output`] names, nothing else. Returns how many files were removed.
 pub fn remove_earlier_outputs(dir: &Path) -> Result<usize> {
     let err = |source| PalpateError::OutputIo {
         path: dir.to_path_buf(),
         source,
     };
+    let earlier_run = std::fs::read_to_string(dir.join("summary.json"))
+        .ok()
+        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+        .is_some_and(|v| {
+            ["scene", "backend", "status"]
+                .iter()
+                .all(|k| v.get(k).is_some())
+        });
+    if !earlier_run {
+        return Ok(0);
+    }
     let mut removed = 0;
     for entry in std::fs::read_dir(dir).map_err(err)? {
         let entry = entry.map_err(err)?;
@@ -66,6 +78,16 @@ pub fn remove_earlier_outputs(dir: &Path) -> Result<usize> {
 
 /// Write `bytes` to `path` atomically (temporary file + rename).
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    write_atomic_with(path, |w| std::io::Write::write_all(w, bytes))
+}
+
+/// Write `path` atomically (temporary file + rename) through a buffered writer that `fill`
+/// writes to, so that large outputs are streamed rather than built in memory.
+pub fn write_atomic_with(
+    path: &Path,
+    fill: impl FnOnce(&mut std::io::BufWriter<std::fs::File>) -> std::io::Result<()>,
+) -> Result<()> {
+    use std::io::Write;
     let err = |source| PalpateError::OutputIo {
         path: path.to_path_buf(),
         source,
@@ -76,7 +98,9 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
             .map(|e| e.to_string_lossy().into_owned())
             .unwrap_or_default()
     ));
-    std::fs::write(&tmp, bytes).map_err(err)?;
+    let mut w = std::io::BufWriter::new(std::fs::File::create(&tmp).map_err(err)?);
+    fill(&mut w).and_then(|()| w.flush()).map_err(err)?;
+    drop(w);
     std::fs::rename(&tmp, path).map_err(err)
 }
 

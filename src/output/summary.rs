@@ -140,7 +140,8 @@ pub struct RunSummary {
     pub vertices: usize,
     /// Number of particles (0: this scene has none).
     pub particles: usize,
-    /// Steps taken.
+    /// Steps taken (in a haptic session that slept at rest, fewer than sim_seconds / dt: see
+    /// `haptic.physics.slept_seconds`).
     pub steps: u64,
     /// Time step at the end of the run, s.
     pub dt: f64,

@@ -65,9 +65,10 @@ impl Tool {
     }
 
     /// How the sphere at `centre` overlaps the tissue at rest: its centre inside a tet (all
-    /// four barycentric coordinates ≥ 0), else the vertex deepest inside it
-    /// (depth R − |X − c| > 0), else None. A tool that starts in the tissue shoves it out at
-    /// once, or through the wall when it holds more than the wall's thickness.
+    /// four barycentric coordinates ≥ 0), else how deep the boundary surface reaches into it
+    /// (R − the distance from the centre to the nearest boundary triangle, when > 0), else
+    /// None. A tool that starts in the tissue shoves it out at once, or through the wall when
+    /// it holds more than the wall's thickness.
     pub fn overlap(&self, mesh: &TetMesh, centre: DVec3) -> Option<ToolOverlap> {
         let inside = mesh.tets.iter().position(|tet| {
             let p = tet.map(|i| mesh.positions[i as usize]);
@@ -81,13 +82,22 @@ impl Tool {
         if let Some(tet) = inside {
             return Some(ToolOverlap::CentreInside { tet });
         }
-        mesh.positions
+        let x = |i: u32| mesh.positions[i as usize];
+        let nearest = mesh
+            .boundary_faces()
             .iter()
-            .enumerate()
-            .map(|(vertex, x)| (vertex, self.radius - (*x - centre).length()))
-            .filter(|(_, depth)| *depth > 0.0)
-            .max_by(|a, b| a.1.total_cmp(&b.1))
-            .map(|(vertex, depth)| ToolOverlap::Vertex { vertex, depth })
+            .map(|f| {
+                let p = crate::particles::sampling::closest_on_triangle(
+                    centre,
+                    x(f[0]),
+                    x(f[1]),
+                    x(f[2]),
+                );
+                (p - centre).length()
+            })
+            .fold(f64::INFINITY, f64::min);
+        let depth = self.radius - nearest;
+        (depth > 0.0).then_some(ToolOverlap::Surface { depth })
     }
 }
 
@@ -99,11 +109,9 @@ pub enum ToolOverlap {
         /// The tet holding the centre.
         tet: usize,
     },
-    /// Vertex `vertex` lies `depth` inside the sphere, the deepest of those inside.
-    Vertex {
-        /// The deepest vertex inside the sphere.
-        vertex: usize,
-        /// R − |X − c|, scene length units.
+    /// The boundary surface reaches `depth` into the sphere.
+    Surface {
+        /// R − the distance from the centre to the nearest boundary point, scene length units.
         depth: f64,
     },
 }
@@ -114,8 +122,8 @@ impl std::fmt::Display for ToolOverlap {
             ToolOverlap::CentreInside { tet } => {
                 write!(f, "its centre lies inside the tissue (tet {tet})")
             }
-            ToolOverlap::Vertex { vertex, depth } => {
-                write!(f, "vertex {vertex} lies {depth:.3e} inside it")
+            ToolOverlap::Surface { depth } => {
+                write!(f, "the surface reaches {depth:.3e} into it")
             }
         }
     }

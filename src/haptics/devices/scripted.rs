@@ -60,6 +60,8 @@ impl Trajectory {
         let mut times = Vec::new();
         let mut points = Vec::new();
         let mut seen_content = false;
+        // A byte-order mark (spreadsheets write one) is not part of the header.
+        let text = text.strip_prefix('\u{feff}').unwrap_or(text);
         for (index, raw) in text.lines().enumerate() {
             let line_no = index + 1;
             let line = raw.split('#').next().unwrap_or("").trim();
