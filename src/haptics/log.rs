@@ -78,9 +78,9 @@ impl TickLog {
     /// The log as CSV text, header [`CSV_HEADER`], one row per tick.
     pub fn to_csv(&self) -> String {
         let mut bytes = Vec::with_capacity(160 * (self.len + 1));
-        self.write_rows(&mut bytes)
-            .expect("writing to a Vec cannot fail");
-        String::from_utf8(bytes).expect("the rows are ASCII")
+        // Writing to a Vec cannot fail, and the rows are ASCII.
+        let _ = self.write_rows(&mut bytes);
+        String::from_utf8_lossy(&bytes).into_owned()
     }
 
     /// Write the CSV (header and one row per tick) to `out`.
