@@ -44,7 +44,8 @@ pub fn is_run_output(name: &str) -> bool {
 /// Remove what an earlier run left in `dir`, so that its frames or particle files are not
 /// mixed with the new run's in ParaView: only when `dir` holds an earlier run's
 /// `summary.json` (a JSON object with `scene`, `backend` and `status`), and only files
-/// [`is_run_output`] names, nothing else. Returns how many files were removed.
+/// [`is_run_output`] names other than `final.vtu` and `summary.json` (every run rewrites
+/// those), nothing else. Returns how many files were removed.
 pub fn remove_earlier_outputs(dir: &Path) -> Result<usize> {
     let err = |source| PalpateError::OutputIo {
         path: dir.to_path_buf(),
@@ -66,7 +67,10 @@ pub fn remove_earlier_outputs(dir: &Path) -> Result<usize> {
         let entry = entry.map_err(err)?;
         let name = entry.file_name();
         let is_file = entry.file_type().map_err(err)?.is_file();
-        if is_file && name.to_str().is_some_and(is_run_output) {
+        let stale = name
+            .to_str()
+            .is_some_and(|n| is_run_output(n) && !matches!(n, "final.vtu" | "summary.json"));
+        if is_file && stale {
             let path = entry.path();
             std::fs::remove_file(&path)
                 .map_err(|source| PalpateError::OutputIo { path, source })?;
