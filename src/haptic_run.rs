@@ -41,6 +41,9 @@ pub const DEFAULT_SECONDS: f64 = 10.0;
 /// first hour of 1 ms batches (the busy time counts every batch).
 const MAX_TIMINGS: usize = crate::haptics::servo::MAX_LOG_TICKS;
 
+/// The shortest session, s (ten servo ticks: shorter ones have no meaningful statistics).
+pub const MIN_SECONDS: f64 = 0.01;
+
 /// The longest session, s (the servo loop's limit; about 11.6 days).
 pub const MAX_SECONDS: f64 = 1.0e6;
 
@@ -221,16 +224,16 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
     )?;
     let device = haptics::DeviceArg::parse(&opts.device)?.open(spec)?;
     let seconds = match opts.seconds {
-        Some(s) if !(s.is_finite() && s > 0.0) => {
+        Some(s) if !(s.is_finite() && s >= MIN_SECONDS) => {
             return Err(PalpateError::Usage(format!(
-                "--seconds {s}: must be a positive number of seconds"
+                "--seconds {s}: must be a number of seconds, at least {MIN_SECONDS} (ten servo ticks)"
             )))
         }
         Some(s) => s,
         None => match device.duration() {
-            Some(d) if d.is_nan() || d <= 0.0 => {
+            Some(d) if d.is_nan() || d < MIN_SECONDS => {
                 return Err(PalpateError::Usage(format!(
-                    "{}: the trajectory lasts {d} s (one time only); give it two or more times, or --seconds",
+                    "{}: the trajectory lasts {d} s, less than a session's {MIN_SECONDS} s; give it a later last time, or --seconds",
                     device.describe()
                 )))
             }

@@ -520,6 +520,15 @@ fn a_scene_runs_on_a_gmsh_file_with_scale_tags_and_regions() {
     assert!(ok, "{err}");
     let back = palpate::mesh::io::read(&msh).unwrap();
     assert_eq!((back.n_vertices(), back.n_tets()), (78, 200));
+    // A directory, or a name without an extension, is not a mesh file name.
+    assert_one_line_error(
+        &["mesh", &path, "--out", d.to_str().unwrap()],
+        &["needs a file name ending in .vtu or .msh"],
+    );
+    assert_one_line_error(
+        &["mesh", &path, "--out", d.join("box.vtk").to_str().unwrap()],
+        &["cannot write mesh format '.vtk'"],
+    );
 }
 
 #[test]
@@ -814,6 +823,18 @@ fn haptic_session_lengths_are_checked_before_the_session() {
     assert_one_line_error(
         &["haptic", "--device", &device, "--out", o.to_str().unwrap()],
         &["zero.csv", "lasts 0 s", "--seconds"],
+    );
+    assert_one_line_error(
+        &[
+            "haptic",
+            "--device",
+            "null",
+            "--seconds",
+            "1e-9",
+            "--out",
+            o.to_str().unwrap(),
+        ],
+        &["--seconds", "at least 0.01"],
     );
     assert_one_line_error(
         &[

@@ -56,6 +56,12 @@ pub fn write(path: &Path, mesh: &TetMesh) -> Result<()> {
     let writer: fn(&TetMesh) -> Result<Vec<u8>, String> = match ext.as_str() {
         "vtu" => vtu::write,
         "msh" => gmsh::write,
+        "" => {
+            return Err(file_err(
+                path,
+                "needs a file name ending in .vtu or .msh (the extension picks the format)".into(),
+            ))
+        }
         _ => {
             return Err(file_err(
                 path,
