@@ -13,8 +13,10 @@
 // Mode machine (a particle at distance d from the tool's surface; PINNED never moves):
 //   embedded or blending, d < activation radius -> DYNAMIC at its embedded position and
 //     velocity (its momentum leaves the host vertices exactly);
-//   dynamic, d < release radius (activation x hysteresis) -> stays, dwell timer reset;
-//   dynamic, farther for `dwell` s -> BLENDING with offset u_p - embed(u) that fades to zero
+//   dynamic, d < release radius (activation x hysteresis) -> stays, dwell timer reset (-1:
+//     near at the last check);
+//   dynamic, farther for `dwell` s (counted from the first check that finds it far, so at
+//     least that long) -> BLENDING with offset u_p - embed(u) that fades to zero
 //     over `blend` s (no jump), then embedded. The blend clock of a particle in F advances
 //     every sub-step in `follow` (a smooth fade where the SPH sees it); of any other, here,
 //     by the interval.
@@ -135,9 +137,11 @@ fn activate(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
     }
     if (mode & MODE_DYNAMIC) != 0u {
         if keep {
-            timer = 0.0;
+            timer = -1.0;
         } else {
-            timer += pp.interval;
+            // The dwell clock starts at the first check that finds it far (it may have left
+            // just before) and counts the intervals after it.
+            timer = select(timer + pp.interval, 0.0, timer < 0.0);
             if timer >= pp.dwell {
                 offset = u - ue;
                 mode = (mode & ~MODE_DYNAMIC) | MODE_BLENDING | MODE_RELEASED;
@@ -153,7 +157,7 @@ fn activate(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
         particle_velocities[3u * p + 1u] = ve.y;
         particle_velocities[3u * p + 2u] = ve.z;
         mode = (mode & ~MODE_BLENDING) | MODE_DYNAMIC | MODE_ACTIVATED;
-        timer = 0.0;
+        timer = -1.0;
         offset = vec3<f32>(0.0);
     } else if (mode & MODE_BLENDING) != 0u {
         if !followed {

@@ -1720,3 +1720,72 @@ fn a_diverged_particle_is_reported_as_a_particle() {
         "{particle}"
     );
 }
+
+/// The dwell counts from the first activation check that finds a dynamic particle beyond the
+/// release radius (it may have left just before): with a dwell shorter than the check
+/// interval it is released at the second far check, not the first, so it is always far for
+/// at least the dwell. A check that finds it near again restarts the clock.
+#[test]
+fn a_released_particle_was_far_for_at_least_the_dwell() {
+    use palpate::contact::{ToolParams, ToolState};
+    use palpate::cpu::activate::{update_particle, ModeInputs, ModeState};
+    use palpate::particles::params::ParticleParams;
+    let tets = [[0u32, 1, 2, 3]];
+    let s = ParticleStatic {
+        rest: &[0.25, 0.25, 0.25],
+        host: &[0],
+        weights: &[0.25; 4],
+        tets: &tets,
+    };
+    let pp = ParticleParams {
+        n_particles: 1,
+        activation_radius: 0.1,
+        release_radius: 0.15,
+        candidate_radius: 0.15,
+        dwell: 0.005, // shorter than the 0.01 s between checks
+        blend: 0.02,
+        interval: 0.01,
+        ..Default::default()
+    };
+    let tp = ToolParams {
+        radius: 0.1,
+        ..Default::default()
+    };
+    let zeros = [0.0f32; 12];
+    let (mut u, mut v, mut mode_bits, mut timer, mut offset) =
+        ([0.0f32; 3], [0.0f32; 3], 0u32, 0.0f32, [0.0f32; 3]);
+    // Tool centres: touching (distance 0.05 from the tool's surface), then far (1.0).
+    let mut check = |centre: [f32; 3]| {
+        let state = ToolState {
+            position: centre,
+            step: 0,
+        };
+        let inp = ModeInputs::new(&pp, &tp, &state, true, &s, &zeros, &zeros);
+        update_particle(
+            &inp,
+            0,
+            ModeState {
+                u: &mut u,
+                v: &mut v,
+                mode: &mut mode_bits,
+                timer: &mut timer,
+                offset: &mut offset,
+            },
+        );
+        mode_bits
+    };
+    let near = [0.25, 0.25, 0.25 + 0.15];
+    let far = [0.25, 0.25, 1.5];
+    assert!(check(near) & mode::DYNAMIC != 0, "activated");
+    assert!(check(far) & mode::DYNAMIC != 0, "first far check: kept");
+    assert!(check(near) & mode::DYNAMIC != 0, "near again");
+    assert!(
+        check(far) & mode::DYNAMIC != 0,
+        "far again: the clock restarted"
+    );
+    let m = check(far);
+    assert!(
+        m & mode::DYNAMIC == 0 && m & mode::BLENDING != 0,
+        "second far check in a row: released, blending back"
+    );
+}

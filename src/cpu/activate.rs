@@ -161,9 +161,15 @@ pub fn update_particle(inp: &ModeInputs, p: usize, st: ModeState) {
     }
     if m & mode::DYNAMIC != 0 {
         if keep {
-            timer = 0.0;
+            timer = -1.0;
         } else {
-            timer += pp.interval;
+            // The dwell clock starts at the first check that finds it far (it may have left
+            // just before) and counts the intervals after it.
+            timer = if timer < 0.0 {
+                0.0
+            } else {
+                timer + pp.interval
+            };
             if timer >= pp.dwell {
                 offset = u - ue;
                 m = (m & !mode::DYNAMIC) | mode::BLENDING | mode::RELEASED;
@@ -174,7 +180,7 @@ pub fn update_particle(inp: &ModeInputs, p: usize, st: ModeState) {
         st.u.copy_from_slice(&u.to_array());
         st.v.copy_from_slice(&s.embed(inp.velocities, p).to_array());
         m = (m & !mode::BLENDING) | mode::DYNAMIC | mode::ACTIVATED;
-        timer = 0.0;
+        timer = -1.0;
         offset = Vec3::ZERO;
     } else if m & mode::BLENDING != 0 {
         if !followed {
