@@ -364,7 +364,8 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
             if (clock.now() - sim_start) - sim.time < t_period {
                 let (newest, tick) = physics.tool();
                 if tick == last_used || clock.now() - newest.stamp > 0.1 * t_period {
-                    wait_for_a_tick(&mut physics, tick, period);
+                    let due = clock.instant_at(newest.stamp + t_period);
+                    wait_for_a_tick(&mut physics, tick, due, period);
                 }
             }
             let (command, tick) = physics.tool();
@@ -529,11 +530,22 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
     Ok(summary)
 }
 
-/// Wait until the servo publishes a tool command newer than `seen` (polled every 50 µs), at
-/// most `period`.
-fn wait_for_a_tick(physics: &mut crate::haptics::PhysicsLink, seen: u64, period: Duration) {
-    let until = Instant::now() + period;
+/// Wait until the servo publishes a tool command newer than `seen`, at most `period`: sleep
+/// until 100 µs before the tick is `due`, then poll, yielding the core between polls (a sleep
+/// of tens of µs lasts up to 100 µs on Linux, most of the margin a batch has).
+fn wait_for_a_tick(
+    physics: &mut crate::haptics::PhysicsLink,
+    seen: u64,
+    due: Instant,
+    period: Duration,
+) {
+    let start = Instant::now();
+    let until = start + period;
+    let wake = due.checked_sub(Duration::from_micros(100)).unwrap_or(start);
+    if wake > start {
+        std::thread::sleep((wake - start).min(period));
+    }
     while physics.tool().1 <= seen && Instant::now() < until {
-        std::thread::sleep(Duration::from_micros(50));
+        std::thread::yield_now();
     }
 }

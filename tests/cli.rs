@@ -1335,3 +1335,56 @@ fn ctrl_c_stops_after_the_batch_and_writes_the_outputs() {
         }
     }
 }
+
+/// A CSV line split into fields (RFC 4180: quoted fields may hold commas, "" is a quote).
+fn csv_fields(line: &str) -> Vec<String> {
+    let (mut fields, mut field, mut quoted) = (Vec::new(), String::new(), false);
+    let mut chars = line.chars().peekable();
+    while let Some(c) = chars.next() {
+        match (c, quoted) {
+            ('"', true) if chars.peek() == Some(&'"') => {
+                field.push('"');
+                chars.next();
+            }
+            ('"', _) => quoted = !quoted,
+            (',', false) => fields.push(std::mem::take(&mut field)),
+            _ => field.push(c),
+        }
+    }
+    fields.push(field);
+    fields
+}
+
+/// Every CSV the benchmarks wrote into docs/ has one column count: labels with commas
+/// (`cells [10, 1, 1]`, an adapter name, a status) are quoted.
+#[test]
+fn benchmark_csv_files_have_one_column_count() {
+    assert_eq!(palpate::output::csv_field("plain"), "plain");
+    assert_eq!(
+        palpate::output::csv_field("cells [10, 1, 1]"),
+        "\"cells [10, 1, 1]\""
+    );
+    assert_eq!(palpate::output::csv_field("a \"b\""), "\"a \"\"b\"\"\"");
+    let docs = Path::new(env!("CARGO_MANIFEST_DIR")).join("docs");
+    let mut checked = 0;
+    for entry in std::fs::read_dir(&docs).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_none_or(|e| e != "csv") {
+            continue;
+        }
+        let text = std::fs::read_to_string(&path).unwrap();
+        let mut lines = text.lines().filter(|l| !l.starts_with('#'));
+        let header = csv_fields(lines.next().unwrap()).len();
+        for (k, line) in lines.enumerate() {
+            assert_eq!(
+                csv_fields(line).len(),
+                header,
+                "{}: data row {} has another column count: {line}",
+                path.display(),
+                k + 1
+            );
+        }
+        checked += 1;
+    }
+    assert!(checked >= 5, "{checked} CSV files in docs/");
+}

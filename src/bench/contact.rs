@@ -393,7 +393,7 @@ pub fn write(out: &Path, rows: &[HertzResult], header: &str) -> Result<()> {
             r.relative_error,
             r.steps,
             r.wall_seconds,
-            r.status
+            crate::output::csv_field(&r.status.to_string())
         ));
         md.push_str(&format!(
             "| {} | {:.2} | {:.0e} | {} | {} | {:.4e} | {:.4e} | {:+.2} % | {} | {:.1} |\n",

@@ -6,7 +6,7 @@
 
 use crate::error::Result;
 use crate::haptic_run::{run_haptic, HapticOptions, HapticSummary};
-use crate::output::write_atomic;
+use crate::output::{csv_field, write_atomic};
 use crate::scene::Scene;
 use crate::sim::Backend;
 use glam::DVec3;
@@ -222,8 +222,8 @@ pub fn write(out: &Path, rows: &[HapticRow], header: &str) -> Result<()> {
         let _ = writeln!(
             csv,
             "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
-            r.label,
-            r.backend,
+            csv_field(&r.label),
+            csv_field(&r.backend),
             s.run.tets,
             s.run.particles,
             v.ticks,
@@ -243,7 +243,7 @@ pub fn write(out: &Path, rows: &[HapticRow], header: &str) -> Result<()> {
             s.haptic.physics.busy_fraction,
             s.run.active_particles_max.unwrap_or(0),
             v.passivity_min_energy_j,
-            s.run.status,
+            csv_field(&s.run.status.to_string()),
             s.run.steps,
             s.haptic.physics.slept_seconds
         );

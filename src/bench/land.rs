@@ -11,6 +11,7 @@
 
 use crate::error::{PalpateError, Result};
 use crate::mesh::TetMesh;
+use crate::output::csv_field;
 use crate::run::{run_with_state, RunLength, RunOptions};
 use crate::scene::{Scene, SceneFile};
 use crate::sim::Backend;
@@ -305,19 +306,19 @@ pub fn write(out: &Path, rows: &[LandRun], header: &str) -> Result<()> {
             csv.push_str(&format!(
                 "{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
                 p.scene_name(),
-                p.mesh_label(c.level),
+                csv_field(&p.mesh_label(c.level)),
                 r.tets,
                 r.vertices,
                 c.kappa_ratio,
-                c.volume_term,
-                name,
+                csv_field(&c.volume_term.to_string()),
+                csv_field(name),
                 r.monitored_mm[k],
                 p.reference_mm()[k],
                 r.steps,
                 r.dt,
                 r.wall_seconds,
-                r.adapter,
-                r.status
+                csv_field(&r.adapter),
+                csv_field(&r.status.to_string())
             ));
         }
         let values: Vec<String> = p

@@ -80,6 +80,16 @@ pub fn remove_earlier_outputs(dir: &Path) -> Result<usize> {
     Ok(removed)
 }
 
+/// A CSV field (RFC 4180): as it is, or in double quotes (inner quotes doubled) when it holds
+/// a comma, a quote or a line break — labels such as `cells [10, 1, 1]` or an adapter name.
+pub fn csv_field(text: &str) -> std::borrow::Cow<'_, str> {
+    if text.contains([',', '"', '\n', '\r']) {
+        format!("\"{}\"", text.replace('"', "\"\"")).into()
+    } else {
+        text.into()
+    }
+}
+
 /// Write `bytes` to `path` atomically (temporary file + rename).
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     write_atomic_with(path, |w| std::io::Write::write_all(w, bytes))
