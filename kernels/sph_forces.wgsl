@@ -11,7 +11,8 @@
 //   paper: eq. (13) as printed, one-sided: f_c = V^2 sum_b A_b grad W(X_b - X_c).
 // Dynamic particles also get m g and the tool's contact on surface particles (area Δx^2),
 // taken at x_p + F_p o_p (o_p the rest offset to the true surface, which the lattice's outer
-// layer lies inside of), kept in particle_contact for the tool's report. particle_force_sum collects f/substeps
+// layer lies inside of), kept in particle_contact (the last sub-step's, a diagnostic the tests
+// compare with the twin; the tool's report is recomputed by tool_force). particle_force_sum collects f/substeps
 // over the sub-steps of a core step (ACCUMULATE is false on the first): embedded particles
 // pass it to their host vertices in gather_coupled, so the vertices receive the impulse
 // the particles received. CPU twin: src/cpu/sph_forces.rs.
