@@ -14,7 +14,7 @@
 //! the touch is small against the touch itself. Before any touch, a body under no load at
 //! all is at rest only exactly so (zero residual and kinetic energy).
 
-use crate::particles::sampling::closest_on_triangle;
+use crate::particles::sampling::distance_to_triangles;
 use crate::run::{BodyEnergy, ResidualAndLoad};
 use crate::scene::Scene;
 use crate::sim::Simulation;
@@ -145,11 +145,7 @@ impl RestWatch {
     }
 
     fn clearance_to(&self, surface: &[[DVec3; 3]], centre: DVec3) -> f64 {
-        surface
-            .iter()
-            .map(|[a, b, c]| (closest_on_triangle(centre, *a, *b, *c) - centre).length())
-            .fold(f64::INFINITY, f64::min)
-            - self.tool_radius
+        distance_to_triangles(surface.iter().copied(), centre) - self.tool_radius
     }
 
     /// Sleep, with the body as it is in `state`, if the tool at `tool` is clear of it by

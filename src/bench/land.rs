@@ -310,7 +310,7 @@ pub fn write(out: &Path, rows: &[LandRun], header: &str) -> Result<()> {
                 r.tets,
                 r.vertices,
                 c.kappa_ratio,
-                csv_field(&c.volume_term.to_string()),
+                csv_field(c.volume_term),
                 csv_field(name),
                 r.monitored_mm[k],
                 p.reference_mm()[k],

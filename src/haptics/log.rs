@@ -75,14 +75,6 @@ impl TickLog {
         self.overflow
     }
 
-    /// The log as CSV text, header [`CSV_HEADER`], one row per tick.
-    pub fn to_csv(&self) -> String {
-        let mut bytes = Vec::with_capacity(160 * (self.len + 1));
-        // Writing to a Vec cannot fail, and the rows are ASCII.
-        let _ = self.write_rows(&mut bytes);
-        String::from_utf8_lossy(&bytes).into_owned()
-    }
-
     /// Write the CSV (header and one row per tick) to `out`.
     fn write_rows(&self, out: &mut impl std::io::Write) -> std::io::Result<()> {
         writeln!(out, "{CSV_HEADER}")?;

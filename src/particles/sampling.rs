@@ -191,9 +191,17 @@ pub fn sample(
     })
 }
 
+/// The distance from `x` to the nearest of `triangles` (+∞ for none).
+pub fn distance_to_triangles(triangles: impl IntoIterator<Item = [DVec3; 3]>, x: DVec3) -> f64 {
+    triangles
+        .into_iter()
+        .map(|[a, b, c]| (closest_on_triangle(x, a, b, c) - x).length())
+        .fold(f64::INFINITY, f64::min)
+}
+
 /// The closest point of triangle (a, b, c) to p (Ericson, *Real-Time Collision Detection*,
 /// §5.1.5).
-pub(crate) fn closest_on_triangle(p: DVec3, a: DVec3, b: DVec3, c: DVec3) -> DVec3 {
+fn closest_on_triangle(p: DVec3, a: DVec3, b: DVec3, c: DVec3) -> DVec3 {
     let (ab, ac, ap) = (b - a, c - a, p - a);
     let (d1, d2) = (ab.dot(ap), ac.dot(ap));
     if d1 <= 0.0 && d2 <= 0.0 {

@@ -82,20 +82,12 @@ impl Tool {
         if let Some(tet) = inside {
             return Some(ToolOverlap::CentreInside { tet });
         }
-        let x = |i: u32| mesh.positions[i as usize];
-        let nearest = mesh
-            .boundary_faces()
-            .iter()
-            .map(|f| {
-                let p = crate::particles::sampling::closest_on_triangle(
-                    centre,
-                    x(f[0]),
-                    x(f[1]),
-                    x(f[2]),
-                );
-                (p - centre).length()
-            })
-            .fold(f64::INFINITY, f64::min);
+        let nearest = crate::particles::sampling::distance_to_triangles(
+            mesh.boundary_faces()
+                .into_iter()
+                .map(|f| f.map(|i| mesh.positions[i as usize])),
+            centre,
+        );
         let depth = self.radius - nearest;
         (depth > 0.0).then_some(ToolOverlap::Surface { depth })
     }
