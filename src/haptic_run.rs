@@ -510,14 +510,15 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
         &opts.out.join("final.vtu"),
         state_vtu(&model, &state).as_bytes(),
     )?;
-    if let Some(snap) = sim.particle_state()? {
+    let particles = sim.particle_state()?;
+    if let Some(snap) = &particles {
         write_atomic(
             &opts.out.join("particles_final.vtu"),
-            crate::output::particles::particles_vtu(&model, &state, &snap).as_bytes(),
+            crate::output::particles::particles_vtu(&model, &state, snap).as_bytes(),
         )?;
     }
     let summary = HapticSummary {
-        run: summarize(scene, &sim, &state, wall, status, None),
+        run: summarize(scene, &sim, &state, particles.as_ref(), wall, status, None),
         haptic: HapticStats {
             device: servo_report.device_name,
             device_spec: spec,

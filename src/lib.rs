@@ -15,6 +15,7 @@ pub mod gpu;
 pub mod haptic_run;
 pub mod haptics;
 pub mod interrupt;
+pub mod inversion;
 pub mod material;
 pub mod mesh;
 pub mod model;

@@ -439,10 +439,10 @@ pub fn run_with_state(
         &opts.out.join("final.vtu"),
         state_vtu(&model, &state).as_bytes(),
     )?;
-    if let Some(snap) = particles {
+    if let Some(snap) = &particles {
         write_atomic(
             &opts.out.join("particles_final.vtu"),
-            crate::output::particles::particles_vtu(&model, &state, &snap).as_bytes(),
+            crate::output::particles::particles_vtu(&model, &state, snap).as_bytes(),
         )?;
     }
     frames.finish()?;
@@ -450,6 +450,7 @@ pub fn run_with_state(
         scene,
         &sim,
         &state,
+        particles.as_ref(),
         wall,
         status,
         until_static.then_some((residual, tolerance)),
@@ -458,17 +459,19 @@ pub fn run_with_state(
     Ok((summary, state))
 }
 
-/// The summary of a finished run of `sim` (its final `state`, `wall` seconds); `statics` is
-/// (residual, tolerance) for `--until-static`.
+/// The summary of a finished run of `sim` (its final `state` and `particles`, `wall`
+/// seconds); `statics` is (residual, tolerance) for `--until-static`.
 pub fn summarize(
     scene: &Scene,
     sim: &Simulation,
     state: &crate::stepper::State,
+    particles: Option<&crate::stepper::ParticleSnapshot>,
     wall: f64,
     status: RunStatus,
     statics: Option<(Option<f64>, f64)>,
 ) -> RunSummary {
     let model = &sim.model;
+    let inverted = crate::inversion::inverted(model, state, particles);
     RunSummary {
         scene: scene.name.clone(),
         backend: sim.backend,
@@ -500,6 +503,8 @@ pub fn summarize(
             .as_ref()
             .map(|_| sim.last_particles.map_or(0, |p| p.dynamic)),
         active_particles_max: model.particles.as_ref().map(|_| sim.active_particles_max),
+        inverted_tets: inverted.tets,
+        inverted_particles: model.particles.as_ref().map(|_| inverted.particles),
         tool_position: model.tool.as_ref().map(|_| sim.tool_position.to_array()),
         tool_force: model
             .tool

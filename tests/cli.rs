@@ -911,6 +911,72 @@ fn a_tool_that_starts_inside_the_tissue_is_warned_about() {
     }
 }
 
+/// A run that ends with inverted elements says so: `lv_touch` pressed 30° off its particle
+/// lattice with StVK inverts particles under the tool (summary `inverted_particles` > 0 and a
+/// warning naming the remedy); with its shipped stable neo-Hookean material, none.
+#[test]
+fn inverted_elements_at_the_end_are_counted_and_warned_about() {
+    let d = tmp("inverted");
+    let (c, s) = (30f64.to_radians().cos(), 30f64.to_radians().sin());
+    let scene = include_str!("../scenes/lv_touch.toml")
+        .replace(
+            "home = [0.0147, 0.0, -0.005]",
+            &format!("home = [{}, {}, -0.005]", 0.0147 * c, 0.0147 * s),
+        )
+        .replace(
+            "path = [[0.0, 0.0147, 0.0, -0.005], [0.5, 0.0117, 0.0, -0.005], [1.0, 0.0117, 0.0, -0.005]]",
+            &format!(
+                "path = [[0.0, {}, {}, -0.005], [0.5, {}, {}, -0.005], [1.0, {}, {}, -0.005]]",
+                0.0147 * c,
+                0.0147 * s,
+                0.0117 * c,
+                0.0117 * s,
+                0.0117 * c,
+                0.0117 * s
+            ),
+        );
+    assert!(
+        scene.contains("path = [[0.0, 0.0127"),
+        "the press was not rotated"
+    );
+    let shipped = "model = \"stable_neohookean\"";
+    assert!(scene.contains(shipped));
+    for (name, text, inverts) in [
+        ("stvk", scene.replace(shipped, "model = \"stvk\""), true),
+        ("neohookean", scene.clone(), false),
+    ] {
+        let path = scene_file(&d, &format!("{name}.toml"), &text);
+        let out = d.join(name);
+        let (ok, _, err) = palpate(&[
+            "run",
+            &path,
+            "--backend",
+            "cpu",
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert!(ok, "{name}: {err}");
+        let sm = summary(&out);
+        let particles = sm["inverted_particles"].as_u64().unwrap();
+        assert_eq!(sm["inverted_tets"].as_u64(), Some(0), "{name}: {sm}");
+        let warning = err
+            .lines()
+            .find(|l| l.starts_with("warning:") && l.contains("are inverted (det F <= 0)"));
+        if inverts {
+            assert!(particles > 0, "{name}: no inverted particle under the tool");
+            let line = warning.unwrap_or_else(|| panic!("{name}: no warning in {err}"));
+            assert!(
+                line.contains(&format!("{particles} dynamic particles"))
+                    && line.contains("use [material] model = \"stable_neohookean\""),
+                "{line}"
+            );
+        } else {
+            assert_eq!(particles, 0, "{name}");
+            assert!(warning.is_none(), "{name}: {err}");
+        }
+    }
+}
+
 #[test]
 fn bad_tool_sections_are_one_line_errors_naming_the_key() {
     let d = tmp("badtool");

@@ -18,7 +18,7 @@ use crate::material::MaterialModel;
 use crate::model::Model;
 use crate::scene::Scene;
 use crate::stepper::State;
-use glam::{Mat3, Vec3};
+use glam::Vec3;
 
 /// The built-in `beam` scene with other cells and material model.
 pub fn beam_scene(cells: [usize; 3], model: MaterialModel) -> Result<Scene> {
@@ -42,19 +42,6 @@ pub fn lv_scene(k: usize, model: MaterialModel) -> Result<Scene> {
         .replace("resolution = 3 ", &format!("resolution = {k} "))
         .replace("model = \"stvk\"", &format!("model = \"{}\"", model.name()));
     Scene::from_toml(&text, &format!("lv k={k} {}", model.name()), "lv", None)
-}
-
-/// Number of tets with det F ≤ 0 in a state.
-pub fn inverted_count(model: &Model, state: &State) -> usize {
-    (0..model.n_tets())
-        .filter(|&e| {
-            let t = model.tets[e];
-            let u = t.map(|i| crate::cpu::load3(&state.displacements, i as usize));
-            let h = Mat3::from_cols(u[1] - u[0], u[2] - u[0], u[3] - u[0])
-                * crate::cpu::fem_forces::load_dm_inv(&model.dm_inv, e);
-            (Mat3::IDENTITY + h).determinant() <= 0.0
-        })
-        .count()
 }
 
 /// Work of the constant loads, Σ (m g + f_ext)·u, J.

@@ -4,8 +4,9 @@
 //! at 10× a haptic device's maximum force; (e) a long ED0 run, energy bounded; (f) the
 //! paper's Table 1 scenes at the paper's dt. Writes `stability.csv` and `stability.md`.
 
-use super::{beam_scene, inverted_count, kinetic, load_work, lv_scene};
+use super::{beam_scene, kinetic, load_work, lv_scene};
 use crate::error::{PalpateError, Result};
+use crate::inversion::inverted_tets;
 use crate::material::MaterialModel;
 use crate::model::Model;
 use crate::scene::Scene;
@@ -222,7 +223,7 @@ pub fn study(opts: &StabilityOptions, progress: &mut dyn FnMut(&str)) -> Result<
         let e0 = squash_energy(&model, &mut s)?;
         let outcome = run_halving(&mut s, duration)?;
         let st = s.state()?;
-        let inv = inverted_count(&model, &st);
+        let inv = inverted_tets(&model, &st);
         let e1 = s.last.elastic_energy();
         // Recovered: the stored energy is gone (a rigid rotation of the free beam costs none)
         // and no element is left inverted.
@@ -268,12 +269,12 @@ pub fn study(opts: &StabilityOptions, progress: &mut dyn FnMut(&str)) -> Result<
             displacements,
             velocities: vec![0.0; 3 * model.n_vertices()],
         };
-        let inv0 = inverted_count(&model, &start);
+        let inv0 = inverted_tets(&model, &start);
         let mut s = sim(&model, b, dt, RELEASE_DAMPING)?;
         s.set_state(&start)?;
         let outcome = run_halving(&mut s, if opts.quick { 0.05 } else { 0.2 })?;
         let st = s.state()?;
-        let inv1 = inverted_count(&model, &st);
+        let inv1 = inverted_tets(&model, &st);
         let ok = outcome.is_some() && inv1 == 0 && inv0 > 0;
         let halved = outcome
             .map(|h| format!(", dt halved {h}x"))
@@ -315,7 +316,7 @@ pub fn study(opts: &StabilityOptions, progress: &mut dyn FnMut(&str)) -> Result<
         let outcome = run_halving(&mut s, if opts.quick { 0.05 } else { 0.2 })?;
         let st = s.state()?;
         let umax = crate::run::max_displacement(&st.displacements);
-        let inv = inverted_count(&model, &st);
+        let inv = inverted_tets(&model, &st);
         let halved = outcome
             .map(|h| format!("dt halved {h}x"))
             .unwrap_or_else(|| "diverged".into());

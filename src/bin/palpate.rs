@@ -311,6 +311,7 @@ fn execute(cli: Cli) -> Result<()> {
                 ..Default::default()
             };
             let s = palpate::run::run(&scene, &opts)?;
+            warn_inverted(&scene, &s);
             println!(
                 "{} steps of {:.3e} s ({:.3e} s simulated) in {:.2} s = {:.0} steps/s",
                 s.steps, s.dt, s.sim_seconds, s.wall_seconds, s.steps_per_second
@@ -412,6 +413,7 @@ fn execute(cli: Cli) -> Result<()> {
                     palpate::haptics::servo::MAX_LOG_TICKS
                 );
             }
+            warn_inverted(&scene, &s.run);
             if h.physics.realtime_capacity < 0.95 {
                 eprintln!(
                     "warning: the physics kept up with only {:.2}x real time: the simulated tissue lags the hand, and contact can chatter (make and break) instead of settling; use a coarser mesh, a larger [solver] mass_scaling (statics unchanged) or a GPU",
@@ -693,6 +695,24 @@ fn bench(study: BenchStudy) -> Result<()> {
             Ok(())
         }
     }
+}
+
+/// Warn when a run ends with inverted tets or particles (det F ≤ 0): there the force is not
+/// the material's, and with StVK it has no restoring part at all.
+fn warn_inverted(scene: &Scene, s: &palpate::output::summary::RunSummary) {
+    let particles = s.inverted_particles.unwrap_or(0);
+    if s.inverted_tets == 0 && particles == 0 {
+        return;
+    }
+    let advice = if scene.material.model == palpate::material::MaterialModel::Stvk {
+        "; stvk has no restoring force for inverted elements (its energy is blind to reflections), so the force there is wrong: use [material] model = \"stable_neohookean\" for large compression, e.g. under a tool"
+    } else {
+        ": the force there is not the material's (a smaller dt, a finer mesh or a stiffer model may help)"
+    };
+    eprintln!(
+        "warning: {}: {} tets and {particles} dynamic particles are inverted (det F <= 0) at the end{advice}",
+        scene.origin, s.inverted_tets
+    );
 }
 
 /// Warn when the tool at `centre` starts inside the tissue at rest: its contact then shoves
