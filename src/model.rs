@@ -321,11 +321,18 @@ impl Model {
         mut particles: crate::particles::Particles,
     ) -> Model {
         // Particles on the core side of their host — at least half their barycentric weight on
-        // vertices that carry core mass or are fixed — stay embedded: they tie the particle
-        // zone to the rest of the body (and keep those vertices' masses).
-        let anchored: Vec<bool> = (0..self.n_vertices())
-            .map(|v| fixed[v] || particles.core_mass[v] > 0.0)
-            .collect();
+        // vertices of core tets (outside the particle region) or fixed ones — stay embedded:
+        // they tie the particle zone to the rest of the body. (Not "vertices with core mass":
+        // a zone tet too thin to hold a lattice point keeps its mass on its vertices, and
+        // anchoring those pinned most of a finely layered zone.)
+        let mut anchored: Vec<bool> = fixed.to_vec();
+        for (t, &region) in self.tets.iter().zip(&self.regions) {
+            if region != particles.settings.region {
+                for &v in t {
+                    anchored[v as usize] = true;
+                }
+            }
+        }
         particles.pinned = (0..particles.len())
             .map(|p| {
                 let t = self.tets[particles.host[p] as usize];

@@ -63,8 +63,8 @@ pub struct Particles {
     /// Per vertex: the lumped mass of the tets that are not particle-holding zone tets, kg.
     pub core_mass: Vec<f32>,
     /// Per particle: it lies on the core side of its host (at least half its barycentric
-    /// weight on vertices with core mass or fixed), so it always stays embedded and ties the
-    /// particles to the rest of the body.
+    /// weight on vertices of core tets, outside the particle region, or fixed ones), so it
+    /// always stays embedded and ties the particles to the rest of the body.
     pub pinned: Vec<bool>,
 }
 
