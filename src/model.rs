@@ -468,10 +468,7 @@ impl Model {
         Some(
             crate::particles::params::ParticleParams {
                 n_particles: p.len() as u32,
-                model: match s.model {
-                    crate::scene::ParticleModel::Tlsph => 0,
-                    crate::scene::ParticleModel::Paper => 1,
-                },
+                model: s.model.index(),
                 substeps,
                 all_active: s.all_active as u32,
                 volume: p.volume,

@@ -447,7 +447,7 @@ fn the_bias_of_waking_only_the_particles_near_the_tool_falls_with_the_radius() {
 }
 
 /// The default haptic scene feels the same whichever way it is pressed: `lv_touch`'s press
-/// (2 mm along the inward normal, held; 73 of 5,211 particles awake) rotated about the long
+/// (2 mm along the inward normal, held; 61–73 of 5,211 particles awake) rotated about the long
 /// axis to 0°, 30° and 45° from its particle lattice's x axis gives the same static force
 /// within 12 % (measured 0.1013 / 0.0978 / 0.0930 N, 2026-11-24), and no tet or dynamic particle
 /// ends inverted. With StVK, which lost its restoring force where the particles under the tool

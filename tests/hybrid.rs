@@ -246,11 +246,13 @@ fn affine_residuals(scene: &Scene) -> (f32, f32, usize, usize, f32) {
 /// size): at a vertex away from the body's surface it halves with the spacing (checked below;
 /// measured 4.9, 3.4, 1.8, 0.94 % at Δx/h = 0.2, 0.1, 0.05, 0.025), while vertices one tet
 /// from the free surface stay near 3 % down to Δx/h = 0.075 (docs/hybrid_coupling.md). With
-/// 2.5 mm tets and 1 mm spacing (Δx/h = 0.4) it is 27 %, and the dynamic particles that come
-/// within a support of the core, whose sums are cut where the lattice ends, keep 5.6 %. An
+/// 2.5 mm tets and 1 mm spacing (Δx/h = 0.4) it is 37 %, and the dynamic particles that come
+/// within a support of the core, whose sums are cut where the lattice ends, keep 6.4 % (27 and
+/// 5.6 % while zone tets too thin to hold a lattice point still pinned the particles around
+/// them: half the zone was embedded, the dynamic particles farther from the core). An
 /// integration correction (Fernández-Méndez, Bonet & Huerta, Comput. Struct. 83, 2005) would
 /// remove both; not built. (A band of massless lattice particles continuing into the core
-/// removed the 5.6 % but made the core's kink modes soft: the zig-zag test below failed, so it
+/// removed the 6.4 % but made the core's kink modes soft: the zig-zag test below failed, so it
 /// is not shipped.) The bounds guard what is measured.
 #[test]
 fn rigid_motion_gives_no_force_and_an_affine_stretch_no_interior_residual() {
@@ -272,7 +274,7 @@ fn rigid_motion_gives_no_force_and_an_affine_stretch_no_interior_residual() {
     );
     assert!(n_p > 500 && n_v > 0);
     assert!(particles <= 0.1, "interior particles: {particles:.2e}");
-    assert!(vertices <= 0.4, "interface vertices: {vertices:.2e}");
+    assert!(vertices <= 0.45, "interface vertices: {vertices:.2e}");
     // First order in Δx/h: a 20 mm cube of 10 mm cells, its one interior vertex on the
     // planar interface, at 1 mm and 0.5 mm spacing (measured 3.4 % and 1.8 %).
     let at = |spacing| {

@@ -40,7 +40,7 @@ struct ParticleParams {
 // Bits of particle_mode.
 const MODE_DYNAMIC: u32 = 1u;        // own position, velocity and mass
 const MODE_BLENDING: u32 = 2u;       // released: embedded with a fading offset
-const MODE_PINNED: u32 = 4u;         // >= half its weight on core-mass or fixed vertices: never dynamic
+const MODE_PINNED: u32 = 4u;         // >= half its weight on core-tet or fixed vertices: never dynamic
 const MODE_NEAR: u32 = 8u;           // close enough to the tool to matter this update
 const MODE_IN_S: u32 = 16u;          // carries SPH stress (dynamic, or a neighbour of one)
 const MODE_IN_F: u32 = 32u;          // receives SPH force (in S, or a neighbour of S)

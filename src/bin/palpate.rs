@@ -698,20 +698,31 @@ fn bench(study: BenchStudy) -> Result<()> {
 }
 
 /// Warn when a run ends with inverted tets or particles (det F ≤ 0): there the force is not
-/// the material's, and with StVK it has no restoring part at all.
+/// the material's, and StVK pushes an inverted element towards its mirror image, not back.
 fn warn_inverted(scene: &Scene, s: &palpate::output::summary::RunSummary) {
     let particles = s.inverted_particles.unwrap_or(0);
     if s.inverted_tets == 0 && particles == 0 {
         return;
     }
-    let advice = if scene.material.model == palpate::material::MaterialModel::Stvk {
-        "; stvk has no restoring force for inverted elements (its energy is blind to reflections), so the force there is wrong: use [material] model = \"stable_neohookean\" for large compression, e.g. under a tool"
+    let what = match s.inverted_particles {
+        Some(n) => format!("{} tets and {n} particles are", s.inverted_tets),
+        None => format!("{} tets are", s.inverted_tets),
+    };
+    let paper = scene
+        .particles
+        .as_ref()
+        .is_some_and(|p| p.model == palpate::scene::ParticleModel::Paper);
+    let stvk = scene.material.model == palpate::material::MaterialModel::Stvk;
+    let advice = if particles > 0 && paper {
+        "; the paper particle model's stress is StVK whatever the material (eq. 1-2), which pushes inverted particles towards their mirror image: use [particles] model = \"tlsph\" with [material] model = \"stable_neohookean\" for large compression, e.g. under a tool"
+    } else if stvk {
+        "; stvk pushes inverted elements towards their mirror image, not back (its energy is blind to reflections), so the force there is wrong: use [material] model = \"stable_neohookean\" for large compression, e.g. under a tool"
     } else {
-        ": the force there is not the material's (a smaller dt, a finer mesh or a stiffer model may help)"
+        ": the force there is not the material's (a smaller dt or a finer mesh may help)"
     };
     eprintln!(
-        "warning: {}: {} tets and {particles} dynamic particles are inverted (det F <= 0) at the end{advice}",
-        scene.origin, s.inverted_tets
+        "warning: {}: {what} inverted (det F <= 0) at the end{advice}",
+        scene.origin
     );
 }
 

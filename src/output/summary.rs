@@ -179,9 +179,11 @@ pub struct RunSummary {
     /// The most dynamic particles at any batch end (scenes with particles).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub active_particles_max: Option<u32>,
-    /// Tets inverted (det F ≤ 0) at the end ([`crate::inversion`]).
+    /// Tets that carry strain energy and are inverted (det F ≤ 0) at the end
+    /// ([`crate::inversion`]).
     pub inverted_tets: usize,
-    /// Dynamic particles inverted (det F ≤ 0) at the end (scenes with particles).
+    /// Particles that carry SPH stress and are inverted (det F ≤ 0) at the end (scenes with
+    /// particles).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub inverted_particles: Option<usize>,
     /// The tool's centre at the end, m (scenes with a tool).

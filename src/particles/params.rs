@@ -81,8 +81,8 @@ pub mod mode {
     pub const DYNAMIC: u32 = 1;
     /// Released: embedded with a fading offset.
     pub const BLENDING: u32 = 2;
-    /// At least half its barycentric weight on vertices with core mass or fixed ones (it lies on
-    /// the core side of its host): never dynamic.
+    /// At least half its barycentric weight on vertices of core tets (outside the particle
+    /// region) or fixed ones (it lies on the core side of its host): never dynamic.
     pub const PINNED: u32 = 4;
     /// Close enough to the tool to matter this update.
     pub const NEAR: u32 = 8;

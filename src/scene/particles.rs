@@ -59,6 +59,14 @@ impl ParticleModel {
             ParticleModel::Paper => "paper",
         }
     }
+
+    /// The kernels' index (`ParticleParams::model`): 0 tlsph, 1 paper.
+    pub fn index(self) -> u32 {
+        match self {
+            ParticleModel::Tlsph => 0,
+            ParticleModel::Paper => 1,
+        }
+    }
 }
 
 /// Validated `[particles]` settings.
