@@ -447,8 +447,11 @@ impl Model {
         match &self.particles {
             None => 1,
             Some(p) => {
-                let bound =
-                    p.dt_bound(&self.material, self.tool.as_ref().map(|t| t.tool.stiffness));
+                let contact = self
+                    .tool
+                    .as_ref()
+                    .map(|t| (t.tool.stiffness, t.tool.damping));
+                let bound = p.dt_bound(&self.material, contact);
                 (dt / (self.safety * bound)).ceil().clamp(1.0, 64.0) as u32
             }
         }

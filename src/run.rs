@@ -486,6 +486,10 @@ pub fn summarize(
         dt_bound: model.bounds.dt_bound,
         dt_paper_eq14: model.bounds.dt_paper_eq14,
         dt_halvings: sim.halvings,
+        particle_substeps: model
+            .particles
+            .as_ref()
+            .map(|_| model.particle_substeps(sim.dt)),
         mass_scaling: scene.solver.mass_scaling,
         sim_seconds: sim.time,
         wall_seconds: wall,

@@ -151,6 +151,10 @@ pub struct RunSummary {
     pub dt_paper_eq14: f64,
     /// How many times dt was halved after a divergence.
     pub dt_halvings: u32,
+    /// Particle sub-steps per core step at the final dt: ⌈dt / (safety · particle bound)⌉
+    /// (scenes with particles).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub particle_substeps: Option<u32>,
     /// Mass scaling of the scene's `[solver]` (1: none).
     pub mass_scaling: f64,
     /// Simulated time, s.

@@ -113,19 +113,23 @@ impl Particles {
     }
 
     /// The largest stable particle step: the lattice's highest frequency, ω ≈ 2 c_p/Δx, as
-    /// for a tet of altitude Δx, and the tool's contact springs on surface particles,
-    /// ω² = k Δx²/m; combined in quadrature (see [`crate::timestep`]).
+    /// for a tet of altitude Δx, and the tool's contact springs on surface particles of area
+    /// Δx², ω_c² = k Δx²/m with damping ratio ζ = b Δx²/(2 m ω_c), whose bound
+    /// (2/ω_c)(sqrt(1 + ζ²) − ζ) is the vertices' one; combined in quadrature (see
+    /// [`crate::timestep`]). `contact` is the tool's (stiffness k, damping b per unit area).
     pub fn dt_bound(
         &self,
         material: &crate::material::MaterialParams,
-        contact_stiffness: Option<f64>,
+        contact: Option<(f64, f64)>,
     ) -> f64 {
         let dx = self.settings.spacing;
         let elastic = dx / material.p_wave_speed();
-        match contact_stiffness {
-            Some(k) => {
-                let omega = (k * dx * dx / self.mass as f64).sqrt();
-                let contact = 2.0 / omega;
+        match contact {
+            Some((k, b)) => {
+                let (area, m) = (dx * dx, self.mass as f64);
+                let omega = (k * area / m).sqrt();
+                let zeta = b * area / (2.0 * m * omega);
+                let contact = 2.0 / omega * crate::timestep::damped_step_factor(zeta);
                 1.0 / (1.0 / (elastic * elastic) + 1.0 / (contact * contact)).sqrt()
             }
             None => elastic,
