@@ -19,6 +19,7 @@ use crate::error::{PalpateError, Result};
 use crate::haptics::{
     self, DeviceSpec, DeviceStats, LocalModel, LoopClock, ServoConfig, ServoReport, ServoStats,
 };
+use crate::inversion::{InversionProbe, Inverted};
 use crate::output::state::state_vtu;
 use crate::output::summary::RunSummary;
 use crate::output::write_atomic;
@@ -155,6 +156,39 @@ pub struct PhysicsStats {
     /// The largest force the tissue exerted on the simulated tool over the session (the
     /// physics side, before any shaping or fading in the servo loop), N.
     pub peak_tool_force: [f64; 3],
+    /// Counts of inverted elements taken while in contact, one per `stiffness_period` of
+    /// wall time at most (the end state's count is `inverted_tets` / `inverted_particles`).
+    pub inversion_checks: u64,
+    /// The most inverted elements any of those counts found.
+    pub inverted_peak: InvertedPeak,
+}
+
+/// The largest count of inverted elements (tets + particles that carry strain energy, det F
+/// ≤ 0; [`crate::inversion`]) over a session's checks.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct InvertedPeak {
+    /// Inverted tets at that check.
+    pub tets: usize,
+    /// Inverted particles at that check.
+    pub particles: usize,
+    /// Simulated time of the first check with the most (tets + particles), s (absent: none
+    /// found).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub at_seconds: Option<f64>,
+}
+
+impl InvertedPeak {
+    /// Keep `n`, counted at simulated time `t`, if it has more inverted elements than the
+    /// peak so far.
+    pub fn record(&mut self, n: Inverted, t: f64) {
+        if n.tets + n.particles > self.tets + self.particles {
+            *self = InvertedPeak {
+                tets: n.tets,
+                particles: n.particles,
+                at_seconds: Some(t),
+            };
+        }
+    }
 }
 
 /// The `haptic` section of `summary.json`.
@@ -298,6 +332,8 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
         );
     }
 
+    // Built before the servo starts: with hm1's 28,000 particles it takes milliseconds.
+    let probe = InversionProbe::new(&model);
     let steps_per_batch = ((opts.batch_seconds / sim.dt).round() as u32).max(1);
     let clock = LoopClock::new();
     let (servo_end, mut physics) = haptics::link(clock);
@@ -337,6 +373,8 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
     let mut unrecovered: Option<(u64, u32, f64)> = None;
     let mut published_k = DMat3::ZERO;
     let mut last_refresh: Option<Instant> = None;
+    // Inverted elements are counted on the same period while in contact.
+    let mut last_check: Option<Instant> = None;
     let mut rest = RestWatch::new(scene);
     let period = Duration::from_secs_f64(config.period());
     let mut last_used = 0u64;
@@ -428,19 +466,28 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                     stats.peak_tool_force = report.force.to_array();
                 }
             }
+            // The state to count inverted elements in, after the model is published.
+            let mut to_check = None;
             if !in_contact {
                 published_k = DMat3::ZERO;
                 last_refresh = None;
+                last_check = None;
             } else {
+                let due = |t: Option<Instant>| {
+                    t.is_none_or(|t| t.elapsed().as_secs_f64() >= opts.stiffness_period)
+                };
+                let refresh = matches!(stiffness, StiffnessSource::Static(_)) && due(last_refresh);
+                let check = due(last_check);
+                let t = Instant::now();
+                let read = if refresh || check {
+                    Some((sim.state()?, sim.particle_state()?))
+                } else {
+                    None
+                };
                 match &mut stiffness {
                     StiffnessSource::Frozen(_) => published_k = report.stiffness,
                     StiffnessSource::Static(compliance) => {
-                        let due = last_refresh
-                            .is_none_or(|t| t.elapsed().as_secs_f64() >= opts.stiffness_period);
-                        if due {
-                            let t = Instant::now();
-                            let state = sim.state()?;
-                            let particles = sim.particle_state()?;
+                        if let (true, Some((state, particles))) = (refresh, &read) {
                             let points = contact_points(
                                 &model,
                                 &state.displacements,
@@ -460,6 +507,9 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                         }
                     }
                 }
+                if check {
+                    to_check = read;
+                }
             }
             physics.publish(LocalModel {
                 force: if diverged { DVec3::ZERO } else { report.force },
@@ -477,6 +527,15 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                 penetration: report.max_penetration,
                 active_particles: sim.last_particles.map_or(0, |p| p.dynamic),
             });
+            if let Some((state, particles)) = to_check {
+                let n = match &probe {
+                    Some(p) => p.inverted(&model, &state, particles.as_ref()),
+                    None => crate::inversion::inverted(&model, &state, None),
+                };
+                stats.inversion_checks += 1;
+                stats.inverted_peak.record(n, sim.time);
+                last_check = Some(Instant::now());
+            }
             if let Guarded::Done(s) = result {
                 if opts.sleep_at_rest
                     && rest.after_batch(&sim, &s, in_contact)

@@ -911,12 +911,9 @@ fn a_tool_that_starts_inside_the_tissue_is_warned_about() {
     }
 }
 
-/// A run that ends with inverted elements says so: `lv_touch` pressed 30° off its particle
-/// lattice with StVK inverts particles under the tool (summary `inverted_particles` > 0 and a
-/// warning naming the remedy); with its shipped stable neo-Hookean material, none.
-#[test]
-fn inverted_elements_at_the_end_are_counted_and_warned_about() {
-    let d = tmp("inverted");
+/// `lv_touch` with its tool's home and press turned 30° about the long axis, off the particle
+/// lattice's axes (the direction where StVK inverts particles under the tool).
+fn lv_touch_at_30_degrees() -> String {
     let (c, s) = (30f64.to_radians().cos(), 30f64.to_radians().sin());
     let scene = include_str!("../scenes/lv_touch.toml")
         .replace(
@@ -939,6 +936,16 @@ fn inverted_elements_at_the_end_are_counted_and_warned_about() {
         scene.contains("path = [[0.0, 0.0127"),
         "the press was not rotated"
     );
+    scene
+}
+
+/// A run that ends with inverted elements says so: `lv_touch` pressed 30° off its particle
+/// lattice with StVK inverts particles under the tool (summary `inverted_particles` > 0 and a
+/// warning naming the remedy); with its shipped stable neo-Hookean material, none.
+#[test]
+fn inverted_elements_at_the_end_are_counted_and_warned_about() {
+    let d = tmp("inverted");
+    let scene = lv_touch_at_30_degrees();
     let shipped = "model = \"stable_neohookean\"";
     assert!(scene.contains(shipped));
     for (name, text, inverts) in [
@@ -972,6 +979,78 @@ fn inverted_elements_at_the_end_are_counted_and_warned_about() {
             );
         } else {
             assert_eq!(particles, 0, "{name}");
+            assert!(warning.is_none(), "{name}: {err}");
+        }
+    }
+}
+
+/// A haptic session counts inverted elements while the tool touches, not only at the end:
+/// `lv_touch` with StVK, pressed 2 mm 30° off its particle lattice and released, inverts
+/// particles at the deepest press and none at the end; the session's `inverted_peak` says
+/// how many and when, and a warning names the remedy. With the shipped stable neo-Hookean
+/// material the counts find none.
+#[test]
+fn a_haptic_session_reports_inversions_while_in_contact() {
+    let d = tmp("inverted_haptic");
+    let scene = lv_touch_at_30_degrees();
+    let shipped = "model = \"stable_neohookean\"";
+    assert!(scene.contains(shipped));
+    // Offsets from home: in 3 mm along the press (2 mm into the wall) over 0.5 s, hold,
+    // out by 1.3 s.
+    let (c, s) = (30f64.to_radians().cos(), 30f64.to_radians().sin());
+    let (x, y) = (-0.003 * c, -0.003 * s);
+    let press = d.join("press.csv");
+    std::fs::write(
+        &press,
+        format!("t,x,y,z\n0,0,0,0\n0.5,{x},{y},0\n1.0,{x},{y},0\n1.3,0,0,0\n1.5,0,0,0\n"),
+    )
+    .unwrap();
+    for (name, text, inverts) in [
+        ("stvk", scene.replace(shipped, "model = \"stvk\""), true),
+        ("neohookean", scene.clone(), false),
+    ] {
+        let path = scene_file(&d, &format!("{name}.toml"), &text);
+        let out = d.join(name);
+        let (ok, _, err) = palpate(&[
+            "haptic",
+            &path,
+            "--backend",
+            "cpu",
+            "--device",
+            &format!("scripted:{}", press.display()),
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert!(ok, "{name}: {err}");
+        let sm = summary(&out);
+        let physics = &sm["haptic"]["physics"];
+        let peak = &physics["inverted_peak"];
+        let checks = physics["inversion_checks"].as_u64().unwrap();
+        assert!(checks >= 10, "{name}: {checks} counts while in contact");
+        let warning = err
+            .lines()
+            .find(|l| l.starts_with("warning:") && l.contains("while the tool touched the tissue"));
+        if inverts {
+            let particles = peak["particles"].as_u64().unwrap();
+            let at = peak["at_seconds"].as_f64().unwrap();
+            assert!(particles > 0, "{name}: {peak}");
+            assert!((0.3..1.3).contains(&at), "{name}: first at t = {at} s");
+            assert_eq!(
+                sm["inverted_particles"].as_u64(),
+                Some(0),
+                "{name}: the release should leave none inverted: {sm}"
+            );
+            let line = warning.unwrap_or_else(|| panic!("{name}: no warning in {err}"));
+            assert!(
+                line.contains(&format!(
+                    "up to 0 tets and {particles} particles were inverted"
+                )) && line.contains("use [material] model = \"stable_neohookean\""),
+                "{line}"
+            );
+        } else {
+            assert_eq!(peak["particles"].as_u64(), Some(0), "{name}: {peak}");
+            assert_eq!(peak["tets"].as_u64(), Some(0), "{name}: {peak}");
+            assert!(peak.get("at_seconds").is_none(), "{name}: {peak}");
             assert!(warning.is_none(), "{name}: {err}");
         }
     }

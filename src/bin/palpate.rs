@@ -414,6 +414,7 @@ fn execute(cli: Cli) -> Result<()> {
                 );
             }
             warn_inverted(&scene, &s.run);
+            warn_inverted_in_contact(&scene, h);
             if h.physics.realtime_capacity < 0.95 {
                 eprintln!(
                     "warning: the physics kept up with only {:.2}x real time: the simulated tissue lags the hand, and contact can chatter (make and break) instead of settling; use a coarser mesh, a larger [solver] mass_scaling (statics unchanged) or a GPU",
@@ -708,22 +709,47 @@ fn warn_inverted(scene: &Scene, s: &palpate::output::summary::RunSummary) {
         Some(n) => format!("{} tets and {n} particles are", s.inverted_tets),
         None => format!("{} tets are", s.inverted_tets),
     };
+    eprintln!(
+        "warning: {}: {what} inverted (det F <= 0) at the end{}",
+        scene.origin,
+        inversion_advice(scene, particles > 0)
+    );
+}
+
+/// Warn when a haptic session's counts while in contact found inverted elements (the end
+/// state's count is [`warn_inverted`]'s).
+fn warn_inverted_in_contact(scene: &Scene, h: &palpate::haptic_run::HapticStats) {
+    let peak = &h.physics.inverted_peak;
+    let Some(t) = peak.at_seconds else {
+        return;
+    };
+    let what = if scene.particles.is_some() {
+        format!("{} tets and {} particles were", peak.tets, peak.particles)
+    } else {
+        format!("{} tets were", peak.tets)
+    };
+    eprintln!(
+        "warning: {}: while the tool touched the tissue, up to {what} inverted (det F <= 0; first at t = {t:.3} s, counted {} times){}",
+        scene.origin,
+        h.physics.inversion_checks,
+        inversion_advice(scene, peak.particles > 0)
+    );
+}
+
+/// What to do about inverted elements in `scene` (`particles`: some were particles).
+fn inversion_advice(scene: &Scene, particles: bool) -> &'static str {
     let paper = scene
         .particles
         .as_ref()
         .is_some_and(|p| p.model == palpate::scene::ParticleModel::Paper);
     let stvk = scene.material.model == palpate::material::MaterialModel::Stvk;
-    let advice = if particles > 0 && paper {
+    if particles && paper {
         "; the paper particle model's stress is StVK whatever the material (eq. 1-2), which pushes inverted particles towards their mirror image: use [particles] model = \"tlsph\" with [material] model = \"stable_neohookean\" for large compression, e.g. under a tool"
     } else if stvk {
         "; stvk pushes inverted elements towards their mirror image, not back (its energy is blind to reflections), so the force there is wrong: use [material] model = \"stable_neohookean\" for large compression, e.g. under a tool"
     } else {
         ": the force there is not the material's (a smaller dt or a finer mesh may help)"
-    };
-    eprintln!(
-        "warning: {}: {what} inverted (det F <= 0) at the end{advice}",
-        scene.origin
-    );
+    }
 }
 
 /// Warn when the tool at `centre` starts inside the tissue at rest: its contact then shoves
