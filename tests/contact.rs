@@ -554,7 +554,10 @@ fn lv_touch_presses_close_to_the_converged_all_tet_lv() {
         );
         forces.push(f);
     }
-    let (awake, all) = (forces[0] / LV_PRESS_CONVERGED_N, forces[1] / LV_PRESS_CONVERGED_N);
+    let (awake, all) = (
+        forces[0] / LV_PRESS_CONVERGED_N,
+        forces[1] / LV_PRESS_CONVERGED_N,
+    );
     assert!(
         (all - 1.0).abs() <= 0.04,
         "every particle awake: {:.4} N, {:+.1} % off the converged LV",
