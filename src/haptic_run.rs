@@ -171,8 +171,8 @@ pub struct InvertedPeak {
     pub tets: usize,
     /// Inverted particles at that check.
     pub particles: usize,
-    /// Simulated time of the first check with the most (tets + particles), s (absent: none
-    /// found).
+    /// Simulated time of the first check that found this many (tets + particles), s (absent:
+    /// none found; an inversion may have begun at an earlier check).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub at_seconds: Option<f64>,
 }
@@ -503,12 +503,15 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                             if refresh_ms.len() < MAX_TIMINGS {
                                 refresh_ms.push(t.elapsed().as_secs_f64() * 1e3);
                             }
-                            last_refresh = Some(Instant::now());
+                            // Stamped at the read, as the count's timer is, so that one
+                            // read serves both each period.
+                            last_refresh = Some(t);
                         }
                     }
                 }
                 if check {
                     to_check = read;
+                    last_check = Some(t);
                 }
             }
             physics.publish(LocalModel {
@@ -528,13 +531,15 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                 active_particles: sim.last_particles.map_or(0, |p| p.dynamic),
             });
             if let Some((state, particles)) = to_check {
+                let t = Instant::now();
                 let n = match &probe {
                     Some(p) => p.inverted(&model, &state, particles.as_ref()),
                     None => crate::inversion::inverted(&model, &state, None),
                 };
                 stats.inversion_checks += 1;
                 stats.inverted_peak.record(n, sim.time);
-                last_check = Some(Instant::now());
+                // Physics-thread work between batches: counted as busy time.
+                busy_seconds += t.elapsed().as_secs_f64();
             }
             if let Guarded::Done(s) = result {
                 if opts.sleep_at_rest

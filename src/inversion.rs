@@ -134,6 +134,10 @@ impl InversionProbe {
 /// reference neighbour lists on the CPU (a one-off cost at the end of a run; a session that
 /// counts often keeps an [`InversionProbe`]).
 pub fn inverted_particles(model: &Model, state: &State, snap: &ParticleSnapshot) -> usize {
+    let stressed = |m: &u32| m & (mode::DYNAMIC | mode::IN_S) != 0;
+    if !snap.modes.iter().any(stressed) {
+        return 0;
+    }
     InversionProbe::new(model).map_or(0, |probe| probe.inverted_particles(model, state, snap))
 }
 

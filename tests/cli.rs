@@ -996,13 +996,13 @@ fn a_haptic_session_reports_inversions_while_in_contact() {
     let shipped = "model = \"stable_neohookean\"";
     assert!(scene.contains(shipped));
     // Offsets from home: in 3 mm along the press (2 mm into the wall) over 0.5 s, hold,
-    // out by 1.3 s.
+    // out by 1.3 s, then clear until 2.5 s (time for a lagging physics thread to follow).
     let (c, s) = (30f64.to_radians().cos(), 30f64.to_radians().sin());
     let (x, y) = (-0.003 * c, -0.003 * s);
     let press = d.join("press.csv");
     std::fs::write(
         &press,
-        format!("t,x,y,z\n0,0,0,0\n0.5,{x},{y},0\n1.0,{x},{y},0\n1.3,0,0,0\n1.5,0,0,0\n"),
+        format!("t,x,y,z\n0,0,0,0\n0.5,{x},{y},0\n1.0,{x},{y},0\n1.3,0,0,0\n2.5,0,0,0\n"),
     )
     .unwrap();
     for (name, text, inverts) in [
@@ -1044,7 +1044,8 @@ fn a_haptic_session_reports_inversions_while_in_contact() {
             assert!(
                 line.contains(&format!(
                     "up to 0 tets and {particles} particles were inverted"
-                )) && line.contains("use [material] model = \"stable_neohookean\""),
+                )) && line.contains(&format!("the most at t = {at:.3} s"))
+                    && line.contains("use [material] model = \"stable_neohookean\""),
                 "{line}"
             );
         } else {

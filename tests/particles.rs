@@ -1107,6 +1107,11 @@ fn contact_damping_shortens_the_particle_sub_step() {
     eprintln!(
         "dt {dt:.3e} s; particle bound {bound:.3e} s (undamped {undamped:.3e} s): {s} sub-steps"
     );
+    let s_undamped = (dt / (m.safety * undamped)).ceil() as u32;
+    assert!(
+        s_undamped < s,
+        "the case must tell the bounds apart: {s} sub-steps, undamped {s_undamped}"
+    );
     assert!(
         dt / s as f64 <= m.safety * bound,
         "sub-step {:.3e} s over {} x the bound {bound:.3e} s",

@@ -729,7 +729,7 @@ fn warn_inverted_in_contact(scene: &Scene, h: &palpate::haptic_run::HapticStats)
         format!("{} tets were", peak.tets)
     };
     eprintln!(
-        "warning: {}: while the tool touched the tissue, up to {what} inverted (det F <= 0; first at t = {t:.3} s, counted {} times){}",
+        "warning: {}: while the tool touched the tissue, up to {what} inverted (det F <= 0; the most at t = {t:.3} s, of {} counts){}",
         scene.origin,
         h.physics.inversion_checks,
         inversion_advice(scene, peak.particles > 0)
