@@ -939,19 +939,26 @@ fn lv_touch_at_30_degrees() -> String {
     scene
 }
 
+/// `lv_touch` turned 30° ([`lv_touch_at_30_degrees`]) with StVK, which inverts particles
+/// under the tool, and with its shipped stable neo-Hookean material, which does not: (name,
+/// scene text, whether it inverts).
+fn stvk_and_shipped_at_30_degrees() -> [(&'static str, String, bool); 2] {
+    let scene = lv_touch_at_30_degrees();
+    let shipped = "model = \"stable_neohookean\"";
+    assert!(scene.contains(shipped));
+    [
+        ("stvk", scene.replace(shipped, "model = \"stvk\""), true),
+        ("neohookean", scene, false),
+    ]
+}
+
 /// A run that ends with inverted elements says so: `lv_touch` pressed 30° off its particle
 /// lattice with StVK inverts particles under the tool (summary `inverted_particles` > 0 and a
 /// warning naming the remedy); with its shipped stable neo-Hookean material, none.
 #[test]
 fn inverted_elements_at_the_end_are_counted_and_warned_about() {
     let d = tmp("inverted");
-    let scene = lv_touch_at_30_degrees();
-    let shipped = "model = \"stable_neohookean\"";
-    assert!(scene.contains(shipped));
-    for (name, text, inverts) in [
-        ("stvk", scene.replace(shipped, "model = \"stvk\""), true),
-        ("neohookean", scene.clone(), false),
-    ] {
+    for (name, text, inverts) in stvk_and_shipped_at_30_degrees() {
         let path = scene_file(&d, &format!("{name}.toml"), &text);
         let out = d.join(name);
         let (ok, _, err) = palpate(&[
@@ -992,9 +999,6 @@ fn inverted_elements_at_the_end_are_counted_and_warned_about() {
 #[test]
 fn a_haptic_session_reports_inversions_while_in_contact() {
     let d = tmp("inverted_haptic");
-    let scene = lv_touch_at_30_degrees();
-    let shipped = "model = \"stable_neohookean\"";
-    assert!(scene.contains(shipped));
     // Offsets from home: in 3 mm along the press (2 mm into the wall) over 0.5 s, hold,
     // out by 1.3 s, then clear until 2.5 s (time for a lagging physics thread to follow).
     let (c, s) = (30f64.to_radians().cos(), 30f64.to_radians().sin());
@@ -1005,10 +1009,7 @@ fn a_haptic_session_reports_inversions_while_in_contact() {
         format!("t,x,y,z\n0,0,0,0\n0.5,{x},{y},0\n1.0,{x},{y},0\n1.3,0,0,0\n2.5,0,0,0\n"),
     )
     .unwrap();
-    for (name, text, inverts) in [
-        ("stvk", scene.replace(shipped, "model = \"stvk\""), true),
-        ("neohookean", scene.clone(), false),
-    ] {
+    for (name, text, inverts) in stvk_and_shipped_at_30_degrees() {
         let path = scene_file(&d, &format!("{name}.toml"), &text);
         let out = d.join(name);
         let (ok, _, err) = palpate(&[

@@ -446,6 +446,24 @@ fn the_bias_of_waking_only_the_particles_near_the_tool_falls_with_the_radius() {
     }
 }
 
+/// An `lv_touch` variant run on the CPU for 2 s, its press held until the wall has settled
+/// (the run must end ok); `tag` names its output directory.
+fn settled_press(scene: &Scene, tag: &str) -> palpate::output::summary::RunSummary {
+    let out = std::env::temp_dir().join(format!("palpate-lv-touch-{tag}-{}", std::process::id()));
+    let s = run(
+        scene,
+        &RunOptions {
+            backend: Backend::Cpu,
+            length: RunLength::Duration(2.0),
+            out,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    assert_eq!(s.status, "ok", "{tag}: {}", s.status);
+    s
+}
+
 /// The default haptic scene feels the same whichever way it is pressed: `lv_touch`'s press
 /// (2 mm along the inward normal, held; 63–80 of 5,268 particles awake) rotated about the long
 /// axis to 0°, 30° and 45° from its particle lattice's x axis gives the same force after 2 s
@@ -466,21 +484,7 @@ fn lv_touch_feels_the_same_pressed_along_or_across_its_particle_lattice() {
             *at = turn * *at;
         }
         let (start, end) = (tool.path[0].1, tool.path[tool.path.len() - 1].1);
-        let out = std::env::temp_dir().join(format!(
-            "palpate-lv-touch-direction-{}-{degrees}",
-            std::process::id()
-        ));
-        let s = run(
-            &scene,
-            &RunOptions {
-                backend: Backend::Cpu,
-                length: RunLength::Duration(2.0),
-                out,
-                ..Default::default()
-            },
-        )
-        .unwrap();
-        assert_eq!(s.status, "ok", "{degrees}°: {}", s.status);
+        let s = settled_press(&scene, &format!("direction-{degrees}"));
         let f = DVec3::from_array(s.tool_force.unwrap());
         let inward = (end - start).normalize();
         eprintln!(
@@ -530,22 +534,7 @@ fn lv_touch_presses_close_to_the_converged_all_tet_lv() {
     all.particles.as_mut().unwrap().all_active = true;
     let mut forces = Vec::new();
     for (name, scene) in [("1 mm awake", &shipped), ("all awake", &all)] {
-        let out = std::env::temp_dir().join(format!(
-            "palpate-lv-touch-converged-{}-{}",
-            std::process::id(),
-            forces.len()
-        ));
-        let s = run(
-            scene,
-            &RunOptions {
-                backend: Backend::Cpu,
-                length: RunLength::Duration(2.0),
-                out,
-                ..Default::default()
-            },
-        )
-        .unwrap();
-        assert_eq!(s.status, "ok", "{name}: {}", s.status);
+        let s = settled_press(scene, &format!("converged-{}", forces.len()));
         let f = DVec3::from_array(s.tool_force.unwrap()).length();
         eprintln!(
             "{name}: |F| = {f:.4} N ({:+.1} % against the converged {LV_PRESS_CONVERGED_N} N), {} dynamic particles",
