@@ -1847,3 +1847,180 @@ fn a_released_particle_was_far_for_at_least_the_dwell() {
         "second far check in a row: released, blending back"
     );
 }
+
+/// The CPU stepper's force stage evaluates each tlsph pair once (`cpu::sph_pairs`): the owner
+/// computes the pair's terms, the other end takes their negatives. On the pressed block after
+/// 60 steps (dynamic, stressed and touching particles, hourglass control on), its forces, force
+/// sums and contacts must equal the kernel twin's (`cpu::sph_forces`, which visits each pair
+/// from both ends) to rounding, with the stress and force lists in index order and in reverse
+/// (the stepper's incremental lists are not sorted); with gravity and the tool left out, the
+/// forces must sum to zero to rounding (each pair's two ends get exactly opposite terms).
+#[test]
+fn the_paired_sph_force_stage_equals_the_kernel_twin() {
+    use palpate::cpu::sph_pairs::{transpose_slots, PairPlan, PairScratch, PlanScratch};
+    let scene = pressed_block();
+    let m = Arc::new(Model::from_scene(&scene));
+    let pd = m.particles.as_ref().unwrap();
+    let params = m.step_params(0.5 * m.bounds.dt_bound, 50.0);
+    let pp = m.particle_params(&params).unwrap();
+    assert!(
+        pp.model == 0 && pp.hourglass > 0.0,
+        "tlsph with hourglass control"
+    );
+    let mut s = cpu::CpuStepper::with_threads(m.clone(), params, 2).unwrap();
+    let (a, b) = (
+        DVec3::new(0.01, 0.01, 0.0135),
+        DVec3::new(0.01, 0.01, 0.0118),
+    );
+    s.submit(60, &BatchInput::moving(a, b)).unwrap();
+    s.wait().unwrap();
+    let snap = s.particle_state().unwrap();
+    let n = pd.len();
+    let grid = GridParams::over(&pd.rest, pd.support);
+    let lists = cpu::neighbours::build(&grid, &pd.rest);
+    let (noff, nbrs) = (&lists.neighbour_offsets, &lists.neighbours);
+    let pairs = cpu::sph::PairTable::new(&pp, &pd.rest, noff, nbrs);
+    let transpose = transpose_slots(noff, nbrs);
+    let with = |bit: u32| -> Vec<u32> {
+        (0..n as u32)
+            .filter(|&p| snap.modes[p as usize] & bit != 0)
+            .collect()
+    };
+    let (sl, fl, dl) = (with(mode::IN_S), with(mode::IN_F), with(mode::DYNAMIC));
+    assert!(
+        dl.len() > 20 && sl.len() > dl.len() && fl.len() > sl.len(),
+        "dynamic {}, stress {}, force {}",
+        dl.len(),
+        sl.len(),
+        fl.len()
+    );
+    let mut correction = vec![0.0f32; 9 * n];
+    cpu::sph_setup::sph_setup(&pp, &pd.rest, noff, nbrs, &mut correction);
+    let (mut stress, mut grad, mut energy) =
+        (vec![0.0f32; 9 * n], vec![0.0f32; 9 * n], vec![0.0f32; n]);
+    cpu::sph_stress::sph_stress(
+        &params,
+        &pp,
+        m.material.model,
+        &sl,
+        &pd.rest,
+        &snap.displacements,
+        noff,
+        nbrs,
+        &correction,
+        Some(&pairs),
+        &mut stress,
+        &mut grad,
+        &mut energy,
+    );
+    let tp = m.tool_params();
+    let tool_input = palpate::contact::batch_input(a, b, 60);
+    let tool_state = palpate::contact::ToolState {
+        position: b.as_vec3().to_array(),
+        step: 60,
+    };
+    let inp = cpu::sph_forces::ForceInputs {
+        params: &params,
+        pp: &pp,
+        tool: Some((&tp, &tool_input, &tool_state)),
+        mode: &snap.modes,
+        rest: &pd.rest,
+        displacements: &snap.displacements,
+        velocities: &snap.velocities,
+        neighbour_offsets: noff,
+        neighbours: nbrs,
+        stress: &stress,
+        gradient: &grad,
+        area: &pd.contact_area,
+        contact_offset: &pd.contact_offset,
+        pairs: Some(&pairs),
+    };
+    let on_fl = |x: &[f32]| -> Vec<f32> {
+        fl.iter()
+            .flat_map(|&p| (0..3).map(move |k| x[3 * p as usize + k]))
+            .collect()
+    };
+    let twin = |inp: &cpu::sph_forces::ForceInputs| {
+        let (mut f, mut fs, mut fc) = (
+            vec![0.0f32; 3 * n],
+            vec![0.0f32; 3 * n],
+            vec![0.0f32; 3 * n],
+        );
+        cpu::sph_forces::sph_forces(inp, &fl, false, &mut f, &mut fs, &mut fc);
+        (f, fs, fc)
+    };
+    let (mut plan, mut plan_scratch, mut scratch) = (
+        PairPlan::default(),
+        PlanScratch::default(),
+        PairScratch::default(),
+    );
+    let mut paired = |inp: &cpu::sph_forces::ForceInputs, sl: &[u32], fl: &[u32]| {
+        plan.rebuild(
+            sl,
+            fl,
+            inp.mode,
+            (noff, nbrs, &transpose),
+            &mut plan_scratch,
+        );
+        let (mut f, mut fs, mut fc) = (
+            vec![0.0f32; 3 * n],
+            vec![0.0f32; 3 * n],
+            vec![0.0f32; 3 * n],
+        );
+        plan.sph_forces(inp, sl, fl, false, &mut scratch, &mut f, &mut fs, &mut fc);
+        (f, fs, fc, plan.pairs())
+    };
+    let (f, fs, fc) = twin(&inp);
+    let touching = fl
+        .iter()
+        .filter(|&&p| fc[3 * p as usize + 2] != 0.0)
+        .count();
+    assert!(touching > 0, "no particle touches the tool");
+    let (rs, rf): (Vec<u32>, Vec<u32>) = (
+        sl.iter().rev().copied().collect(),
+        fl.iter().rev().copied().collect(),
+    );
+    for (order, sl_o, fl_o) in [("index order", &sl, &fl), ("reversed", &rs, &rf)] {
+        let (pf, pfs, pfc, n_pairs) = paired(&inp, sl_o, fl_o);
+        for (name, c, p) in [
+            ("particle_forces", &f, &pf),
+            ("particle_force_sum", &fs, &pfs),
+            ("particle_contact", &fc, &pfc),
+        ] {
+            let e = rel(&on_fl(p), &on_fl(c));
+            eprintln!("paired sph_forces ({order}, {n_pairs} pairs): {name} rel err {e:.2e}");
+            assert!(
+                e <= 1e-5,
+                "paired sph_forces ({order}): {name} rel err {e:.2e}"
+            );
+        }
+    }
+    // Internal forces only: they sum to zero to rounding.
+    let still = palpate::params::StepParams {
+        gravity: [0.0; 3],
+        ..params
+    };
+    let internal = cpu::sph_forces::ForceInputs {
+        params: &still,
+        tool: None,
+        ..inp
+    };
+    let (pf, _, _, _) = paired(&internal, &sl, &fl);
+    let sum_of = |f: &[f32]| {
+        fl.iter().fold((DVec3::ZERO, 0.0f64), |(t, s), &p| {
+            let v = cpu::load3(f, p as usize).as_dvec3();
+            (t + v, s + v.length())
+        })
+    };
+    let (total, scale) = sum_of(&pf);
+    let (twin_total, _) = sum_of(&twin(&internal).0);
+    eprintln!(
+        "internal forces: |sum| / sum |f| = {:.2e} paired, {:.2e} twin",
+        total.length() / scale,
+        twin_total.length() / scale
+    );
+    assert!(
+        scale > 0.0 && total.length() <= 1e-6 * scale,
+        "the paired forces do not sum to zero"
+    );
+}

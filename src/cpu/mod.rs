@@ -26,6 +26,7 @@ pub mod reduce;
 pub mod scan;
 pub mod sph;
 pub mod sph_forces;
+pub mod sph_pairs;
 pub mod sph_setup;
 pub mod sph_stress;
 pub mod stepper;

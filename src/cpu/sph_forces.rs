@@ -50,12 +50,30 @@ pub struct ForceInputs<'a> {
 /// the same operations as the kernel, in registers.
 #[inline]
 fn add_pair_terms(inp: &ForceInputs, k: usize, side: &Side, f: &mut Vec3A) {
+    if let Some((stress, hourglass)) = pair_terms(inp, k, side) {
+        *f += stress;
+        if let Some(h) = hourglass {
+            *f += h;
+        }
+    }
+}
+
+/// The two terms of [`add_pair_terms`] on particle c (`side`) from the pair in its slot k:
+/// None when neither particle is in S; the hourglass term only where it applies. tlsph's
+/// terms are antisymmetric (the pair's other particle gets their negatives, up to rounding),
+/// which `cpu::sph_pairs` uses to evaluate each pair once.
+#[inline]
+pub(crate) fn pair_terms(
+    inp: &ForceInputs,
+    k: usize,
+    side: &Side,
+) -> Option<(Vec3A, Option<Vec3A>)> {
     let pp = inp.pp;
     let b = inp.neighbours[k] as usize;
     let mode_b = inp.mode[b];
     let in_s_b = mode_b & mode::IN_S != 0;
     if !side.in_s && !in_s_b {
-        return;
+        return None;
     }
     let x0b = load3a(inp.rest, b);
     let w = match inp.pairs {
@@ -65,16 +83,16 @@ fn add_pair_terms(inp: &ForceInputs, k: usize, side: &Side, f: &mut Vec3A) {
     let v2 = pp.volume * pp.volume;
     if pp.model == 1 {
         if in_s_b {
-            *f += (load_mat3a(inp.stress, b) * w) * v2;
+            return Some(((load_mat3a(inp.stress, b) * w) * v2, None));
         }
-        return;
+        return None;
     }
     let a_sum = if in_s_b {
         side.a + load_mat3a(inp.stress, b)
     } else {
         side.a
     };
-    *f += (a_sum * w) * v2;
+    let stress = (a_sum * w) * v2;
     // Only pairs with a dynamic particle: followers move with their tets, so a pair of them
     // cannot form a zig-zag mode (their relative motion is the tets').
     let dynamic_pair = (mode_b | side.mode) & mode::DYNAMIC != 0;
@@ -104,9 +122,10 @@ fn add_pair_terms(inp: &ForceInputs, k: usize, side: &Side, f: &mut Vec3A) {
                     hg * wendland(r0, pp.support) / (r0 * r0)
                 }
             };
-            *f += xcb * (weight * (g.dot(xcb) / r2 - sides));
+            return Some((stress, Some(xcb * (weight * (g.dot(xcb) / r2 - sides)))));
         }
     }
+    Some((stress, None))
 }
 
 #[inline]
@@ -125,7 +144,7 @@ fn load_mat3a(a: &[f32], i: usize) -> Mat3A {
 }
 
 /// Particle c's own quantities for [`add_pair_terms`].
-struct Side {
+pub(crate) struct Side {
     mode: u32,
     in_s: bool,
     x0: Vec3A,
@@ -135,7 +154,8 @@ struct Side {
 }
 
 impl Side {
-    fn of(inp: &ForceInputs, c: usize) -> Side {
+    /// Particle c's mode, rest position, displacement, A and F (A = 0, F = I outside S).
+    pub(crate) fn of(inp: &ForceInputs, c: usize) -> Side {
         let in_s = inp.mode[c] & mode::IN_S != 0;
         let (a, f) = if in_s {
             (
@@ -158,7 +178,7 @@ impl Side {
 
 /// Add gravity and the tool's contact to f when particle c is dynamic (in that order, as
 /// the kernel does); returns the contact force.
-fn add_external(inp: &ForceInputs, c: usize, side: &Side, f: &mut Vec3) -> Vec3 {
+pub(crate) fn add_external(inp: &ForceInputs, c: usize, side: &Side, f: &mut Vec3) -> Vec3 {
     let mut contact = Vec3::ZERO;
     if inp.mode[c] & mode::DYNAMIC != 0 {
         *f += Vec3::from_array(inp.params.gravity) * inp.pp.mass;
@@ -195,7 +215,7 @@ pub fn force_on(inp: &ForceInputs, c: usize) -> (Vec3, Vec3) {
     (f, contact)
 }
 
-fn store_forces(
+pub(crate) fn store_forces(
     inp: &ForceInputs,
     force_list: &[u32],
     results: Vec<(Vec3, Vec3)>,

@@ -159,6 +159,8 @@ struct ActivationProducts {
     weighted_tets: Vec<u32>,
     /// Per coupled vertex, the slots `gather_coupled` adds (valid until the state is replaced).
     coupled_slots: super::gather::CoupledSlots,
+    /// The force-carrying pairs of the stress and force lists, each once (tlsph).
+    pair_plan: super::sph_pairs::PairPlan,
 }
 
 impl ActivationProducts {
@@ -193,6 +195,7 @@ impl Clone for ActivationProducts {
         self.contact_weight.clone_from(&s.contact_weight);
         self.weighted_tets.clone_from(&s.weighted_tets);
         self.coupled_slots.clone_from(&s.coupled_slots);
+        self.pair_plan.clone_from(&s.pair_plan);
     }
 }
 
@@ -227,6 +230,12 @@ struct ParticleArrays {
     region: ActiveRegion,
     /// Run every activation over all particles, tets and vertices (tests compare the two).
     full_activation: bool,
+    /// Per neighbour slot, the same pair's slot in the neighbour's list.
+    transpose: Vec<u32>,
+    /// Scratch of the pair plan's build.
+    plan_scratch: super::sph_pairs::PlanScratch,
+    /// Scratch of the paired force stage.
+    pair_scratch: super::sph_pairs::PairScratch,
 }
 
 impl ParticleArrays {
@@ -262,6 +271,28 @@ impl ParticleArrays {
 }
 
 impl ParticleArrays {
+    /// After an activation has set the lists: list the force-carrying pairs once (tlsph;
+    /// the paper model's one-sided eq. 13 is not antisymmetric and keeps the twin's gather).
+    fn rebuild_pair_plan(&mut self) {
+        if self.params.model != 0 {
+            self.act.pair_plan.valid = false;
+            return;
+        }
+        self.act.pair_plan.rebuild(
+            &self.act.stress_list,
+            &self.act.force_list,
+            &self.state.mode,
+            (
+                &self.lists.neighbour_offsets,
+                &self.lists.neighbours,
+                &self.transpose,
+            ),
+            &mut self.plan_scratch,
+        );
+    }
+}
+
+impl ParticleArrays {
     fn new(model: &Model, params: &StepParams) -> Option<ParticleArrays> {
         let p = model.particles.as_ref()?;
         let pp = model.particle_params(params)?;
@@ -279,6 +310,8 @@ impl ParticleArrays {
         let modes = p.initial_modes();
         let pairs =
             super::sph::PairTable::new(&pp, &p.rest, &lists.neighbour_offsets, &lists.neighbours);
+        let transpose =
+            super::sph_pairs::transpose_slots(&lists.neighbour_offsets, &lists.neighbours);
         let node_fixed: Vec<u32> = model.inv_mass.iter().map(|&w| (w == 0.0) as u32).collect();
         let region = ActiveRegion::new(p, &node_fixed);
         Some(ParticleArrays {
@@ -310,6 +343,9 @@ impl ParticleArrays {
             stats: vec![0.0; 8],
             region,
             full_activation: false,
+            transpose,
+            plan_scratch: Default::default(),
+            pair_scratch: Default::default(),
         })
     }
 }
@@ -800,6 +836,7 @@ impl CpuStepper {
             &m.tets,
         );
         pa.after_activation(0..m.n_tets() as u32, pd);
+        pa.rebuild_pair_plan();
     }
 
     /// What the last activation left besides the particle state: the tets' energy weights,
@@ -910,6 +947,7 @@ impl CpuStepper {
                 pa.act.dynamic_list = dynamic;
                 pa.act.stress_list = stress;
                 pa.act.force_list = force;
+                pa.rebuild_pair_plan();
             }
             Stage::Follow => super::follow::follow(
                 &pp,
@@ -957,14 +995,28 @@ impl CpuStepper {
                     contact_offset: &pd.contact_offset,
                     pairs: Some(&pa.pairs),
                 };
-                super::sph_forces::sph_forces(
-                    &inp,
-                    &pa.act.force_list,
-                    stage == Stage::SphForcesAccumulate,
-                    &mut pa.forces,
-                    &mut pa.force_sum,
-                    &mut pa.contact,
-                );
+                let accumulate = stage == Stage::SphForcesAccumulate;
+                if pa.act.pair_plan.valid {
+                    pa.act.pair_plan.sph_forces(
+                        &inp,
+                        &pa.act.stress_list,
+                        &pa.act.force_list,
+                        accumulate,
+                        &mut pa.pair_scratch,
+                        &mut pa.forces,
+                        &mut pa.force_sum,
+                        &mut pa.contact,
+                    );
+                } else {
+                    super::sph_forces::sph_forces(
+                        &inp,
+                        &pa.act.force_list,
+                        accumulate,
+                        &mut pa.forces,
+                        &mut pa.force_sum,
+                        &mut pa.contact,
+                    );
+                }
             }
             Stage::IntegrateParticles => super::integrate_particles::integrate_particles(
                 p,

@@ -1,0 +1,245 @@
+//! The CPU stepper's SPH force stage with each pair evaluated once (tlsph).
+//!
+//! tlsph's pair terms are antisymmetric: on particle c from the pair (c, b) they are
+//! V²(A_c + A_b)∇W(X_b − X_c) plus the hourglass term along x_cb, and b gets their negatives
+//! (∇W is odd; the hourglass term changes sign with x_cb and X_cb). `sph_forces`, the kernel's
+//! twin, visits every pair from both ends, as one GPU thread per particle must; a CPU can do
+//! each pair once. Each activation lists the pairs that carry a force (both particles in the
+//! force set F, at least one in S) once, grouped by the particle that owns them: the one in S,
+//! or the lower index when both are. Each step computes the pairs (in parallel over their
+//! owners) and every particle of F sums its pairs in its neighbour-list order, with its end's
+//! sign, then adds gravity and the tool's contact as the kernel does. The terms are the
+//! kernel's; only the hourglass term's relative position is rounded once instead of at each
+//! end, so the forces equal the twin's to rounding (tested), and the two ends of a pair now
+//! get exactly opposite forces.
+
+use super::sph_forces::{add_external, pair_terms, store_forces, ForceInputs, Side};
+use crate::particles::params::mode;
+use glam::{Vec3, Vec3A};
+
+/// Per neighbour slot k of particle c (neighbour b), the slot of c in b's list (the lists are
+/// symmetric: |X_b − X_c| is the same either way round). Built once with the lists.
+pub fn transpose_slots(neighbour_offsets: &[u32], neighbours: &[u32]) -> Vec<u32> {
+    let row = |p: usize| neighbour_offsets[p] as usize..neighbour_offsets[p + 1] as usize;
+    let mut transpose = vec![u32::MAX; neighbours.len()];
+    for c in 0..neighbour_offsets.len().saturating_sub(1) {
+        for k in row(c) {
+            let b = neighbours[k] as usize;
+            if let Some(kb) = row(b).find(|&kb| neighbours[kb] as usize == c) {
+                transpose[k] = kb as u32;
+            }
+        }
+    }
+    transpose
+}
+
+/// The pairs an activation's modes make carry a force, each once, and per particle of the
+/// force set the pairs it owns and those it is the other end of. Built from the stress and
+/// force lists it is used with; `valid` is false until the first build.
+#[derive(Default)]
+pub struct PairPlan {
+    /// Per particle of the stress list, the start of its owned pairs in `slots`
+    /// (stress-list length + 1 entries).
+    owner_offsets: Vec<u32>,
+    /// Per pair, its slot in its owner's neighbour list.
+    slots: Vec<u32>,
+    /// Per particle of the force list, its place in the stress list (`u32::MAX` outside S).
+    owner_of: Vec<u32>,
+    /// Per particle of the force list, the start of its entries in `incoming` (force-list
+    /// length + 1 entries).
+    incoming_offsets: Vec<u32>,
+    /// The pairs a particle is the other end of (not the owner), in its neighbour-list order.
+    incoming: Vec<u32>,
+    /// The stress and force lists the plan was built from.
+    built_for: (Vec<u32>, Vec<u32>),
+    /// Built from the current lists and modes.
+    pub valid: bool,
+}
+
+impl Clone for PairPlan {
+    fn clone(&self) -> Self {
+        let mut c = PairPlan::default();
+        c.clone_from(self);
+        c
+    }
+
+    /// Copies into the existing buffers (a checkpoint every batch allocates nothing).
+    fn clone_from(&mut self, s: &Self) {
+        self.owner_offsets.clone_from(&s.owner_offsets);
+        self.slots.clone_from(&s.slots);
+        self.owner_of.clone_from(&s.owner_of);
+        self.incoming_offsets.clone_from(&s.incoming_offsets);
+        self.incoming.clone_from(&s.incoming);
+        self.built_for.0.clone_from(&s.built_for.0);
+        self.built_for.1.clone_from(&s.built_for.1);
+        self.valid = s.valid;
+    }
+}
+
+impl PairPlan {
+    /// Rebuild for the lists and modes an activation left (nothing to do when the stress and
+    /// force lists are those of the last build: which pairs carry a force and who owns them
+    /// depend only on S and F). `transpose` is [`transpose_slots`] of the lists;
+    /// `scratch`'s contents do not matter.
+    pub fn rebuild(
+        &mut self,
+        stress_list: &[u32],
+        force_list: &[u32],
+        modes: &[u32],
+        (neighbour_offsets, neighbours, transpose): (&[u32], &[u32], &[u32]),
+        scratch: &mut PlanScratch,
+    ) {
+        if self.valid && self.built_for.0 == stress_list && self.built_for.1 == force_list {
+            return;
+        }
+        let PlanScratch {
+            pair_of_slot,
+            stress_place,
+        } = scratch;
+        pair_of_slot.resize(neighbours.len(), 0);
+        stress_place.resize(modes.len(), 0);
+        let in_s = |p: usize| modes[p] & mode::IN_S != 0;
+        let row = |p: usize| neighbour_offsets[p] as usize..neighbour_offsets[p + 1] as usize;
+        self.owner_offsets.clear();
+        self.slots.clear();
+        self.owner_offsets.push(0);
+        for (i, &c) in stress_list.iter().enumerate() {
+            let c = c as usize;
+            stress_place[c] = i as u32;
+            for k in row(c) {
+                // c (in S) owns (c, b) unless b is in S with a lower index.
+                let b = neighbours[k] as usize;
+                if !in_s(b) || c < b {
+                    pair_of_slot[k] = self.slots.len() as u32;
+                    self.slots.push(k as u32);
+                }
+            }
+            self.owner_offsets.push(self.slots.len() as u32);
+        }
+        self.owner_of.clear();
+        self.incoming_offsets.clear();
+        self.incoming.clear();
+        self.incoming_offsets.push(0);
+        for &c in force_list {
+            let c = c as usize;
+            self.owner_of
+                .push(if in_s(c) { stress_place[c] } else { u32::MAX });
+            for k in row(c) {
+                let b = neighbours[k] as usize;
+                if in_s(b) && (!in_s(c) || b < c) {
+                    self.incoming.push(pair_of_slot[transpose[k] as usize]);
+                }
+            }
+            self.incoming_offsets.push(self.incoming.len() as u32);
+        }
+        self.built_for.0.clear();
+        self.built_for.0.extend_from_slice(stress_list);
+        self.built_for.1.clear();
+        self.built_for.1.extend_from_slice(force_list);
+        self.valid = true;
+    }
+
+    /// Number of pairs that carry a force.
+    pub fn pairs(&self) -> usize {
+        self.slots.len()
+    }
+
+    /// The force stage: per particle of `force_list` (the list the plan was built with),
+    /// `particle_forces`, `particle_contact` and the sub-step sum (`accumulate`: add to it),
+    /// as [`super::sph_forces::sph_forces`] writes them: f_c = Σ of its owned pairs' terms
+    /// (slot order) − Σ of the terms of the pairs it is the other end of (slot order), then
+    /// gravity and contact. `scratch` holds the owners' sums and each pair's terms.
+    #[allow(clippy::too_many_arguments)]
+    pub fn sph_forces(
+        &self,
+        inp: &ForceInputs,
+        stress_list: &[u32],
+        force_list: &[u32],
+        accumulate: bool,
+        scratch: &mut PairScratch,
+        particle_forces: &mut [f32],
+        particle_force_sum: &mut [f32],
+        particle_contact: &mut [f32],
+    ) {
+        use rayon::prelude::*;
+        let PairScratch { owned_sum, terms } = scratch;
+        owned_sum.resize(stress_list.len(), Vec3A::ZERO);
+        terms.resize(self.slots.len(), Vec3A::ZERO);
+        // Each owner's pairs are a contiguous run: hand each owner its run and its sum.
+        let mut runs = Vec::with_capacity(stress_list.len());
+        let mut rest = &mut terms[..];
+        for ((i, &c), sum) in stress_list.iter().enumerate().zip(owned_sum.iter_mut()) {
+            let n = (self.owner_offsets[i + 1] - self.owner_offsets[i]) as usize;
+            let (run, after) = rest.split_at_mut(n);
+            runs.push((c as usize, self.owner_offsets[i] as usize, run, sum));
+            rest = after;
+        }
+        runs.into_par_iter()
+            .with_min_len(16)
+            .for_each(|(c, first, run, sum)| {
+                let side = Side::of(inp, c);
+                let mut fa = Vec3A::ZERO;
+                for (out, &k) in run.iter_mut().zip(&self.slots[first..]) {
+                    *out = match pair_terms(inp, k as usize, &side) {
+                        Some((stress, Some(hourglass))) => stress + hourglass,
+                        Some((stress, None)) => stress,
+                        None => Vec3A::ZERO,
+                    };
+                    fa += *out;
+                }
+                *sum = fa;
+            });
+        let (terms, owned_sum) = (&terms[..], &owned_sum[..]);
+        let results: Vec<(Vec3, Vec3)> = force_list
+            .par_iter()
+            .enumerate()
+            .with_min_len(16)
+            .map(|(i, &c)| {
+                let c = c as usize;
+                let mut fa = match self.owner_of[i] {
+                    u32::MAX => Vec3A::ZERO,
+                    o => owned_sum[o as usize],
+                };
+                let range =
+                    self.incoming_offsets[i] as usize..self.incoming_offsets[i + 1] as usize;
+                for &e in &self.incoming[range] {
+                    fa -= terms[e as usize];
+                }
+                let mut f = Vec3::from(fa);
+                let contact = if inp.mode[c] & mode::DYNAMIC != 0 {
+                    add_external(inp, c, &Side::of(inp, c), &mut f)
+                } else {
+                    Vec3::ZERO
+                };
+                (f, contact)
+            })
+            .collect();
+        store_forces(
+            inp,
+            force_list,
+            results,
+            accumulate,
+            particle_forces,
+            particle_force_sum,
+            particle_contact,
+        );
+    }
+}
+
+/// Scratch of [`PairPlan::rebuild`] (not part of a checkpoint).
+#[derive(Default)]
+pub struct PlanScratch {
+    /// Per neighbour slot, the pair it owns.
+    pair_of_slot: Vec<u32>,
+    /// Per particle in S, its place in the stress list.
+    stress_place: Vec<u32>,
+}
+
+/// Per-step scratch of [`PairPlan::sph_forces`] (not part of a checkpoint).
+#[derive(Default)]
+pub struct PairScratch {
+    /// Per owner (stress-list order), the sum of its owned pairs' terms.
+    owned_sum: Vec<Vec3A>,
+    /// Per pair, the force on its owner.
+    terms: Vec<Vec3A>,
+}
