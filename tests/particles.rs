@@ -1954,22 +1954,38 @@ fn the_paired_sph_force_stage_equals_the_kernel_twin() {
         PlanScratch::default(),
         PairScratch::default(),
     );
-    let mut paired = |inp: &cpu::sph_forces::ForceInputs, sl: &[u32], fl: &[u32]| {
-        plan.rebuild(
-            sl,
-            fl,
-            inp.mode,
-            (noff, nbrs, &transpose),
-            &mut plan_scratch,
-        );
-        let (mut f, mut fs, mut fc) = (
-            vec![0.0f32; 3 * n],
-            vec![0.0f32; 3 * n],
-            vec![0.0f32; 3 * n],
-        );
-        plan.sph_forces(inp, sl, fl, false, &mut scratch, &mut f, &mut fs, &mut fc);
-        (f, fs, fc, plan.pairs())
-    };
+    // `restore`: take that plan back (as a checkpoint's restore does) instead of building
+    // one; the scratch then holds another build's pair records.
+    let mut paired =
+        |inp: &cpu::sph_forces::ForceInputs, sl: &[u32], fl: &[u32], restore: Option<&PairPlan>| {
+            match restore {
+                Some(saved) => plan.clone_from(saved),
+                None => plan.rebuild(
+                    sl,
+                    fl,
+                    inp.mode,
+                    (noff, nbrs, &transpose),
+                    &mut plan_scratch,
+                ),
+            }
+            let (mut f, mut fs, mut fc) = (
+                vec![0.0f32; 3 * n],
+                vec![0.0f32; 3 * n],
+                vec![0.0f32; 3 * n],
+            );
+            plan.sph_forces(
+                inp,
+                &pairs,
+                sl,
+                fl,
+                false,
+                &mut scratch,
+                &mut f,
+                &mut fs,
+                &mut fc,
+            );
+            (f, fs, fc, plan.pairs(), plan.clone())
+        };
     let (f, fs, fc) = twin(&inp);
     let touching = fl
         .iter()
@@ -1980,8 +1996,12 @@ fn the_paired_sph_force_stage_equals_the_kernel_twin() {
         sl.iter().rev().copied().collect(),
         fl.iter().rev().copied().collect(),
     );
+    let mut first = None;
     for (order, sl_o, fl_o) in [("index order", &sl, &fl), ("reversed", &rs, &rf)] {
-        let (pf, pfs, pfc, n_pairs) = paired(&inp, sl_o, fl_o);
+        let (pf, pfs, pfc, n_pairs, built) = paired(&inp, sl_o, fl_o, None);
+        if first.is_none() {
+            first = Some((pf.clone(), built));
+        }
         for (name, c, p) in [
             ("particle_forces", &f, &pf),
             ("particle_force_sum", &fs, &pfs),
@@ -1995,6 +2015,13 @@ fn the_paired_sph_force_stage_equals_the_kernel_twin() {
             );
         }
     }
+    // The index-order plan restored after the reversed one was built: its own records again.
+    let (first_forces, first_plan) = first.expect("the loop ran");
+    let (pf, _, _, _, _) = paired(&inp, &sl, &fl, Some(&first_plan));
+    assert!(
+        pf == first_forces,
+        "a restored pair plan does not give its own forces back"
+    );
     // Internal forces only: they sum to zero to rounding.
     let still = palpate::params::StepParams {
         gravity: [0.0; 3],
@@ -2005,7 +2032,7 @@ fn the_paired_sph_force_stage_equals_the_kernel_twin() {
         tool: None,
         ..inp
     };
-    let (pf, _, _, _) = paired(&internal, &sl, &fl);
+    let (pf, _, _, _, _) = paired(&internal, &sl, &fl, None);
     let sum_of = |f: &[f32]| {
         fl.iter().fold((DVec3::ZERO, 0.0f64), |(t, s), &p| {
             let v = cpu::load3(f, p as usize).as_dvec3();

@@ -71,15 +71,40 @@ pub(crate) fn pair_terms(
     let pp = inp.pp;
     let b = inp.neighbours[k] as usize;
     let mode_b = inp.mode[b];
-    let in_s_b = mode_b & mode::IN_S != 0;
-    if !side.in_s && !in_s_b {
+    if !side.in_s && mode_b & mode::IN_S == 0 {
         return None;
     }
-    let x0b = load3a(inp.rest, b);
-    let w = match inp.pairs {
-        Some(t) => Vec3A::from(t.gradient[k]),
-        None => kernel_gradient(pp.model, (x0b - side.x0).into(), pp.spacing, pp.support).into(),
-    };
+    // fl(X_c − X_b) = −fl(X_b − X_c): the offset the kernel's gradient takes, negated.
+    let x0cb = side.x0 - load3a(inp.rest, b);
+    match inp.pairs {
+        Some(t) => pair_terms_at(inp, side, (b, mode_b), t.gradient[k].into(), x0cb, || {
+            (t.rest_distance[k], t.hourglass[k])
+        }),
+        None => {
+            let w = kernel_gradient(pp.model, (-x0cb).into(), pp.spacing, pp.support).into();
+            pair_terms_at(inp, side, (b, mode_b), w, x0cb, || {
+                let r0 = x0cb.length();
+                let hg = 0.5 * pp.hourglass * pp.youngs * (pp.volume * pp.volume);
+                (r0, hg * wendland(r0, pp.support) / (r0 * r0))
+            })
+        }
+    }
+}
+
+/// [`pair_terms`] from the pair's rest quantities: neighbour b and its mode, the kernel
+/// gradient w = ∇W(X_b − X_c), X_cb, and (called only where the hourglass term applies) r0
+/// and the hourglass weight h·W(r0)/r0².
+#[inline]
+pub(crate) fn pair_terms_at(
+    inp: &ForceInputs,
+    side: &Side,
+    (b, mode_b): (usize, u32),
+    w: Vec3A,
+    x0cb: Vec3A,
+    rest_weight: impl FnOnce() -> (f32, f32),
+) -> Option<(Vec3A, Option<Vec3A>)> {
+    let pp = inp.pp;
+    let in_s_b = mode_b & mode::IN_S != 0;
     let v2 = pp.volume * pp.volume;
     if pp.model == 1 {
         if in_s_b {
@@ -97,13 +122,9 @@ pub(crate) fn pair_terms(
     // cannot form a zig-zag mode (their relative motion is the tets').
     let dynamic_pair = (mode_b | side.mode) & mode::DYNAMIC != 0;
     if pp.hourglass > 0.0 && dynamic_pair {
-        let x0cb = side.x0 - x0b;
         let xcb = x0cb + side.u - load3a(inp.displacements, b);
         let r2 = xcb.length_squared();
-        let r0 = match inp.pairs {
-            Some(t) => t.rest_distance[k],
-            None => x0cb.length(),
-        };
+        let (r0, weight) = rest_weight();
         if r2 > 0.0 && r0 > 0.0 {
             // δ/r = (Σ over the sides in S of (F X_cb)·x_cb)/r² − (their count).
             let (mut g, mut sides) = (Vec3A::ZERO, 0.0);
@@ -115,13 +136,6 @@ pub(crate) fn pair_terms(
                 g += (Mat3A::IDENTITY + load_mat3a(inp.gradient, b)) * x0cb;
                 sides += 1.0;
             }
-            let weight = match inp.pairs {
-                Some(t) => t.hourglass[k],
-                None => {
-                    let hg = 0.5 * pp.hourglass * pp.youngs * v2;
-                    hg * wendland(r0, pp.support) / (r0 * r0)
-                }
-            };
             return Some((stress, Some(xcb * (weight * (g.dot(xcb) / r2 - sides)))));
         }
     }

@@ -13,9 +13,15 @@
 //! end, so the forces equal the twin's to rounding (tested), and the two ends of a pair now
 //! get exactly opposite forces.
 
-use super::sph_forces::{add_external, pair_terms, store_forces, ForceInputs, Side};
+use super::sph::PairTable;
+use super::sph_forces::{add_external, pair_terms_at, store_forces, ForceInputs, Side};
 use crate::particles::params::mode;
 use glam::{Vec3, Vec3A};
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// Source of [`PairPlan`] build numbers, unique over every plan of the process (a restored
+/// plan keeps its number; the records of another build never pass for its own).
+static NEXT_BUILD: AtomicU64 = AtomicU64::new(1);
 
 /// Per neighbour slot k of particle c (neighbour b), the slot of c in b's list (the lists are
 /// symmetric: |X_b − X_c| is the same either way round). Built once with the lists.
@@ -54,6 +60,8 @@ pub struct PairPlan {
     built_for: (Vec<u32>, Vec<u32>),
     /// Built from the current lists and modes.
     pub valid: bool,
+    /// This build's number (0 before the first), for [`PairScratch`]'s records.
+    build: u64,
 }
 
 impl Clone for PairPlan {
@@ -73,6 +81,7 @@ impl Clone for PairPlan {
         self.built_for.0.clone_from(&s.built_for.0);
         self.built_for.1.clone_from(&s.built_for.1);
         self.valid = s.valid;
+        self.build = s.build;
     }
 }
 
@@ -137,6 +146,35 @@ impl PairPlan {
         self.built_for.1.clear();
         self.built_for.1.extend_from_slice(force_list);
         self.valid = true;
+        self.build = NEXT_BUILD.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// Each pair's rest quantities, in pair order, into `records` (owner c, slot k,
+    /// neighbour b: ∇W(X_b − X_c), X_cb, r0 and the hourglass weight from `table`).
+    fn write_records(
+        &self,
+        stress_list: &[u32],
+        rest: &[f32],
+        neighbours: &[u32],
+        table: &PairTable,
+        records: &mut Vec<PairRecord>,
+    ) {
+        records.clear();
+        for (i, &c) in stress_list.iter().enumerate() {
+            let x0c = load3a(rest, c as usize);
+            let run = self.owner_offsets[i] as usize..self.owner_offsets[i + 1] as usize;
+            for &k in &self.slots[run] {
+                let k = k as usize;
+                let b = neighbours[k];
+                records.push(PairRecord {
+                    gradient: table.gradient[k].into(),
+                    x0cb: x0c - load3a(rest, b as usize),
+                    b,
+                    rest_distance: table.rest_distance[k],
+                    hourglass: table.hourglass[k],
+                });
+            }
+        }
     }
 
     /// Number of pairs that carry a force.
@@ -148,11 +186,13 @@ impl PairPlan {
     /// `particle_forces`, `particle_contact` and the sub-step sum (`accumulate`: add to it),
     /// as [`super::sph_forces::sph_forces`] writes them: f_c = Σ of its owned pairs' terms
     /// (slot order) − Σ of the terms of the pairs it is the other end of (slot order), then
-    /// gravity and contact. `scratch` holds the owners' sums and each pair's terms.
+    /// gravity and contact. `scratch` holds the owners' sums, each pair's terms and each
+    /// pair's rest quantities from `table` (rewritten when the plan is another build's).
     #[allow(clippy::too_many_arguments)]
     pub fn sph_forces(
         &self,
         inp: &ForceInputs,
+        table: &PairTable,
         stress_list: &[u32],
         force_list: &[u32],
         accumulate: bool,
@@ -162,7 +202,17 @@ impl PairPlan {
         particle_contact: &mut [f32],
     ) {
         use rayon::prelude::*;
-        let PairScratch { owned_sum, terms } = scratch;
+        let PairScratch {
+            owned_sum,
+            terms,
+            records,
+            records_build,
+        } = scratch;
+        if *records_build != self.build {
+            self.write_records(stress_list, inp.rest, inp.neighbours, table, records);
+            *records_build = self.build;
+        }
+        let records = &records[..];
         owned_sum.resize(stress_list.len(), Vec3A::ZERO);
         terms.resize(self.slots.len(), Vec3A::ZERO);
         // Each owner's pairs are a contiguous run: hand each owner its run and its sum.
@@ -179,8 +229,13 @@ impl PairPlan {
             .for_each(|(c, first, run, sum)| {
                 let side = Side::of(inp, c);
                 let mut fa = Vec3A::ZERO;
-                for (out, &k) in run.iter_mut().zip(&self.slots[first..]) {
-                    *out = match pair_terms(inp, k as usize, &side) {
+                for (out, r) in run.iter_mut().zip(&records[first..]) {
+                    let b = r.b as usize;
+                    let terms =
+                        pair_terms_at(inp, &side, (b, inp.mode[b]), r.gradient, r.x0cb, || {
+                            (r.rest_distance, r.hourglass)
+                        });
+                    *out = match terms {
                         Some((stress, Some(hourglass))) => stress + hourglass,
                         Some((stress, None)) => stress,
                         None => Vec3A::ZERO,
@@ -242,4 +297,28 @@ pub struct PairScratch {
     owned_sum: Vec<Vec3A>,
     /// Per pair, the force on its owner.
     terms: Vec<Vec3A>,
+    /// Per pair, its rest quantities (read in order instead of through the slots).
+    records: Vec<PairRecord>,
+    /// The plan build `records` belong to (0: none).
+    records_build: u64,
+}
+
+/// One pair's rest quantities, as the pair loop reads them.
+#[derive(Clone, Copy)]
+struct PairRecord {
+    /// ∇W(X_b − X_c).
+    gradient: Vec3A,
+    /// X_c − X_b.
+    x0cb: Vec3A,
+    /// The other particle.
+    b: u32,
+    /// r0 = |X_cb|.
+    rest_distance: f32,
+    /// h·W(r0)/r0².
+    hourglass: f32,
+}
+
+#[inline]
+fn load3a(a: &[f32], i: usize) -> Vec3A {
+    Vec3A::new(a[3 * i], a[3 * i + 1], a[3 * i + 2])
 }

@@ -4,7 +4,7 @@
 use super::load3;
 use super::sph::kernel_gradient;
 use crate::particles::params::ParticleParams;
-use glam::{Mat3, Vec3};
+use glam::{Mat3, Vec3A};
 
 /// The correction matrix of particle p.
 pub fn correction(
@@ -49,7 +49,8 @@ pub fn sph_setup(
 }
 
 /// Σ_b V (a_b − a_p) ⊗ ∇W(X_b − X_p) (the bracket of F_p; a = displacements or positions),
-/// with the kernel gradients from `pairs` when given.
+/// with the kernel gradients from `pairs` when given. Summed in SIMD-width columns
+/// (`Vec3A`): the same products and sums, element by element, as the kernel.
 pub fn gradient_sum(
     pp: &ParticleParams,
     rest: &[f32],
@@ -60,16 +61,23 @@ pub fn gradient_sum(
     p: usize,
 ) -> Mat3 {
     let x = load3(rest, p);
-    let ap = load3(a, p);
-    let mut s = Mat3::ZERO;
+    let ap = load3a(a, p);
+    let (mut c0, mut c1, mut c2) = (Vec3A::ZERO, Vec3A::ZERO, Vec3A::ZERO);
     for k in neighbour_offsets[p]..neighbour_offsets[p + 1] {
         let b = neighbours[k as usize] as usize;
         let w = match pairs {
             Some(t) => t.gradient[k as usize],
             None => kernel_gradient(pp.model, load3(rest, b) - x, pp.spacing, pp.support),
         } * pp.volume;
-        let du: Vec3 = load3(a, b) - ap;
-        s += Mat3::from_cols(du * w.x, du * w.y, du * w.z);
+        let du = load3a(a, b) - ap;
+        c0 += du * w.x;
+        c1 += du * w.y;
+        c2 += du * w.z;
     }
-    s
+    Mat3::from_cols(c0.into(), c1.into(), c2.into())
+}
+
+#[inline]
+fn load3a(a: &[f32], i: usize) -> Vec3A {
+    Vec3A::new(a[3 * i], a[3 * i + 1], a[3 * i + 2])
 }

@@ -999,6 +999,7 @@ impl CpuStepper {
                 if pa.act.pair_plan.valid {
                     pa.act.pair_plan.sph_forces(
                         &inp,
+                        &pa.pairs,
                         &pa.act.stress_list,
                         &pa.act.force_list,
                         accumulate,
