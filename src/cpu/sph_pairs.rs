@@ -102,13 +102,26 @@ impl PairPlan {
             return;
         }
         let PlanScratch {
-            pair_of_slot,
             stress_place,
+            force_place,
+            row_start,
+            row_pairs,
         } = scratch;
-        pair_of_slot.resize(neighbours.len(), 0);
         stress_place.resize(modes.len(), 0);
+        force_place.resize(modes.len(), 0);
         let in_s = |p: usize| modes[p] & mode::IN_S != 0;
         let row = |p: usize| neighbour_offsets[p] as usize..neighbour_offsets[p + 1] as usize;
+        // Per particle of F, its neighbour row in a compact copy (`row_pairs`) where each
+        // pair it does not own gets the pair's number: a small array in cache, written at
+        // the pair's slot in that row (`transpose`), read back in row order.
+        row_start.clear();
+        row_start.push(0);
+        for (j, &c) in force_list.iter().enumerate() {
+            force_place[c as usize] = j as u32;
+            row_start.push(row_start[j] + row(c as usize).len() as u32);
+        }
+        row_pairs.clear();
+        row_pairs.resize(row_start[force_list.len()] as usize, u32::MAX);
         self.owner_offsets.clear();
         self.slots.clear();
         self.owner_offsets.push(0);
@@ -119,7 +132,12 @@ impl PairPlan {
                 // c (in S) owns (c, b) unless b is in S with a lower index.
                 let b = neighbours[k] as usize;
                 if !in_s(b) || c < b {
-                    pair_of_slot[k] = self.slots.len() as u32;
+                    if modes[b] & mode::IN_F != 0 {
+                        let at = row_start[force_place[b] as usize] as usize
+                            + transpose[k] as usize
+                            - neighbour_offsets[b] as usize;
+                        row_pairs[at] = self.slots.len() as u32;
+                    }
                     self.slots.push(k as u32);
                 }
             }
@@ -129,16 +147,13 @@ impl PairPlan {
         self.incoming_offsets.clear();
         self.incoming.clear();
         self.incoming_offsets.push(0);
-        for &c in force_list {
+        for (j, &c) in force_list.iter().enumerate() {
             let c = c as usize;
             self.owner_of
                 .push(if in_s(c) { stress_place[c] } else { u32::MAX });
-            for k in row(c) {
-                let b = neighbours[k] as usize;
-                if in_s(b) && (!in_s(c) || b < c) {
-                    self.incoming.push(pair_of_slot[transpose[k] as usize]);
-                }
-            }
+            let own_row = row_start[j] as usize..row_start[j + 1] as usize;
+            self.incoming
+                .extend(row_pairs[own_row].iter().filter(|&&e| e != u32::MAX));
             self.incoming_offsets.push(self.incoming.len() as u32);
         }
         self.built_for.0.clear();
@@ -150,7 +165,8 @@ impl PairPlan {
     }
 
     /// Each pair's rest quantities, in pair order, into `records` (owner c, slot k,
-    /// neighbour b: ∇W(X_b − X_c), X_cb, r0 and the hourglass weight from `table`).
+    /// neighbour b: ∇W(X_b − X_c), X_cb, r0 and the hourglass weight from `table`), in
+    /// parallel over the owners.
     fn write_records(
         &self,
         stress_list: &[u32],
@@ -159,22 +175,51 @@ impl PairPlan {
         table: &PairTable,
         records: &mut Vec<PairRecord>,
     ) {
+        use rayon::prelude::*;
+        let blank = PairRecord {
+            gradient: Vec3A::ZERO,
+            x0cb: Vec3A::ZERO,
+            b: 0,
+            rest_distance: 0.0,
+            hourglass: 0.0,
+        };
         records.clear();
+        records.resize(self.slots.len(), blank);
+        self.owner_runs(stress_list, records)
+            .into_par_iter()
+            .with_min_len(16)
+            .for_each(|(c, first, run)| {
+                let x0c = load3a(rest, c);
+                for (r, &k) in run.iter_mut().zip(&self.slots[first..]) {
+                    let k = k as usize;
+                    let b = neighbours[k];
+                    *r = PairRecord {
+                        gradient: table.gradient[k].into(),
+                        x0cb: x0c - load3a(rest, b as usize),
+                        b,
+                        rest_distance: table.rest_distance[k],
+                        hourglass: table.hourglass[k],
+                    };
+                }
+            });
+    }
+
+    /// `per_pair` (one entry per pair) cut into its owners' runs: (owner, its first pair,
+    /// its run), in stress-list order.
+    fn owner_runs<'a, T>(
+        &self,
+        stress_list: &[u32],
+        per_pair: &'a mut [T],
+    ) -> Vec<(usize, usize, &'a mut [T])> {
+        let mut runs = Vec::with_capacity(stress_list.len());
+        let mut rest = per_pair;
         for (i, &c) in stress_list.iter().enumerate() {
-            let x0c = load3a(rest, c as usize);
-            let run = self.owner_offsets[i] as usize..self.owner_offsets[i + 1] as usize;
-            for &k in &self.slots[run] {
-                let k = k as usize;
-                let b = neighbours[k];
-                records.push(PairRecord {
-                    gradient: table.gradient[k].into(),
-                    x0cb: x0c - load3a(rest, b as usize),
-                    b,
-                    rest_distance: table.rest_distance[k],
-                    hourglass: table.hourglass[k],
-                });
-            }
+            let n = (self.owner_offsets[i + 1] - self.owner_offsets[i]) as usize;
+            let (run, after) = rest.split_at_mut(n);
+            runs.push((c as usize, self.owner_offsets[i] as usize, run));
+            rest = after;
         }
+        runs
     }
 
     /// Number of pairs that carry a force.
@@ -216,15 +261,10 @@ impl PairPlan {
         owned_sum.resize(stress_list.len(), Vec3A::ZERO);
         terms.resize(self.slots.len(), Vec3A::ZERO);
         // Each owner's pairs are a contiguous run: hand each owner its run and its sum.
-        let mut runs = Vec::with_capacity(stress_list.len());
-        let mut rest = &mut terms[..];
-        for ((i, &c), sum) in stress_list.iter().enumerate().zip(owned_sum.iter_mut()) {
-            let n = (self.owner_offsets[i + 1] - self.owner_offsets[i]) as usize;
-            let (run, after) = rest.split_at_mut(n);
-            runs.push((c as usize, self.owner_offsets[i] as usize, run, sum));
-            rest = after;
-        }
-        runs.into_par_iter()
+        self.owner_runs(stress_list, terms)
+            .into_par_iter()
+            .zip(owned_sum.par_iter_mut())
+            .map(|((c, first, run), sum)| (c, first, run, sum))
             .with_min_len(16)
             .for_each(|(c, first, run, sum)| {
                 let side = Side::of(inp, c);
@@ -284,10 +324,15 @@ impl PairPlan {
 /// Scratch of [`PairPlan::rebuild`] (not part of a checkpoint).
 #[derive(Default)]
 pub struct PlanScratch {
-    /// Per neighbour slot, the pair it owns.
-    pair_of_slot: Vec<u32>,
     /// Per particle in S, its place in the stress list.
     stress_place: Vec<u32>,
+    /// Per particle in F, its place in the force list.
+    force_place: Vec<u32>,
+    /// Per particle of the force list, the start of its row in `row_pairs` (+ the end).
+    row_start: Vec<u32>,
+    /// Per force-list particle's neighbour slot, the pair it is the other end of there
+    /// (`u32::MAX`: none).
+    row_pairs: Vec<u32>,
 }
 
 /// Per-step scratch of [`PairPlan::sph_forces`] (not part of a checkpoint).
