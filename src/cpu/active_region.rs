@@ -42,6 +42,8 @@ pub struct ActiveRegion {
     coupled_vertices: Vec<u32>,
     /// The sets describe the current state; false: the next activation is a full pass.
     primed: bool,
+    /// Per vertex, false except while `vertices_to_relump` collects corners.
+    vertex_seen: Vec<bool>,
 }
 
 /// Sort and remove repeats.
@@ -49,6 +51,21 @@ fn sorted(mut v: Vec<u32>) -> Vec<u32> {
     v.sort_unstable();
     v.dedup();
     v
+}
+
+/// The union of two ascending lists without repeats, ascending.
+fn merged(a: &[u32], b: &[u32]) -> Vec<u32> {
+    let mut out = Vec::with_capacity(a.len() + b.len());
+    let (mut i, mut j) = (0, 0);
+    while i < a.len() && j < b.len() {
+        let (x, y) = (a[i], b[j]);
+        out.push(x.min(y));
+        i += (x <= y) as usize;
+        j += (y <= x) as usize;
+    }
+    out.extend_from_slice(&a[i..]);
+    out.extend_from_slice(&b[j..]);
+    out
 }
 
 /// One particle after the mode machine: displacement, velocity, mode, timer, offset.
@@ -135,17 +152,18 @@ impl ActiveRegion {
         let radius = inp.tool_params.radius as f64;
         let limit = inp.pp.activation_radius as f64;
         let u_max = inp.u_max as f64;
-        let mut out = self.live.clone();
+        // The near tets' particles come out ascending (tets in order, each a run).
+        let mut near = Vec::new();
         for (e, b) in self.bounds.iter().enumerate() {
             let Some(b) = b else { continue };
             let to_centre = (b.centre - c).length();
             let scale = b.centre.abs().max_element() + b.radius + c_scale;
             let margin = 2e-4 * (to_centre + b.radius + scale + radius + 1.0);
             if to_centre - b.radius - b.reach * u_max - radius < limit + margin {
-                out.extend(tet_offsets[e]..tet_offsets[e + 1]);
+                near.extend(tet_offsets[e]..tet_offsets[e + 1]);
             }
         }
-        sorted(out)
+        merged(&self.live, &near)
     }
 
     /// The mode machine over `candidates` (in parallel; each particle is independent, so the
@@ -197,20 +215,31 @@ impl ActiveRegion {
         neighbours: &[u32],
         particle_mode: &mut [u32],
     ) -> Vec<u32> {
-        let mut marked = Vec::new();
-        let mut set = |p: usize, marked: &mut Vec<u32>| {
-            if particle_mode[p] & bit == 0 {
-                particle_mode[p] |= bit;
-                marked.push(p as u32);
-            }
+        // Every candidate is written and the count advances only for a new one (no branch
+        // on the mode, whose outcome is unpredictable).
+        let bound: usize = sources
+            .iter()
+            .map(|&p| {
+                1 + (neighbour_offsets[p as usize + 1] - neighbour_offsets[p as usize]) as usize
+            })
+            .sum();
+        let mut marked = vec![0u32; bound];
+        let mut len = 0;
+        let mut set = |p: usize| {
+            let fresh = particle_mode[p] & bit == 0;
+            particle_mode[p] |= bit;
+            marked[len] = p as u32;
+            len += fresh as usize;
         };
         for &p in sources {
-            set(p as usize, &mut marked);
+            set(p as usize);
             for k in neighbour_offsets[p as usize]..neighbour_offsets[p as usize + 1] {
-                set(neighbours[k as usize] as usize, &mut marked);
+                set(neighbours[k as usize] as usize);
             }
         }
-        sorted(marked)
+        marked.truncate(len);
+        marked.sort_unstable();
+        marked
     }
 
     /// Tets whose weight must be recomputed (hosts of `stress` now, or weighted at the last
@@ -231,16 +260,34 @@ impl ActiveRegion {
         host: &[u32],
         tets: &[[u32; 4]],
     ) -> Vec<u32> {
-        let now = sorted(
-            coupled
-                .iter()
-                .flat_map(|&p| tets[host[p as usize] as usize])
-                .collect(),
-        );
-        let mut all = std::mem::replace(&mut self.coupled_vertices, now.clone());
-        all.extend(now);
-        all.extend_from_slice(&self.always);
-        sorted(all)
+        // Each host tet's corners once: a per-vertex mark (cleared again below) instead of
+        // sorting every corner of every particle.
+        let seen = &mut self.vertex_seen;
+        let mut now = Vec::new();
+        let mut last_host = u32::MAX;
+        for &p in coupled {
+            let e = host[p as usize];
+            if e == last_host {
+                continue;
+            }
+            last_host = e;
+            for v in tets[e as usize] {
+                if seen.len() <= v as usize {
+                    seen.resize(v as usize + 1, false);
+                }
+                if !seen[v as usize] {
+                    seen[v as usize] = true;
+                    now.push(v);
+                }
+            }
+        }
+        for &v in &now {
+            seen[v as usize] = false;
+        }
+        now.sort_unstable();
+        let all = merged(&merged(&self.coupled_vertices, &now), &self.always);
+        self.coupled_vertices = now;
+        all
     }
 
     /// After an activation: remember the live particles (force set ∪ blending) and mark the

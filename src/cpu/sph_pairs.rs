@@ -123,26 +123,32 @@ impl PairPlan {
         row_pairs.clear();
         row_pairs.resize(row_start[force_list.len()] as usize, u32::MAX);
         self.owner_offsets.clear();
-        self.slots.clear();
         self.owner_offsets.push(0);
+        // Ownership is decided without a branch (S's edge makes it unpredictable): every slot
+        // is written, the count advances for an owned one, and b's row gets the pair's number
+        // or "none". Every neighbour of S is in F, so b's row exists (checked all the same).
+        let bound: usize = stress_list.iter().map(|&c| row(c as usize).len()).sum();
+        self.slots.clear();
+        self.slots.resize(bound, 0);
+        let mut n_pairs = 0usize;
         for (i, &c) in stress_list.iter().enumerate() {
             let c = c as usize;
             stress_place[c] = i as u32;
             for k in row(c) {
                 // c (in S) owns (c, b) unless b is in S with a lower index.
                 let b = neighbours[k] as usize;
-                if !in_s(b) || c < b {
-                    if modes[b] & mode::IN_F != 0 {
-                        let at = row_start[force_place[b] as usize] as usize
-                            + transpose[k] as usize
-                            - neighbour_offsets[b] as usize;
-                        row_pairs[at] = self.slots.len() as u32;
-                    }
-                    self.slots.push(k as u32);
+                let owned = !in_s(b) || c < b;
+                if modes[b] & mode::IN_F != 0 {
+                    let at = row_start[force_place[b] as usize] as usize + transpose[k] as usize
+                        - neighbour_offsets[b] as usize;
+                    row_pairs[at] = if owned { n_pairs as u32 } else { u32::MAX };
                 }
+                self.slots[n_pairs] = k as u32;
+                n_pairs += owned as usize;
             }
-            self.owner_offsets.push(self.slots.len() as u32);
+            self.owner_offsets.push(n_pairs as u32);
         }
+        self.slots.truncate(n_pairs);
         self.owner_of.clear();
         self.incoming_offsets.clear();
         self.incoming.clear();
@@ -152,9 +158,14 @@ impl PairPlan {
             self.owner_of
                 .push(if in_s(c) { stress_place[c] } else { u32::MAX });
             let own_row = row_start[j] as usize..row_start[j + 1] as usize;
-            self.incoming
-                .extend(row_pairs[own_row].iter().filter(|&&e| e != u32::MAX));
-            self.incoming_offsets.push(self.incoming.len() as u32);
+            let mut len = self.incoming.len();
+            self.incoming.resize(len + own_row.len(), 0);
+            for &e in &row_pairs[own_row] {
+                self.incoming[len] = e;
+                len += (e != u32::MAX) as usize;
+            }
+            self.incoming.truncate(len);
+            self.incoming_offsets.push(len as u32);
         }
         self.built_for.0.clear();
         self.built_for.0.extend_from_slice(stress_list);
