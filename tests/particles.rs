@@ -239,6 +239,13 @@ fn bits_u32(g: &GpuStepper, name: &str) -> Vec<u32> {
     bits(&g.read_f32(name).unwrap())
 }
 
+/// The xyz of the particles of `list`, in list order.
+fn on_particles(list: &[u32], x: &[f32]) -> Vec<f32> {
+    list.iter()
+        .flat_map(|&p| (0..3).map(move |k| x[3 * p as usize + k]))
+        .collect()
+}
+
 fn rel(a: &[f32], b: &[f32]) -> f64 {
     common::rel_err(a, b)
 }
@@ -849,11 +856,7 @@ fn sph_forces_accumulate_and_particle_reduce_match_their_cpu_twins() {
         contact_offset: &pd.contact_offset,
         pairs: Some(&pairs),
     };
-    let on_fl = |x: &[f32]| -> Vec<f32> {
-        fl.iter()
-            .flat_map(|&p| (0..3).map(move |k| x[3 * p as usize + k]))
-            .collect()
-    };
+    let on_fl = |x: &[f32]| on_particles(&fl, x);
 
     // The first sub-step's kernel starts the sum: f / substeps.
     g.run_stage(Stage::SphForces).unwrap();
@@ -1935,11 +1938,7 @@ fn the_paired_sph_force_stage_equals_the_kernel_twin() {
         contact_offset: &pd.contact_offset,
         pairs: Some(&pairs),
     };
-    let on_fl = |x: &[f32]| -> Vec<f32> {
-        fl.iter()
-            .flat_map(|&p| (0..3).map(move |k| x[3 * p as usize + k]))
-            .collect()
-    };
+    let on_fl = |x: &[f32]| on_particles(&fl, x);
     let twin = |inp: &cpu::sph_forces::ForceInputs| {
         let (mut f, mut fs, mut fc) = (
             vec![0.0f32; 3 * n],
