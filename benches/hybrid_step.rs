@@ -10,11 +10,11 @@
 
 mod common;
 
-use common::{backends, median};
+use common::backends;
 use criterion::{criterion_group, BenchmarkId, Criterion};
 use palpate::sim::{Backend, SimOptions, Simulation};
 use palpate::Scene;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 /// Steps per timed call (one activation interval of HM1).
 const STEPS: u32 = 10;
@@ -81,35 +81,45 @@ fn hybrid_step(c: &mut Criterion) {
     group.finish();
 }
 
+/// Timed calls per variant in the ratio table.
+const ROUNDS: usize = 21;
+
 fn ratio_table() {
     println!(
-        "\nhybrid_step: HM1 with the tool held pressed, µs per step (median of 15 calls of {STEPS} steps, same run)"
+        "\nhybrid_step: HM1 with the tool held pressed, µs per step (median of {ROUNDS} calls of {STEPS} steps, the three variants taking turns call by call, so a host whose speed drifts slows all three alike; paired: the median of each round's hm1 / core)"
     );
-    println!("| backend | core alone | hm1 (dynamic particles) | all 27,751 dynamic | hm1 / core | all / core |");
-    println!("|---|---:|---:|---:|---:|---:|");
+    println!("| backend | core alone | hm1 (dynamic particles) | all 27,751 dynamic | hm1 / core | hm1 / core, paired | all / core |");
+    println!("|---|---:|---:|---:|---:|---:|---:|");
     for backend in backends() {
-        let mut us = Vec::new();
-        let mut dynamic = 0;
-        let mut name = String::new();
-        for (label, scene) in variants() {
-            let mut sim = pressed(&scene, backend);
-            name = sim.backend_name();
-            us.push(
-                1e6 * median(15, || {
-                    sim.advance(STEPS).expect("advance");
-                }) / STEPS as f64,
-            );
-            if label == "hm1" {
-                dynamic = sim.last_particles.map_or(0, |p| p.dynamic);
+        let mut sims: Vec<Simulation> = variants()
+            .iter()
+            .map(|(_, scene)| pressed(scene, backend))
+            .collect();
+        let mut us = vec![Vec::with_capacity(ROUNDS); sims.len()];
+        for _ in 0..ROUNDS {
+            for (sim, times) in sims.iter_mut().zip(us.iter_mut()) {
+                let t = Instant::now();
+                sim.advance(STEPS).expect("advance");
+                times.push(1e6 * t.elapsed().as_secs_f64() / STEPS as f64);
             }
         }
+        let mid = |v: &[f64]| {
+            let mut v = v.to_vec();
+            v.sort_by(f64::total_cmp);
+            v[v.len() / 2]
+        };
+        let paired: Vec<f64> = us[1].iter().zip(&us[0]).map(|(h, c)| h / c).collect();
+        let m: Vec<f64> = us.iter().map(|v| mid(v)).collect();
+        let dynamic = sims[1].last_particles.map_or(0, |p| p.dynamic);
         println!(
-            "| {name} | {:.0} | {:.0} ({dynamic}) | {:.0} | {:.2} | {:.2} |",
-            us[0],
-            us[1],
-            us[2],
-            us[1] / us[0],
-            us[2] / us[0]
+            "| {} | {:.0} | {:.0} ({dynamic}) | {:.0} | {:.2} | {:.2} | {:.2} |",
+            sims[0].backend_name(),
+            m[0],
+            m[1],
+            m[2],
+            m[1] / m[0],
+            mid(&paired),
+            m[2] / m[0]
         );
     }
 }

@@ -3,6 +3,7 @@
 use std::time::Instant;
 
 /// Median of `reps` wall-clock timings of `f`, seconds.
+#[allow(dead_code)] // not every bench that includes this module uses it
 pub fn median(reps: usize, mut f: impl FnMut()) -> f64 {
     let mut t: Vec<f64> = (0..reps)
         .map(|_| {
