@@ -1417,11 +1417,16 @@ fn the_default_haptic_scene_runs_when_no_scene_is_given() {
 }
 
 /// Ctrl-C (here SIGINT from `kill`) stops a run or a haptic session after its batch: the
-/// outputs are written with status `interrupted`, and the exit status is 130.
+/// outputs are written with status `interrupted`, and the exit status is 130. The child gets
+/// SIGINT's default disposition, as a terminal's foreground job has: tests started as a
+/// background job of a non-interactive shell inherit SIGINT ignored, and palpate rightly
+/// leaves an inherited ignore alone. A child that has not stopped 20 s after the signal is
+/// killed and the test fails (it used to wait for it forever).
 #[cfg(unix)]
 #[test]
 fn ctrl_c_stops_after_the_batch_and_writes_the_outputs() {
     use std::io::Read;
+    use std::os::unix::process::CommandExt;
     let d = tmp("interrupt");
     for (name, args) in [
         (
@@ -1434,19 +1439,34 @@ fn ctrl_c_stops_after_the_batch_and_writes_the_outputs() {
         ),
     ] {
         let out = d.join(name);
-        let mut child = Command::new(env!("CARGO_BIN_EXE_palpate"))
+        let mut command = Command::new(env!("CARGO_BIN_EXE_palpate"));
+        command
             .args(&args)
             .args(["--out", out.to_str().unwrap()])
             .stdout(std::process::Stdio::piped())
-            .stderr(std::process::Stdio::piped())
-            .spawn()
-            .expect("start palpate");
-        // The first line on stdout comes once the job has started stepping.
+            .stderr(std::process::Stdio::piped());
+        // SAFETY: runs in the forked child before exec; signal(2) is async-signal-safe and
+        // the closure touches nothing else.
+        unsafe {
+            command.pre_exec(|| {
+                libc::signal(libc::SIGINT, libc::SIG_DFL);
+                Ok(())
+            });
+        }
+        let mut child = command.spawn().expect("start palpate");
+        // The first line on stdout comes once the job has started stepping; the rest is
+        // drained so that a full pipe never holds the child up.
         let mut stdout = child.stdout.take().unwrap();
         let mut first = [0u8; 1];
         stdout
             .read_exact(&mut first)
             .expect("the job announces itself");
+        let drain = std::thread::spawn(move || std::io::copy(&mut stdout, &mut std::io::sink()));
+        let mut stderr = child.stderr.take().unwrap();
+        let errors = std::thread::spawn(move || {
+            let mut err = String::new();
+            stderr.read_to_string(&mut err).map(|_| err)
+        });
         std::thread::sleep(std::time::Duration::from_millis(1500));
         let killed = Command::new("kill")
             .args(["-INT", &child.id().to_string()])
@@ -1454,14 +1474,19 @@ fn ctrl_c_stops_after_the_batch_and_writes_the_outputs() {
             .expect("kill");
         assert!(killed.success());
         let start = std::time::Instant::now();
-        let status = child.wait().expect("wait");
-        let mut err = String::new();
-        child
-            .stderr
-            .take()
-            .unwrap()
-            .read_to_string(&mut err)
-            .unwrap();
+        let status = loop {
+            if let Some(status) = child.try_wait().expect("wait") {
+                break status;
+            }
+            if start.elapsed().as_secs_f64() > 20.0 {
+                child.kill().expect("kill -9");
+                child.wait().expect("wait");
+                panic!("{name}: still running 20 s after SIGINT");
+            }
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        };
+        drain.join().unwrap().unwrap();
+        let err = errors.join().unwrap().unwrap();
         assert_eq!(status.code(), Some(130), "{name}: {err}");
         assert!(start.elapsed().as_secs_f64() < 10.0, "{name}: slow to stop");
         assert!(err.contains("interrupted at t = "), "{name}: {err}");
