@@ -230,6 +230,21 @@ fn pressed_block() -> Scene {
     Scene::from_toml(PRESSED_BLOCK, "hybrid block", "hybrid_block", None).unwrap()
 }
 
+/// The [`PRESSED_BLOCK`] model and its step parameters (half the stable step, damping 50/s).
+fn pressed_block_model() -> (Arc<Model>, palpate::params::StepParams) {
+    let m = Arc::new(Model::from_scene(&pressed_block()));
+    let params = m.step_params(0.5 * m.bounds.dt_bound, 50.0);
+    (m, params)
+}
+
+/// The tool's press into the [`PRESSED_BLOCK`]: from 3.5 mm above its top face to 1.8 mm.
+fn press_segment() -> (DVec3, DVec3) {
+    (
+        DVec3::new(0.01, 0.01, 0.0135),
+        DVec3::new(0.01, 0.01, 0.0118),
+    )
+}
+
 /// The bit patterns of f32 values (for bit-for-bit comparisons).
 fn bits(v: &[f32]) -> Vec<u32> {
     v.iter().map(|x| x.to_bits()).collect()
@@ -298,17 +313,12 @@ impl ActivateIo {
 
 #[test]
 fn particle_kernels_match_their_cpu_twins() {
-    let scene = pressed_block();
-    let m = Arc::new(Model::from_scene(&scene));
+    let (m, params) = pressed_block_model();
     let pd = m.particles.as_ref().unwrap();
-    let params = m.step_params(0.5 * m.bounds.dt_bound, 50.0);
     let pp = m.particle_params(&params).unwrap();
     let mut g = GpuStepper::new(gpu(), &m, params).unwrap();
     // Press for 60 steps so that particles are dynamic, stressed and touching.
-    let (a, b) = (
-        DVec3::new(0.01, 0.01, 0.0135),
-        DVec3::new(0.01, 0.01, 0.0118),
-    );
+    let (a, b) = press_segment();
     g.submit(60, &BatchInput::moving(a, b)).unwrap();
     g.wait().unwrap();
     let grid = GridParams::over(&pd.rest, pd.support);
@@ -766,20 +776,15 @@ fn check_particle_reduce(
 ///   changed `particle_forces`; the twin's sums also match a plain f64 sum over the modes.
 #[test]
 fn sph_forces_accumulate_and_particle_reduce_match_their_cpu_twins() {
-    let scene = pressed_block();
-    let m = Arc::new(Model::from_scene(&scene));
+    let (m, params) = pressed_block_model();
     let pd = m.particles.as_ref().unwrap();
-    let params = m.step_params(0.5 * m.bounds.dt_bound, 50.0);
     let pp = m.particle_params(&params).unwrap();
     assert!(
         pp.substeps >= 2,
         "the pressed block should sub-step its particles"
     );
     let mut g = GpuStepper::new(gpu(), &m, params).unwrap();
-    let (a, b) = (
-        DVec3::new(0.01, 0.01, 0.0135),
-        DVec3::new(0.01, 0.01, 0.0118),
-    );
+    let (a, b) = press_segment();
     g.submit(60, &BatchInput::moving(a, b)).unwrap();
     let report = g.wait().unwrap();
     let n = pd.len();
@@ -1454,15 +1459,10 @@ fn a_restore_between_activations_gives_both_backends_the_same_trajectory() {
 /// for bit on each backend (the step count is back at 0), and the GPU matches the CPU.
 #[test]
 fn a_restore_without_a_checkpoint_returns_both_backends_to_rest() {
-    let scene = pressed_block();
-    let m = Arc::new(Model::from_scene(&scene));
+    let (m, params) = pressed_block_model();
     let pd = m.particles.as_ref().unwrap();
     let initial = pd.initial_modes();
-    let params = m.step_params(0.5 * m.bounds.dt_bound, 50.0);
-    let (a, b) = (
-        DVec3::new(0.01, 0.01, 0.0135),
-        DVec3::new(0.01, 0.01, 0.0118),
-    );
+    let (a, b) = press_segment();
     let mut c = cpu::CpuStepper::new(m.clone(), params);
     let mut g = GpuStepper::new(gpu(), &m, params).unwrap();
     let mut ends = Vec::new();
@@ -1542,13 +1542,8 @@ fn a_restore_without_a_checkpoint_returns_both_backends_to_rest() {
 /// over one step instead of the batch's 150.
 #[test]
 fn a_batch_replayed_one_step_at_a_time_repeats_it_bit_for_bit() {
-    let scene = pressed_block();
-    let m = Arc::new(Model::from_scene(&scene));
-    let params = m.step_params(0.5 * m.bounds.dt_bound, 50.0);
-    let (a, b) = (
-        DVec3::new(0.01, 0.01, 0.0135),
-        DVec3::new(0.01, 0.01, 0.0118),
-    );
+    let (m, params) = pressed_block_model();
+    let (a, b) = press_segment();
     let n = 150u32;
     let mut c = cpu::CpuStepper::new(m.clone(), params);
     let mut g = GpuStepper::new(gpu(), &m, params).unwrap();
@@ -1861,20 +1856,15 @@ fn a_released_particle_was_far_for_at_least_the_dwell() {
 #[test]
 fn the_paired_sph_force_stage_equals_the_kernel_twin() {
     use palpate::cpu::sph_pairs::{transpose_slots, PairPlan, PairScratch, PlanScratch};
-    let scene = pressed_block();
-    let m = Arc::new(Model::from_scene(&scene));
+    let (m, params) = pressed_block_model();
     let pd = m.particles.as_ref().unwrap();
-    let params = m.step_params(0.5 * m.bounds.dt_bound, 50.0);
     let pp = m.particle_params(&params).unwrap();
     assert!(
         pp.model == 0 && pp.hourglass > 0.0,
         "tlsph with hourglass control"
     );
     let mut s = cpu::CpuStepper::with_threads(m.clone(), params, 2).unwrap();
-    let (a, b) = (
-        DVec3::new(0.01, 0.01, 0.0135),
-        DVec3::new(0.01, 0.01, 0.0118),
-    );
+    let (a, b) = press_segment();
     s.submit(60, &BatchInput::moving(a, b)).unwrap();
     s.wait().unwrap();
     let snap = s.particle_state().unwrap();

@@ -43,12 +43,18 @@ pub use stepper::CpuStepper;
 pub use tool_force::{tool_force_final, tool_force_partial};
 pub use tool_motion::tool_motion;
 
-use glam::Vec3;
+use glam::{Vec3, Vec3A};
 
 /// Read vector `i` from a packed xyz array.
 #[inline]
 pub fn load3(a: &[f32], i: usize) -> Vec3 {
     Vec3::new(a[3 * i], a[3 * i + 1], a[3 * i + 2])
+}
+
+/// [`load3`] into a SIMD-width vector.
+#[inline]
+pub fn load3a(a: &[f32], i: usize) -> Vec3A {
+    Vec3A::new(a[3 * i], a[3 * i + 1], a[3 * i + 2])
 }
 
 /// Write vector `i` into a packed xyz array.

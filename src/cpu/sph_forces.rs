@@ -4,8 +4,8 @@
 //! sum over sub-steps that embedded particles pass to their hosts.
 
 use super::contact::contact_force;
-use super::load3;
 use super::sph::{kernel_gradient, wendland};
+use super::{load3, load3a};
 use crate::contact::{ToolInput, ToolParams, ToolState};
 use crate::params::StepParams;
 use crate::particles::params::{mode, ParticleParams};
@@ -140,11 +140,6 @@ pub(crate) fn pair_terms_at(
         }
     }
     Some((stress, None))
-}
-
-#[inline]
-fn load3a(a: &[f32], i: usize) -> Vec3A {
-    Vec3A::new(a[3 * i], a[3 * i + 1], a[3 * i + 2])
 }
 
 #[inline]

@@ -13,6 +13,7 @@
 //! end, so the forces equal the twin's to rounding (tested), and the two ends of a pair now
 //! get exactly opposite forces.
 
+use super::load3a;
 use super::sph::PairTable;
 use super::sph_forces::{add_external, pair_terms_at, store_forces, ForceInputs, Side};
 use crate::particles::params::mode;
@@ -372,9 +373,4 @@ struct PairRecord {
     rest_distance: f32,
     /// h·W(r0)/r0².
     hourglass: f32,
-}
-
-#[inline]
-fn load3a(a: &[f32], i: usize) -> Vec3A {
-    Vec3A::new(a[3 * i], a[3 * i + 1], a[3 * i + 2])
 }

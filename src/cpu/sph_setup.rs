@@ -1,8 +1,8 @@
 //! CPU twin of `kernels/sph_setup.wgsl`: each particle's kernel-gradient correction
 //! G_p = M_p⁻¹, M_p = Σ_b V (X_b − X_p) ⊗ ∇W(X_b − X_p) (0 when M is singular).
 
-use super::load3;
 use super::sph::kernel_gradient;
+use super::{load3, load3a};
 use crate::particles::params::ParticleParams;
 use glam::{Mat3, Vec3A};
 
@@ -75,9 +75,4 @@ pub fn gradient_sum(
         c2 += du * w.z;
     }
     Mat3::from_cols(c0.into(), c1.into(), c2.into())
-}
-
-#[inline]
-fn load3a(a: &[f32], i: usize) -> Vec3A {
-    Vec3A::new(a[3 * i], a[3 * i + 1], a[3 * i + 2])
 }

@@ -268,9 +268,7 @@ impl ParticleArrays {
             &self.state.mode,
         );
     }
-}
 
-impl ParticleArrays {
     /// After an activation has set the lists: list the force-carrying pairs once (tlsph;
     /// the paper model's one-sided eq. 13 is not antisymmetric and keeps the twin's gather).
     fn rebuild_pair_plan(&mut self) {
