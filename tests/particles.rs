@@ -2004,6 +2004,24 @@ fn the_paired_sph_force_stage_equals_the_kernel_twin() {
             );
         }
     }
+    // A force list that misses a neighbour of S cannot be paired: the plan says so.
+    let short: Vec<u32> = fl
+        .iter()
+        .copied()
+        .filter(|&p| snap.modes[p as usize] & mode::IN_S != 0)
+        .collect();
+    let mut broken = PairPlan::default();
+    broken.rebuild(
+        &sl,
+        &short,
+        &snap.modes,
+        (noff, nbrs, &transpose),
+        &mut PlanScratch::default(),
+    );
+    assert!(
+        !broken.valid,
+        "a plan over a force list without S's neighbours claims to be valid"
+    );
     // The index-order plan restored after the reversed one was built: its own records again.
     let (first_forces, first_plan) = first.expect("the loop ran");
     let (pf, _, _, _, _) = paired(&inp, &sl, &fl, Some(&first_plan));

@@ -142,8 +142,9 @@ pub(crate) fn pair_terms_at(
     Some((stress, None))
 }
 
+/// The 3×3 matrix stored column-major at `a[9i..9i + 9]`.
 #[inline]
-fn load_mat3a(a: &[f32], i: usize) -> Mat3A {
+pub(crate) fn load_mat3a(a: &[f32], i: usize) -> Mat3A {
     let m = &a[9 * i..9 * i + 9];
     Mat3A::from_cols(
         Vec3A::new(m[0], m[1], m[2]),

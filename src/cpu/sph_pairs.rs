@@ -9,15 +9,17 @@
 //! or the lower index when both are. Each step computes the pairs (in parallel over their
 //! owners) and every particle of F sums its pairs in its neighbour-list order, with its end's
 //! sign, then adds gravity and the tool's contact as the kernel does. The terms are the
-//! kernel's; only the hourglass term's relative position is rounded once instead of at each
-//! end, so the forces equal the twin's to rounding (tested), and the two ends of a pair now
-//! get exactly opposite forces.
+//! kernel's, from each particle's quantities packed once per step (V²A, F, u in aligned
+//! columns); the products are grouped differently ((V²A_c + V²A_b)∇W, (F_c + F_b)X_cb) and
+//! the hourglass term's relative position is rounded once instead of at each end, so the
+//! forces equal the twin's to rounding (tested), and the two ends of a pair get exactly
+//! opposite forces.
 
 use super::load3a;
 use super::sph::PairTable;
-use super::sph_forces::{add_external, pair_terms_at, store_forces, ForceInputs, Side};
+use super::sph_forces::{add_external, load_mat3a, store_forces, ForceInputs, Side};
 use crate::particles::params::mode;
-use glam::{Vec3, Vec3A};
+use glam::{Mat3A, Vec3, Vec3A};
 use std::sync::atomic::{AtomicU64, Ordering};
 
 /// Source of [`PairPlan`] build numbers, unique over every plan of the process (a restored
@@ -57,6 +59,10 @@ pub struct PairPlan {
     incoming_offsets: Vec<u32>,
     /// The pairs a particle is the other end of (not the owner), in its neighbour-list order.
     incoming: Vec<u32>,
+    /// Per pair, the force-list place of its other end (not the owner).
+    other_place: Vec<u32>,
+    /// Per particle of the stress list, its place in the force list.
+    owner_place: Vec<u32>,
     /// The stress and force lists the plan was built from.
     built_for: (Vec<u32>, Vec<u32>),
     /// Built from the current lists and modes.
@@ -79,6 +85,8 @@ impl Clone for PairPlan {
         self.owner_of.clone_from(&s.owner_of);
         self.incoming_offsets.clone_from(&s.incoming_offsets);
         self.incoming.clone_from(&s.incoming);
+        self.other_place.clone_from(&s.other_place);
+        self.owner_place.clone_from(&s.owner_place);
         self.built_for.0.clone_from(&s.built_for.0);
         self.built_for.1.clone_from(&s.built_for.1);
         self.valid = s.valid;
@@ -90,7 +98,8 @@ impl PairPlan {
     /// Rebuild for the lists and modes an activation left (nothing to do when the stress and
     /// force lists are those of the last build: which pairs carry a force and who owns them
     /// depend only on S and F). `transpose` is [`transpose_slots`] of the lists;
-    /// `scratch`'s contents do not matter.
+    /// `scratch`'s contents do not matter. F must hold S and every neighbour of S, as the
+    /// activation makes it; otherwise the plan is left invalid (the stepper then gathers).
     pub fn rebuild(
         &mut self,
         stress_list: &[u32],
@@ -123,33 +132,52 @@ impl PairPlan {
         }
         row_pairs.clear();
         row_pairs.resize(row_start[force_list.len()] as usize, u32::MAX);
+        let in_force_list = |p: usize| {
+            let j = force_place[p] as usize;
+            j < force_list.len() && force_list[j] as usize == p
+        };
         self.owner_offsets.clear();
         self.owner_offsets.push(0);
         // Ownership is decided without a branch (S's edge makes it unpredictable): every slot
         // is written, the count advances for an owned one, and b's row gets the pair's number
-        // or "none". Every neighbour of S is in F, so b's row exists (checked all the same).
+        // or "none". Every neighbour of S must be in the force list (else the plan is invalid).
         let bound: usize = stress_list.iter().map(|&c| row(c as usize).len()).sum();
         self.slots.clear();
         self.slots.resize(bound, 0);
+        self.other_place.clear();
+        self.other_place.resize(bound, 0);
+        self.owner_place.clear();
         let mut n_pairs = 0usize;
+        let mut neighbours_in_f = true;
         for (i, &c) in stress_list.iter().enumerate() {
             let c = c as usize;
             stress_place[c] = i as u32;
+            neighbours_in_f &= in_force_list(c);
+            self.owner_place.push(force_place[c]);
             for k in row(c) {
                 // c (in S) owns (c, b) unless b is in S with a lower index.
                 let b = neighbours[k] as usize;
                 let owned = !in_s(b) || c < b;
-                if modes[b] & mode::IN_F != 0 {
+                let b_in_f = in_force_list(b);
+                neighbours_in_f &= b_in_f;
+                if b_in_f {
                     let at = row_start[force_place[b] as usize] as usize + transpose[k] as usize
                         - neighbour_offsets[b] as usize;
                     row_pairs[at] = if owned { n_pairs as u32 } else { u32::MAX };
                 }
                 self.slots[n_pairs] = k as u32;
+                self.other_place[n_pairs] = force_place[b];
                 n_pairs += owned as usize;
             }
             self.owner_offsets.push(n_pairs as u32);
         }
+        if !neighbours_in_f {
+            // F is S and its neighbours (`mark_set`); lists that are not cannot be paired.
+            self.valid = false;
+            return;
+        }
         self.slots.truncate(n_pairs);
+        self.other_place.truncate(n_pairs);
         self.owner_of.clear();
         self.incoming_offsets.clear();
         self.incoming.clear();
@@ -177,8 +205,8 @@ impl PairPlan {
     }
 
     /// Each pair's rest quantities, in pair order, into `records` (owner c, slot k,
-    /// neighbour b: ∇W(X_b − X_c), X_cb, r0 and the hourglass weight from `table`), in
-    /// parallel over the owners.
+    /// neighbour b: ∇W(X_b − X_c), X_cb, the hourglass weight h·W(r0)/r0² from `table` and b's
+    /// force-list place), in parallel over the owners.
     fn write_records(
         &self,
         stress_list: &[u32],
@@ -191,8 +219,7 @@ impl PairPlan {
         let blank = PairRecord {
             gradient: Vec3A::ZERO,
             x0cb: Vec3A::ZERO,
-            b: 0,
-            rest_distance: 0.0,
+            other: 0,
             hourglass: 0.0,
         };
         records.clear();
@@ -202,14 +229,13 @@ impl PairPlan {
             .with_min_len(16)
             .for_each(|(c, first, run)| {
                 let x0c = load3a(rest, c);
-                for (r, &k) in run.iter_mut().zip(&self.slots[first..]) {
+                let pairs = self.slots[first..].iter().zip(&self.other_place[first..]);
+                for (r, (&k, &other)) in run.iter_mut().zip(pairs) {
                     let k = k as usize;
-                    let b = neighbours[k];
                     *r = PairRecord {
                         gradient: table.gradient[k].into(),
-                        x0cb: x0c - load3a(rest, b as usize),
-                        b,
-                        rest_distance: table.rest_distance[k],
+                        x0cb: x0c - load3a(rest, neighbours[k] as usize),
+                        other,
                         hourglass: table.hourglass[k],
                     };
                 }
@@ -243,8 +269,14 @@ impl PairPlan {
     /// `particle_forces`, `particle_contact` and the sub-step sum (`accumulate`: add to it),
     /// as [`super::sph_forces::sph_forces`] writes them: f_c = Σ of its owned pairs' terms
     /// (slot order) − Σ of the terms of the pairs it is the other end of (slot order), then
-    /// gravity and contact. `scratch` holds the owners' sums, each pair's terms and each
-    /// pair's rest quantities from `table` (rewritten when the plan is another build's).
+    /// gravity and contact. A pair (c, b) adds V²(A_c + A_b)∇W(X_b − X_c) and, when c or b
+    /// is dynamic, the hourglass term x_cb·w_h·((F_c + F_b)X_cb·x_cb / |x_cb|² − n_S), with
+    /// A = 0, F = 0 outside S and n_S the pair's count of particles in S: the kernel's terms,
+    /// computed from each particle's quantities packed once per step ([`PairSide`]).
+    /// `scratch` holds them, the owners' sums, each pair's terms and each pair's rest
+    /// quantities from `table` (rewritten when the plan is another build's). tlsph only (the
+    /// paper model's one-sided terms are not antisymmetric): for another model this is the
+    /// gather [`super::sph_forces::sph_forces`].
     #[allow(clippy::too_many_arguments)]
     pub fn sph_forces(
         &self,
@@ -259,9 +291,21 @@ impl PairPlan {
         particle_contact: &mut [f32],
     ) {
         use rayon::prelude::*;
+        if inp.pp.model != 0 {
+            super::sph_forces::sph_forces(
+                inp,
+                force_list,
+                accumulate,
+                particle_forces,
+                particle_force_sum,
+                particle_contact,
+            );
+            return;
+        }
         let PairScratch {
             owned_sum,
             terms,
+            sides,
             records,
             records_build,
         } = scratch;
@@ -270,28 +314,22 @@ impl PairPlan {
             *records_build = self.build;
         }
         let records = &records[..];
+        PairSide::pack(inp, force_list, sides);
+        let sides = &sides[..];
         owned_sum.resize(stress_list.len(), Vec3A::ZERO);
         terms.resize(self.slots.len(), Vec3A::ZERO);
         // Each owner's pairs are a contiguous run: hand each owner its run and its sum.
         self.owner_runs(stress_list, terms)
             .into_par_iter()
             .zip(owned_sum.par_iter_mut())
-            .map(|((c, first, run), sum)| (c, first, run, sum))
+            .zip(self.owner_place.par_iter())
+            .map(|(((_, first, run), sum), &place)| (first, run, sum, place))
             .with_min_len(16)
-            .for_each(|(c, first, run, sum)| {
-                let side = Side::of(inp, c);
+            .for_each(|(first, run, sum, place)| {
+                let c = &sides[place as usize];
                 let mut fa = Vec3A::ZERO;
                 for (out, r) in run.iter_mut().zip(&records[first..]) {
-                    let b = r.b as usize;
-                    let terms =
-                        pair_terms_at(inp, &side, (b, inp.mode[b]), r.gradient, r.x0cb, || {
-                            (r.rest_distance, r.hourglass)
-                        });
-                    *out = match terms {
-                        Some((stress, Some(hourglass))) => stress + hourglass,
-                        Some((stress, None)) => stress,
-                        None => Vec3A::ZERO,
-                    };
+                    *out = pair_term(c, &sides[r.other as usize], r);
                     fa += *out;
                 }
                 *sum = fa;
@@ -333,6 +371,77 @@ impl PairPlan {
     }
 }
 
+/// The force on owner c from its pair with b (record `r`): see [`PairPlan::sph_forces`].
+/// The hourglass term only where it applies (c or b dynamic; |x_cb| > 0, which the kernel
+/// also asks).
+#[inline]
+fn pair_term(c: &PairSide, b: &PairSide, r: &PairRecord) -> Vec3A {
+    let stress = (c.a + b.a) * r.gradient;
+    if c.dynamic + b.dynamic == 0.0 {
+        return stress;
+    }
+    let xcb = r.x0cb + c.u - b.u;
+    let r2 = xcb.length_squared();
+    if r2 > 0.0 {
+        let g = (c.f + b.f) * r.x0cb;
+        stress + xcb * (r.hourglass * (g.dot(xcb) / r2 - (c.in_s + b.in_s)))
+    } else {
+        stress
+    }
+}
+
+/// One force-list particle's quantities as the pair loop reads them, packed once per step
+/// (aligned columns, one load each): V²A and F = I + H (both 0 outside S), its displacement,
+/// and whether it is in S and dynamic (1 or 0).
+#[derive(Clone, Copy)]
+struct PairSide {
+    a: Mat3A,
+    f: Mat3A,
+    u: Vec3A,
+    in_s: f32,
+    dynamic: f32,
+}
+
+impl PairSide {
+    /// Pack every particle of `force_list` into `sides` (force-list order), in parallel.
+    fn pack(inp: &ForceInputs, force_list: &[u32], sides: &mut Vec<PairSide>) {
+        use rayon::prelude::*;
+        let blank = PairSide {
+            a: Mat3A::ZERO,
+            f: Mat3A::ZERO,
+            u: Vec3A::ZERO,
+            in_s: 0.0,
+            dynamic: 0.0,
+        };
+        sides.resize(force_list.len(), blank);
+        let v2 = inp.pp.volume * inp.pp.volume;
+        sides
+            .par_iter_mut()
+            .zip(force_list.par_iter())
+            .with_min_len(64)
+            .for_each(|(side, &c)| {
+                let c = c as usize;
+                let m = inp.mode[c];
+                let in_s = m & mode::IN_S != 0;
+                *side = PairSide {
+                    a: if in_s {
+                        load_mat3a(inp.stress, c) * v2
+                    } else {
+                        Mat3A::ZERO
+                    },
+                    f: if in_s {
+                        Mat3A::IDENTITY + load_mat3a(inp.gradient, c)
+                    } else {
+                        Mat3A::ZERO
+                    },
+                    u: load3a(inp.displacements, c),
+                    in_s: in_s as u32 as f32,
+                    dynamic: (m & mode::DYNAMIC != 0) as u32 as f32,
+                };
+            });
+    }
+}
+
 /// Scratch of [`PairPlan::rebuild`] (not part of a checkpoint).
 #[derive(Default)]
 pub struct PlanScratch {
@@ -354,6 +463,8 @@ pub struct PairScratch {
     owned_sum: Vec<Vec3A>,
     /// Per pair, the force on its owner.
     terms: Vec<Vec3A>,
+    /// Per particle of the force list, its packed quantities this step.
+    sides: Vec<PairSide>,
     /// Per pair, its rest quantities (read in order instead of through the slots).
     records: Vec<PairRecord>,
     /// The plan build `records` belong to (0: none).
@@ -367,10 +478,8 @@ struct PairRecord {
     gradient: Vec3A,
     /// X_c − X_b.
     x0cb: Vec3A,
-    /// The other particle.
-    b: u32,
-    /// r0 = |X_cb|.
-    rest_distance: f32,
+    /// The other particle's place in the force list.
+    other: u32,
     /// h·W(r0)/r0².
     hourglass: f32,
 }
