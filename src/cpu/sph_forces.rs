@@ -187,8 +187,14 @@ impl Side {
 }
 
 /// Add gravity and the tool's contact to f when particle c is dynamic (in that order, as
-/// the kernel does); returns the contact force.
-pub(crate) fn add_external(inp: &ForceInputs, c: usize, side: &Side, f: &mut Vec3) -> Vec3 {
+/// the kernel does); returns the contact force. `(u, deformation)`: c's displacement and F,
+/// which place its contact point at X + u + F·offset.
+pub(crate) fn add_external(
+    inp: &ForceInputs,
+    c: usize,
+    (u, deformation): (Vec3A, Mat3A),
+    f: &mut Vec3,
+) -> Vec3 {
     let mut contact = Vec3::ZERO;
     if inp.mode[c] & mode::DYNAMIC != 0 {
         *f += Vec3::from_array(inp.params.gravity) * inp.pp.mass;
@@ -199,7 +205,7 @@ pub(crate) fn add_external(inp: &ForceInputs, c: usize, side: &Side, f: &mut Vec
                 let o = load3(inp.contact_offset, c);
                 contact = contact_force(
                     tp,
-                    Vec3::from(side.x0 + side.u + side.f * Vec3A::from(o)),
+                    Vec3::from(load3a(inp.rest, c) + u + deformation * Vec3A::from(o)),
                     load3(inp.velocities, c),
                     Vec3::from_array(ts.position),
                     vc,
@@ -221,7 +227,7 @@ pub fn force_on(inp: &ForceInputs, c: usize) -> (Vec3, Vec3) {
         add_pair_terms(inp, k as usize, &side, &mut fa);
     }
     let mut f = Vec3::from(fa);
-    let contact = add_external(inp, c, &side, &mut f);
+    let contact = add_external(inp, c, (side.u, side.f), &mut f);
     (f, contact)
 }
 

@@ -17,7 +17,7 @@
 
 use super::load3a;
 use super::sph::PairTable;
-use super::sph_forces::{add_external, load_mat3a, store_forces, ForceInputs, Side};
+use super::sph_forces::{add_external, load_mat3a, store_forces, ForceInputs};
 use crate::particles::params::mode;
 use glam::{Mat3A, Vec3, Vec3A};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -352,7 +352,7 @@ impl PairPlan {
                 }
                 let mut f = Vec3::from(fa);
                 let contact = if inp.mode[c] & mode::DYNAMIC != 0 {
-                    add_external(inp, c, &Side::of(inp, c), &mut f)
+                    add_external(inp, c, (sides[i].u, sides[i].f), &mut f)
                 } else {
                     Vec3::ZERO
                 };
