@@ -14,7 +14,8 @@ use palpate::stepper::{BatchInput, Stepper};
 use palpate::Scene;
 use std::sync::Arc;
 
-/// Move the scene's tool along its path to `hold_time` in batches of 10 steps.
+/// Move the scene's tool along its path to `hold_time` in batches of 10 steps, then hold it
+/// there for one batch.
 fn press(
     stepper: &mut dyn Stepper,
     scene: &Scene,
@@ -38,6 +39,16 @@ fn press(
         from = to;
         t += batch as f64 * dt;
     }
+    // One batch holding the tool still: the profile replays the last batch's move past its
+    // end (the step count runs on), which for a moving tool would carry it on along the path.
+    stepper.submit(
+        batch,
+        &BatchInput {
+            tool: from.zip(from),
+            tool_slice: None,
+        },
+    )?;
+    stepper.wait()?;
     Ok(())
 }
 
