@@ -297,6 +297,8 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
         opts.backend,
         SimOptions {
             threads,
+            // This thread steps it: on one thread, no pool worker competes with the servo.
+            step_on_this_thread: true,
             ..Default::default()
         },
     )?;

@@ -297,6 +297,7 @@ pub fn run_with_state(
             allow_unstable: opts.allow_unstable,
             gpu: None,
             threads: opts.threads,
+            step_on_this_thread: false,
         },
     )?;
     let model = sim.model.clone();

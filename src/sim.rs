@@ -81,6 +81,11 @@ pub struct SimOptions {
     pub gpu: Option<Arc<GpuContext>>,
     /// CPU backend threads (None: all cores).
     pub threads: Option<usize>,
+    /// With the CPU backend on one thread: run the stages on the thread that creates the
+    /// simulation ([`crate::cpu::stepper::this_thread_pool`]), with no pool worker beside
+    /// it, for a caller that also steps it there (a haptic session's physics thread, which
+    /// then leaves the other core to the servo). Stepping from another thread still works.
+    pub step_on_this_thread: bool,
 }
 
 /// Outcome of [`Simulation::advance`].
@@ -266,10 +271,12 @@ impl Simulation {
                 let threads = opts
                     .threads
                     .unwrap_or_else(crate::cpu::stepper::available_cores);
-                (
-                    Box::new(CpuStepper::with_threads(model.clone(), params, threads)?),
-                    threads,
-                )
+                let stepper = if threads == 1 && opts.step_on_this_thread {
+                    CpuStepper::on_this_thread(model.clone(), params)?
+                } else {
+                    CpuStepper::with_threads(model.clone(), params, threads)?
+                };
+                (Box::new(stepper), threads)
             }
         };
         Ok(Simulation {

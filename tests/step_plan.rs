@@ -203,6 +203,73 @@ fn steppers_and_simulations_can_move_to_another_thread() {
     assert!(sim.state().unwrap().displacements.iter().any(|u| *u != 0.0));
 }
 
+/// A simulation that steps on the thread that made it (`step_on_this_thread`, as a haptic
+/// session's physics thread does) runs its stages right there, with no pool worker beside it;
+/// its results are the bits of a pool worker's, also after it moved to another thread, where
+/// it steps on a worker of its own instead of waiting for its first thread to take the work.
+#[test]
+fn a_simulation_can_step_on_the_thread_that_made_it() {
+    use palpate::cpu::stepper::this_thread_pool;
+    let (reference, _) = run_cpu("lv", 1, 500);
+    // A fresh thread: the one that becomes a pool stays the pool's for the rest of its life.
+    let (sim, here) = std::thread::spawn(|| {
+        let here = std::thread::current().id();
+        let pool = this_thread_pool().expect("a fresh thread can be a pool of its own");
+        assert_eq!(pool.current_num_threads(), 1);
+        assert_eq!(
+            pool.install(|| std::thread::current().id()),
+            here,
+            "the work ran on another thread"
+        );
+        let again = this_thread_pool().expect("the same pool again");
+        assert!(
+            Arc::ptr_eq(&pool, &again),
+            "a second pool on the same thread"
+        );
+        let scene = palpate::Scene::load("lv").unwrap();
+        let mut sim = Simulation::new(
+            &scene,
+            Backend::Cpu,
+            SimOptions {
+                threads: Some(1),
+                step_on_this_thread: true,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        for _ in 0..3 {
+            sim.advance(100).unwrap();
+        }
+        (sim, here)
+    })
+    .join()
+    .unwrap();
+    // Moved to a thread that is not the pool's: it must not wait for the pool's thread (that
+    // would never take the work), so a hang fails the test after a minute.
+    let (send, receive) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        assert_ne!(std::thread::current().id(), here);
+        let mut sim = sim;
+        for _ in 0..2 {
+            sim.advance(100).unwrap();
+        }
+        send.send(sim.state().unwrap()).unwrap();
+    });
+    let moved = receive
+        .recv_timeout(std::time::Duration::from_secs(60))
+        .expect("a simulation moved off its pool's thread did not step (or failed)");
+    assert_eq!(
+        bits(&reference.displacements),
+        bits(&moved.displacements),
+        "displacements differ from a pool worker's"
+    );
+    assert_eq!(
+        bits(&reference.velocities),
+        bits(&moved.velocities),
+        "velocities differ from a pool worker's"
+    );
+}
+
 #[test]
 fn thread_counts_out_of_range_are_refused() {
     let m = scene_model("beam");

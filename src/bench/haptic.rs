@@ -122,7 +122,7 @@ pub fn sleep_study(threads: usize, seconds: f64, scratch: &Path) -> Result<Vec<H
     )?;
     let mut rows = Vec::new();
     for sleep in [true, false] {
-        let summary = run_haptic(
+        let summary = run_session(
             &scene,
             &HapticOptions {
                 backend: Backend::Cpu,
@@ -143,6 +143,24 @@ pub fn sleep_study(threads: usize, seconds: f64, scratch: &Path) -> Result<Vec<H
         });
     }
     Ok(rows)
+}
+
+/// [`run_haptic`] on a thread of its own, as `palpate haptic` runs a session on a fresh
+/// process's main thread: a one-thread session makes its physics thread a pool of its own for
+/// good (`SimOptions::step_on_this_thread`), which the next sessions must not inherit.
+fn run_session(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> {
+    std::thread::scope(|s| {
+        let session = std::thread::Builder::new()
+            .name("palpate-bench-session".into())
+            .stack_size(8 << 20)
+            .spawn_scoped(s, || run_haptic(scene, opts))
+            .map_err(|e| {
+                crate::error::PalpateError::Usage(format!("cannot start a session thread: {e}"))
+            })?;
+        session
+            .join()
+            .unwrap_or_else(|panic| std::panic::resume_unwind(panic))
+    })
 }
 
 /// Run every case on every (backend, threads) of `runs` for `seconds` each.
@@ -169,7 +187,7 @@ pub fn study(
                 (_, Some(t)) => format!("{}-cpu{t}", case.scene.name),
                 _ => format!("{}-cpu", case.scene.name),
             });
-            let summary = run_haptic(
+            let summary = run_session(
                 &case.scene,
                 &HapticOptions {
                     backend,

@@ -59,6 +59,35 @@ pub fn thread_pool(threads: usize) -> Result<Arc<rayon::ThreadPool>> {
         .map_err(|e| PalpateError::Usage(format!("cannot start {threads} threads: {e}")))
 }
 
+thread_local! {
+    /// This thread's [`this_thread_pool`], once built.
+    static THIS_THREAD_POOL: std::cell::RefCell<Option<Arc<rayon::ThreadPool>>> =
+        const { std::cell::RefCell::new(None) };
+}
+
+/// The calling thread as a pool of one thread (no worker beside it), the same pool for every
+/// call on this thread; None when the thread already works for another pool or the pool
+/// cannot be built. Work installed on it from this thread runs right here. From another
+/// thread nothing would take it, so a [`CpuStepper`] stepped elsewhere moves to a worker of
+/// its own. Rayon work this thread starts outside any pool afterwards also runs on it alone
+/// (rayon keeps the thread as the pool's). Denormals are flushed on it, as on every worker.
+pub fn this_thread_pool() -> Option<Arc<rayon::ThreadPool>> {
+    THIS_THREAD_POOL.with(|here| {
+        if let Some(pool) = here.borrow().as_ref() {
+            return Some(pool.clone());
+        }
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .use_current_thread()
+            .build()
+            .ok()?;
+        super::par::flush_denormals_on_this_thread();
+        let pool = Arc::new(pool);
+        *here.borrow_mut() = Some(pool.clone());
+        Some(pool)
+    })
+}
+
 /// The tool's arrays (empty without a tool).
 struct ToolArrays {
     params: ToolParams,
@@ -388,6 +417,8 @@ pub struct CpuStepper {
     params: StepParams,
     variant: FemVariant,
     pool: Arc<rayon::ThreadPool>,
+    /// The thread `pool` is made of, when it is a [`this_thread_pool`].
+    pool_thread: Option<std::thread::ThreadId>,
     threads: usize,
     state: State,
     /// The last checkpoint; the state at rest until the first `checkpoint`.
@@ -427,6 +458,33 @@ impl CpuStepper {
             thread_pool(threads)?,
             threads,
         ))
+    }
+
+    /// A stepper at rest on one thread, the calling one ([`this_thread_pool`]): its stages
+    /// run on the thread that steps it, with no pool worker beside it (a haptic session's
+    /// physics thread then leaves the other core to the servo). Stepped from another thread
+    /// it moves to a worker of its own. A pool of one worker when this thread cannot be one.
+    pub fn on_this_thread(model: Arc<Model>, params: StepParams) -> Result<Self> {
+        match this_thread_pool() {
+            Some(pool) => {
+                let mut s = CpuStepper::with_pool(model, params, pool, 1);
+                s.pool_thread = Some(std::thread::current().id());
+                Ok(s)
+            }
+            None => CpuStepper::with_threads(model, params, 1),
+        }
+    }
+
+    /// The pool to run on from the calling thread: a [`this_thread_pool`] of another thread
+    /// is swapped for a pool of one worker (its own thread would never take the work).
+    fn pool_here(&mut self) -> Arc<rayon::ThreadPool> {
+        if let Some(home) = self.pool_thread {
+            if home != std::thread::current().id() {
+                self.pool = thread_pool(1).expect("a single worker thread can always start");
+                self.pool_thread = None;
+            }
+        }
+        self.pool.clone()
     }
 
     fn with_pool(
@@ -485,6 +543,7 @@ impl CpuStepper {
             model,
             params,
             pool,
+            pool_thread: None,
             threads,
             steps_done: 0,
             reports: VecDeque::new(),
@@ -1043,13 +1102,13 @@ impl CpuStepper {
 
     /// Run one stage's twin on the stepper's thread pool.
     pub fn run_stage_pooled(&mut self, stage: Stage) {
-        let pool = self.pool.clone();
+        let pool = self.pool_here();
         pool.install(|| self.run_stage(stage));
     }
 
     /// One step of the plan (`reduce`: run the last-step-of-batch stages too), on the pool.
     pub fn step(&mut self, reduce: bool) {
-        let pool = self.pool.clone();
+        let pool = self.pool_here();
         pool.install(|| self.step_in_batch(0, if reduce { 1 } else { 2 }));
     }
 
@@ -1057,7 +1116,7 @@ impl CpuStepper {
     /// wall ns per step spent in each stage of the plan, in plan order (stages that run
     /// every k steps are averaged over all steps).
     pub fn profile_stages(&mut self, steps: u32) -> crate::gpu::stepper::StageTimes {
-        let pool = self.pool.clone();
+        let pool = self.pool_here();
         let steps = steps.max(1);
         let mut totals = vec![0.0f64; self.plan.stages.len()];
         pool.install(|| {
@@ -1192,7 +1251,7 @@ impl Stepper for CpuStepper {
         self.tool.at = to;
         self.status[0] = ALL_FINITE;
         self.counts.iter_mut().for_each(|(_, c)| *c = 0);
-        let pool = self.pool.clone();
+        let pool = self.pool_here();
         pool.install(|| {
             for s in 0..steps {
                 self.step_in_batch(s, steps);
