@@ -912,10 +912,16 @@ fn a_tool_that_starts_inside_the_tissue_is_warned_about() {
 }
 
 /// `lv_touch` with its tool's home and press turned 30° about the long axis, off the particle
-/// lattice's axes (the direction where StVK inverts particles under the tool).
+/// lattice's axes (the direction where StVK inverts particles under the tool), waking the
+/// particles within 1 mm of the tool instead of the shipped 3 mm: the home is 1 mm clear of
+/// the wall, so with 3 mm the particles under it stay dynamic after the release, and a
+/// particle StVK inverted stays inverted (StVK has no restoring force there) instead of
+/// blending back onto its host.
 fn lv_touch_at_30_degrees() -> String {
     let (c, s) = (30f64.to_radians().cos(), 30f64.to_radians().sin());
+    let radius = "activation_radius = 3.0e-3 ";
     let scene = include_str!("../scenes/lv_touch.toml")
+        .replace(radius, "activation_radius = 1.0e-3 ")
         .replace(
             "home = [0.0147, 0.0, -0.005]",
             &format!("home = [{}, {}, -0.005]", 0.0147 * c, 0.0147 * s),
@@ -933,8 +939,8 @@ fn lv_touch_at_30_degrees() -> String {
             ),
         );
     assert!(
-        scene.contains("path = [[0.0, 0.0127"),
-        "the press was not rotated"
+        scene.contains("path = [[0.0, 0.0127") && scene.contains("activation_radius = 1.0e-3"),
+        "the press was not rotated or its activation radius not set"
     );
     scene
 }
