@@ -155,7 +155,7 @@ fn run_session(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> {
             .stack_size(8 << 20)
             .spawn_scoped(s, || run_haptic(scene, opts))
             .map_err(|e| {
-                crate::error::PalpateError::Usage(format!("cannot start a session thread: {e}"))
+                crate::error::PalpateError::Internal(format!("cannot start a session thread: {e}"))
             })?;
         session
             .join()

@@ -9,8 +9,8 @@
 //! or the lower index when both are. Each step computes the pairs (in parallel over their
 //! owners) and every particle of F sums its pairs in its neighbour-list order, with its end's
 //! sign, then adds gravity and the tool's contact as the kernel does. The terms are the
-//! kernel's, from each particle's quantities packed once per step (V²A, F, u in aligned
-//! columns); the products are grouped differently ((V²A_c + V²A_b)∇W, (F_c + F_b)X_cb) and
+//! kernel's, from each particle's quantities packed once per step (V²A, F, u in an aligned
+//! record per particle); the products are grouped differently ((V²A_c + V²A_b)∇W, (F_c + F_b)X_cb) and
 //! the hourglass term's relative position is rounded once instead of at each end, so the
 //! forces equal the twin's to rounding (tested), and the two ends of a pair get exactly
 //! opposite forces.
@@ -352,6 +352,12 @@ impl PairPlan {
                 }
                 let mut f = Vec3::from(fa);
                 let contact = if inp.mode[c] & mode::DYNAMIC != 0 {
+                    // A dynamic particle is in S (the activation marks S from them), so its
+                    // packed F is I + H, not the 0 of particles outside S.
+                    debug_assert!(
+                        inp.mode[c] & mode::IN_S != 0,
+                        "dynamic particle {c} not in S"
+                    );
                     add_external(inp, c, (sides[i].u, sides[i].f), &mut f)
                 } else {
                     Vec3::ZERO
@@ -373,7 +379,7 @@ impl PairPlan {
 
 /// The force on owner c from its pair with b (record `r`): see [`PairPlan::sph_forces`].
 /// The hourglass term only where it applies (c or b dynamic; |x_cb| > 0, which the kernel
-/// also asks).
+/// also asks; its other test, r0 > 0, is in the record: the weight is 0 where r0 = 0).
 #[inline]
 fn pair_term(c: &PairSide, b: &PairSide, r: &PairRecord) -> Vec3A {
     let stress = (c.a + b.a) * r.gradient;
@@ -391,8 +397,8 @@ fn pair_term(c: &PairSide, b: &PairSide, r: &PairRecord) -> Vec3A {
 }
 
 /// One force-list particle's quantities as the pair loop reads them, packed once per step
-/// (aligned columns, one load each): V²A and F = I + H (both 0 outside S), its displacement,
-/// and whether it is in S and dynamic (1 or 0).
+/// in an aligned 128-byte record (one load per matrix column): V²A and F = I + H (both 0
+/// outside S), its displacement, and whether it is in S and dynamic (1 or 0).
 #[derive(Clone, Copy)]
 struct PairSide {
     a: Mat3A,

@@ -70,7 +70,8 @@ thread_local! {
 /// cannot be built. Work installed on it from this thread runs right here. From another
 /// thread nothing would take it, so a [`CpuStepper`] stepped elsewhere moves to a worker of
 /// its own. Rayon work this thread starts outside any pool afterwards also runs on it alone
-/// (rayon keeps the thread as the pool's). Denormals are flushed on it, as on every worker.
+/// (rayon keeps the thread as the pool's, and leaks the pool). Denormals are flushed on it, as
+/// on every worker: for all its f32 and f64 arithmetic from then on.
 pub fn this_thread_pool() -> Option<Arc<rayon::ThreadPool>> {
     THIS_THREAD_POOL.with(|here| {
         if let Some(pool) = here.borrow().as_ref() {
