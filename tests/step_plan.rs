@@ -226,6 +226,13 @@ fn a_simulation_can_step_on_the_thread_that_made_it() {
             Arc::ptr_eq(&pool, &again),
             "a second pool on the same thread"
         );
+        let m = scene_model("lv");
+        let stepper = CpuStepper::on_this_thread(m.clone(), m.step_params(1e-5, 0.0)).unwrap();
+        assert_eq!(
+            stepper.steps_on(),
+            Some(here),
+            "the stepper did not take this thread's pool"
+        );
         let scene = palpate::Scene::load("lv").unwrap();
         let mut sim = Simulation::new(
             &scene,

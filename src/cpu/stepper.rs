@@ -476,16 +476,29 @@ impl CpuStepper {
         }
     }
 
+    /// The thread this stepper's pool is made of, when it steps on the thread that made it
+    /// ([`Self::on_this_thread`]) and has not moved off it.
+    pub fn steps_on(&self) -> Option<std::thread::ThreadId> {
+        self.pool_thread
+    }
+
     /// The pool to run on from the calling thread: a [`this_thread_pool`] of another thread
-    /// is swapped for a pool of one worker (its own thread would never take the work).
-    fn pool_here(&mut self) -> Arc<rayon::ThreadPool> {
+    /// is swapped for a pool of one worker (its own thread would never take the work); the
+    /// error of [`thread_pool`] when that worker cannot start.
+    fn pool_here(&mut self) -> Result<Arc<rayon::ThreadPool>> {
         if let Some(home) = self.pool_thread {
             if home != std::thread::current().id() {
-                self.pool = thread_pool(1).expect("a single worker thread can always start");
+                self.pool = thread_pool(1)?;
                 self.pool_thread = None;
             }
         }
-        self.pool.clone()
+        Ok(self.pool.clone())
+    }
+
+    /// [`Self::pool_here`] for the helpers that return no `Result` (tests, profiling).
+    fn pool_here_or_panic(&mut self) -> Arc<rayon::ThreadPool> {
+        self.pool_here()
+            .unwrap_or_else(|e| panic!("no thread to step on: {e}"))
     }
 
     fn with_pool(
@@ -1103,13 +1116,13 @@ impl CpuStepper {
 
     /// Run one stage's twin on the stepper's thread pool.
     pub fn run_stage_pooled(&mut self, stage: Stage) {
-        let pool = self.pool_here();
+        let pool = self.pool_here_or_panic();
         pool.install(|| self.run_stage(stage));
     }
 
     /// One step of the plan (`reduce`: run the last-step-of-batch stages too), on the pool.
     pub fn step(&mut self, reduce: bool) {
-        let pool = self.pool_here();
+        let pool = self.pool_here_or_panic();
         pool.install(|| self.step_in_batch(0, if reduce { 1 } else { 2 }));
     }
 
@@ -1117,7 +1130,7 @@ impl CpuStepper {
     /// wall ns per step spent in each stage of the plan, in plan order (stages that run
     /// every k steps are averaged over all steps).
     pub fn profile_stages(&mut self, steps: u32) -> crate::gpu::stepper::StageTimes {
-        let pool = self.pool_here();
+        let pool = self.pool_here_or_panic();
         let steps = steps.max(1);
         let mut totals = vec![0.0f64; self.plan.stages.len()];
         pool.install(|| {
@@ -1246,13 +1259,13 @@ impl Stepper for CpuStepper {
                 "{RING} batches are already in flight; poll or wait first"
             )));
         }
+        let pool = self.pool_here()?;
         let (tool_input, tool_state, to) = input.tool_plan(steps, self.tool.at);
         self.tool.input = tool_input;
         self.tool.state = tool_state;
         self.tool.at = to;
         self.status[0] = ALL_FINITE;
         self.counts.iter_mut().for_each(|(_, c)| *c = 0);
-        let pool = self.pool_here();
         pool.install(|| {
             for s in 0..steps {
                 self.step_in_batch(s, steps);
