@@ -234,14 +234,14 @@ pub fn force_on(inp: &ForceInputs, c: usize) -> (Vec3, Vec3) {
 pub(crate) fn store_forces(
     inp: &ForceInputs,
     force_list: &[u32],
-    results: Vec<(Vec3, Vec3)>,
+    results: &[(Vec3, Vec3)],
     accumulate: bool,
     particle_forces: &mut [f32],
     particle_force_sum: &mut [f32],
     particle_contact: &mut [f32],
 ) {
     let s = inp.pp.substeps.max(1) as f32;
-    for (&c, (f, contact)) in force_list.iter().zip(results) {
+    for (&c, &(f, contact)) in force_list.iter().zip(results) {
         let c = c as usize;
         super::store3(particle_forces, c, f);
         super::store3(particle_contact, c, contact);
@@ -271,7 +271,7 @@ pub fn sph_forces(
     store_forces(
         inp,
         force_list,
-        results,
+        &results,
         accumulate,
         particle_forces,
         particle_force_sum,

@@ -308,6 +308,7 @@ impl PairPlan {
             sides,
             records,
             records_build,
+            results,
         } = scratch;
         if *records_build != self.build {
             self.write_records(stress_list, inp.rest, inp.neighbours, table, records);
@@ -335,7 +336,7 @@ impl PairPlan {
                 *sum = fa;
             });
         let (terms, owned_sum) = (&terms[..], &owned_sum[..]);
-        let results: Vec<(Vec3, Vec3)> = force_list
+        force_list
             .par_iter()
             .enumerate()
             .with_min_len(16)
@@ -364,7 +365,7 @@ impl PairPlan {
                 };
                 (f, contact)
             })
-            .collect();
+            .collect_into_vec(results);
         store_forces(
             inp,
             force_list,
@@ -471,6 +472,8 @@ pub struct PairScratch {
     terms: Vec<Vec3A>,
     /// Per particle of the force list, its packed quantities this step.
     sides: Vec<PairSide>,
+    /// Per particle of the force list, its force and contact force this step.
+    results: Vec<(Vec3, Vec3)>,
     /// Per pair, its rest quantities (read in order instead of through the slots).
     records: Vec<PairRecord>,
     /// The plan build `records` belong to (0: none).
