@@ -1962,17 +1962,7 @@ fn the_paired_sph_force_stage_equals_the_kernel_twin() {
                 vec![0.0f32; 3 * n],
                 vec![0.0f32; 3 * n],
             );
-            plan.sph_forces(
-                inp,
-                &pairs,
-                sl,
-                fl,
-                false,
-                &mut scratch,
-                &mut f,
-                &mut fs,
-                &mut fc,
-            );
+            plan.sph_forces(inp, sl, fl, false, &mut scratch, &mut f, &mut fs, &mut fc);
             (f, fs, fc, plan.pairs(), plan.clone())
         };
     let (f, fs, fc) = twin(&inp);

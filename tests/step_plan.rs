@@ -45,6 +45,21 @@ fn bits(v: &[f32]) -> Vec<u32> {
     v.iter().map(|x| x.to_bits()).collect()
 }
 
+/// Assert that two states' displacements and velocities are the same bits (`what`: how they
+/// came to be, for the message).
+fn assert_same_bits(a: &State, b: &State, what: &str) {
+    assert_eq!(
+        bits(&a.displacements),
+        bits(&b.displacements),
+        "displacements differ {what}"
+    );
+    assert_eq!(
+        bits(&a.velocities),
+        bits(&b.velocities),
+        "velocities differ {what}"
+    );
+}
+
 #[test]
 fn cpu_results_are_bit_identical_for_any_thread_count() {
     for name in ["beam", "lv"] {
@@ -53,15 +68,10 @@ fn cpu_results_are_bit_identical_for_any_thread_count() {
         assert!(umax > 0.0, "{name}: nothing moved");
         for threads in [2, 3] {
             let (many, sn) = run_cpu(name, threads, 500);
-            assert_eq!(
-                bits(&one.displacements),
-                bits(&many.displacements),
-                "{name}: displacements differ between 1 and {threads} threads"
-            );
-            assert_eq!(
-                bits(&one.velocities),
-                bits(&many.velocities),
-                "{name}: velocities differ between 1 and {threads} threads"
+            assert_same_bits(
+                &one,
+                &many,
+                &format!("for {name} between 1 and {threads} threads"),
             );
             assert_eq!(bits(&s1), bits(&sn), "{name}: stats differ");
         }
@@ -178,8 +188,7 @@ fn restore_returns_exactly_to_the_checkpoint() {
         s.restore().unwrap();
         s.run(50).unwrap();
         let again = s.read_state().unwrap();
-        assert_eq!(bits(&first.displacements), bits(&again.displacements));
-        assert_eq!(bits(&first.velocities), bits(&again.velocities));
+        assert_same_bits(&first, &again, "after a restore");
     }
 }
 
@@ -265,16 +274,7 @@ fn a_simulation_can_step_on_the_thread_that_made_it() {
     let moved = receive
         .recv_timeout(std::time::Duration::from_secs(60))
         .expect("a simulation moved off its pool's thread did not step (or failed)");
-    assert_eq!(
-        bits(&reference.displacements),
-        bits(&moved.displacements),
-        "displacements differ from a pool worker's"
-    );
-    assert_eq!(
-        bits(&reference.velocities),
-        bits(&moved.velocities),
-        "velocities differ from a pool worker's"
-    );
+    assert_same_bits(&reference, &moved, "from a pool worker's");
 }
 
 #[test]

@@ -61,13 +61,10 @@ fn add_pair_terms(inp: &ForceInputs, k: usize, side: &Side, f: &mut Vec3A) {
 /// The two terms of [`add_pair_terms`] on particle c (`side`) from the pair in its slot k:
 /// None when neither particle is in S; the hourglass term only where it applies. tlsph's
 /// terms are antisymmetric (the pair's other particle gets their negatives, up to rounding),
-/// which `cpu::sph_pairs` uses to evaluate each pair once.
+/// which lets `cpu::sph_pairs` evaluate each pair once (from per-step packed records, its
+/// own `pair_term`).
 #[inline]
-pub(crate) fn pair_terms(
-    inp: &ForceInputs,
-    k: usize,
-    side: &Side,
-) -> Option<(Vec3A, Option<Vec3A>)> {
+fn pair_terms(inp: &ForceInputs, k: usize, side: &Side) -> Option<(Vec3A, Option<Vec3A>)> {
     let pp = inp.pp;
     let b = inp.neighbours[k] as usize;
     let mode_b = inp.mode[b];
@@ -95,7 +92,7 @@ pub(crate) fn pair_terms(
 /// gradient w = ∇W(X_b − X_c), X_cb, and (called only where the hourglass term applies) r0
 /// and the hourglass weight h·W(r0)/r0².
 #[inline]
-pub(crate) fn pair_terms_at(
+fn pair_terms_at(
     inp: &ForceInputs,
     side: &Side,
     (b, mode_b): (usize, u32),
@@ -154,7 +151,7 @@ pub(crate) fn load_mat3a(a: &[f32], i: usize) -> Mat3A {
 }
 
 /// Particle c's own quantities for [`add_pair_terms`].
-pub(crate) struct Side {
+struct Side {
     mode: u32,
     in_s: bool,
     x0: Vec3A,
@@ -165,7 +162,7 @@ pub(crate) struct Side {
 
 impl Side {
     /// Particle c's mode, rest position, displacement, A and F (A = 0, F = I outside S).
-    pub(crate) fn of(inp: &ForceInputs, c: usize) -> Side {
+    fn of(inp: &ForceInputs, c: usize) -> Side {
         let in_s = inp.mode[c] & mode::IN_S != 0;
         let (a, f) = if in_s {
             (

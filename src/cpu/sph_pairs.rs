@@ -274,14 +274,13 @@ impl PairPlan {
     /// A = 0, F = 0 outside S and n_S the pair's count of particles in S: the kernel's terms,
     /// computed from each particle's quantities packed once per step ([`PairSide`]).
     /// `scratch` holds them, the owners' sums, each pair's terms and each pair's rest
-    /// quantities from `table` (rewritten when the plan is another build's). tlsph only (the
-    /// paper model's one-sided terms are not antisymmetric): for another model this is the
-    /// gather [`super::sph_forces::sph_forces`].
+    /// quantities from `inp.pairs` (rewritten when the plan is another build's). tlsph with
+    /// a pair table only (the paper model's one-sided terms are not antisymmetric): otherwise
+    /// this is the gather [`super::sph_forces::sph_forces`].
     #[allow(clippy::too_many_arguments)]
     pub fn sph_forces(
         &self,
         inp: &ForceInputs,
-        table: &PairTable,
         stress_list: &[u32],
         force_list: &[u32],
         accumulate: bool,
@@ -291,7 +290,7 @@ impl PairPlan {
         particle_contact: &mut [f32],
     ) {
         use rayon::prelude::*;
-        if inp.pp.model != 0 {
+        let (0, Some(table)) = (inp.pp.model, inp.pairs) else {
             super::sph_forces::sph_forces(
                 inp,
                 force_list,
@@ -301,7 +300,7 @@ impl PairPlan {
                 particle_contact,
             );
             return;
-        }
+        };
         let PairScratch {
             owned_sum,
             terms,

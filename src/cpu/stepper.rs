@@ -1070,7 +1070,6 @@ impl CpuStepper {
                 if pa.act.pair_plan.valid {
                     pa.act.pair_plan.sph_forces(
                         &inp,
-                        &pa.pairs,
                         &pa.act.stress_list,
                         &pa.act.force_list,
                         accumulate,
