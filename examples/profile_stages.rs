@@ -75,7 +75,16 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let threads: usize = args.get(3).map_or(Ok(1), |s| s.parse())?;
         let mut c = CpuStepper::with_threads(model.clone(), params, threads)?;
         press(&mut c, &scene, sim.dt, hold_time)?;
+        let before = c.activation_counts().unwrap_or_default();
         let times = c.profile_stages(steps);
+        if let Some(after) = c.activation_counts() {
+            println!(
+                "activations while profiled: {} full, {} over the region with a set changed, {} with none changed",
+                after.full - before.full,
+                after.region - before.region,
+                after.unchanged - before.unchanged
+            );
+        }
         let modes = c.particle_modes().map(|m| m.to_vec());
         (times, modes, format!("{threads} threads"))
     };

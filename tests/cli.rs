@@ -1334,7 +1334,9 @@ fn a_haptic_session_runs_on_the_gpu_backend_too() {
     .replace("gravity = [0.0, 0.0, -9.81]", "gravity = [0.0, 0.0, 0.0]");
     let scene = scene_file(&d, "touch.toml", &touch);
     let press = d.join("press.csv");
-    std::fs::write(&press, "t,x,y,z\n0,0,0,0\n0.4,0,0,-0.006\n1.0,0,0,-0.006\n").unwrap();
+    // Held for 2.6 s: with the other tests loading both cores, lavapipe's first batches
+    // (pipeline builds) took most of a 1 s script once and the tool never reached the beam.
+    std::fs::write(&press, "t,x,y,z\n0,0,0,0\n0.4,0,0,-0.006\n3.0,0,0,-0.006\n").unwrap();
     let (ok, stdout, err) = palpate(&[
         "haptic",
         &scene,

@@ -664,10 +664,83 @@ fn the_cpu_activation_over_its_region_equals_the_activation_over_everything() {
         .iter()
         .filter(|&&x| x & (mode::DYNAMIC | mode::BLENDING) != 0)
         .count();
-    eprintln!("region vs full activation: equal over {batch} batches; up to {dynamic_max} dynamic, {released} releases, {left} left active");
+    let counts = region.activation_counts().unwrap();
+    let reference = everything.activation_counts().unwrap();
+    eprintln!("region vs full activation: equal over {batch} batches; up to {dynamic_max} dynamic, {released} releases, {left} left active; activations {counts:?} (reference {reference:?})");
+    // Both kinds of region activation ran and were compared: with a set changed, and with
+    // none (only the mode machine and the massless vertices' velocities).
+    assert!(counts.region > 10 && counts.unchanged > 10, "{counts:?}");
+    assert_eq!(reference.region + reference.unchanged, 0, "{reference:?}");
     assert!(dynamic_max > 100, "{dynamic_max} dynamic");
     assert!(released > 100, "{released} releases");
     assert_eq!(left, 0);
+}
+
+/// An activation that changes no set still moves the massless vertices: with every particle
+/// of a layered block's zone woken by the tool (activation radius 20 mm), the zone's own
+/// vertices have no mass left and take their dynamic particles' mean velocity at every
+/// activation. Through a press and hold, the region path (whose activations after the first
+/// change nothing) must leave every vertex and particle bit-equal to the reference path.
+#[test]
+fn an_unchanged_activation_still_moves_the_massless_vertices() {
+    let text = "[mesh]\ngenerator = \"beam\"\nsize = [0.02, 0.01, 0.01]\ncells = [4, 2, 4]\n\n[material]\nyoungs_modulus = 3.0e4\npoisson_ratio = 0.3\ndensity = 1000.0\n\n[particles]\nregion = 0\nspacing = 0.001\nactivation_radius = 0.02\nactivation_interval = 5\n\n[[fixed]]\nplane = { normal = [0.0, 0.0, 1.0], offset = 0.0 }\n\n[tool]\nradius = 0.003\nstiffness = 1.0e8\npath = [[0.0, 0.01, 0.005, 0.0135], [0.02, 0.01, 0.005, 0.012], [0.05, 0.01, 0.005, 0.012]]\n";
+    let mut scene = Scene::from_toml(text, "layered block", "block", None).unwrap();
+    for e in 0..scene.mesh.n_tets() {
+        let z: f64 = scene.mesh.corners(e).iter().map(|p| p.z).sum::<f64>() / 4.0;
+        scene.mesh.regions[e] = if z < 0.005 { 1 } else { 0 };
+    }
+    let m = Arc::new(Model::from_scene(&scene));
+    let dt = 0.5 * m.bounds.dt_bound;
+    let params = m.step_params(dt, 0.0);
+    let mut region = CpuStepper::with_threads(m.clone(), params, 2).unwrap();
+    let mut everything = CpuStepper::with_threads(m.clone(), params, 2).unwrap();
+    everything.set_full_activation(true);
+    let tool = scene.tool.clone().unwrap();
+    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
+    let (batch, mut t, mut massless) = (20u32, 0.0, 0usize);
+    while t < 0.04 {
+        let (a, b) = (tool.position_at(t), tool.position_at(t + batch as f64 * dt));
+        for s in [&mut region, &mut everything] {
+            s.submit(batch, &palpate::stepper::BatchInput::moving(a, b))
+                .unwrap();
+            let r = s.wait().unwrap();
+            assert!(r.stats.non_finite_vertex.is_none(), "diverged at t = {t}");
+        }
+        t += batch as f64 * dt;
+        let (sa, sb) = (
+            region.read_state().unwrap(),
+            everything.read_state().unwrap(),
+        );
+        let (pa, pb) = (
+            region.particle_state().unwrap(),
+            everything.particle_state().unwrap(),
+        );
+        assert!(
+            bits(&sa.velocities) == bits(&sb.velocities)
+                && bits(&sa.displacements) == bits(&sb.displacements)
+                && bits(&pa.velocities) == bits(&pb.velocities)
+                && pa.modes == pb.modes,
+            "t = {t:.4}: the region's activation differs from the full one"
+        );
+        massless = region
+            .vertex_masses()
+            .1
+            .iter()
+            .filter(|&&w| w < 0.0)
+            .count();
+    }
+    let counts = region.activation_counts().unwrap();
+    let modes = region.particle_modes().unwrap();
+    let count = |bit: u32| modes.iter().filter(|&&x| x & bit != 0).count();
+    let (dynamic, pinned) = (count(mode::DYNAMIC), count(mode::PINNED));
+    eprintln!("{dynamic} dynamic particles ({pinned} pinned beside the core), {massless} massless vertices, activations {counts:?}");
+    assert_eq!(
+        dynamic + pinned,
+        modes.len(),
+        "not every free particle woke"
+    );
+    assert!(massless > 0, "no massless vertex");
+    assert!(counts.unchanged > 10, "{counts:?}");
 }
 
 /// The tet-level bound that picks the particles an activation visits

@@ -79,6 +79,50 @@ fn cpu_results_are_bit_identical_for_any_thread_count() {
     }
 }
 
+/// HM1 pressed for 300 steps on `threads` threads: the vertices' state, the particles'
+/// displacements, velocities and modes, and how many particles were dynamic.
+fn run_hm1(threads: usize) -> (State, Vec<u32>, usize) {
+    let scene = palpate::Scene::load("hm1").unwrap();
+    let options = SimOptions {
+        threads: Some(threads),
+        ..Default::default()
+    };
+    let mut sim = Simulation::new(&scene, Backend::Cpu, options).unwrap();
+    for _ in 0..3 {
+        match sim.advance(100).unwrap() {
+            palpate::sim::Advance::Done(_) => {}
+            other => panic!("hm1: {other:?}"),
+        }
+    }
+    let dynamic = sim.last_particles.map_or(0, |p| p.dynamic as usize);
+    let p = sim.particle_state().unwrap().expect("hm1 has particles");
+    let mut particle_bits = bits(&p.displacements);
+    particle_bits.extend(bits(&p.velocities));
+    particle_bits.extend(&p.modes);
+    (sim.state().unwrap(), particle_bits, dynamic)
+}
+
+/// On more than one thread the particle stages run beside the core's element forces
+/// (`rayon::join`); on one thread in the plan's order. Both must give the same bits.
+#[test]
+fn hybrid_results_are_bit_identical_for_any_thread_count() {
+    let (one, particles_one, dynamic) = run_hm1(1);
+    assert!(
+        dynamic >= 50,
+        "hm1 after 300 steps: only {dynamic} dynamic particles"
+    );
+    for threads in [2, 3] {
+        let (many, particles_many, _) = run_hm1(threads);
+        let what = format!("for hm1 between 1 and {threads} threads");
+        assert_same_bits(&one, &many, &what);
+        assert!(
+            particles_one == particles_many,
+            "particle state differs {what}"
+        );
+    }
+    eprintln!("hm1: 300 steps, {dynamic} dynamic particles, identical on 1, 2 and 3 threads");
+}
+
 #[test]
 fn a_plain_scene_runs_exactly_the_stages_it_needs() {
     // beam: no viscosity, no tool, no particles.

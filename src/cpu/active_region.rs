@@ -32,6 +32,10 @@ struct TetBound {
 pub struct ActiveRegion {
     /// Per tet (None: it hosts no particle).
     bounds: Vec<Option<TetBound>>,
+    /// Per block of [`TETS_PER_BLOCK`] consecutive tets, a bound holding every particle of
+    /// its tets (None: no tet of it hosts a particle): the candidate search skips a block the
+    /// tool cannot reach without looking at its tets.
+    blocks: Vec<Option<TetBound>>,
     /// Vertices relumped at every activation: fixed, or massless with every particle embedded.
     always: Vec<u32>,
     /// Live particles after the last activation, ascending.
@@ -44,6 +48,29 @@ pub struct ActiveRegion {
     primed: bool,
     /// Per vertex, false except while `vertices_to_relump` collects corners.
     vertex_seen: Vec<bool>,
+}
+
+/// Tets per block of [`ActiveRegion`]'s block bounds.
+const TETS_PER_BLOCK: usize = 32;
+
+/// A bound of the bounds `tets` (None when all are None): the centre of their centres' box,
+/// the largest distance from it to a tet's centre plus that tet's radius, the largest reach.
+fn block_bound(tets: &[Option<TetBound>]) -> Option<TetBound> {
+    let present = || tets.iter().flatten();
+    let (lo, hi) = present().fold(
+        (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+        |(a, b), t| (a.min(t.centre), b.max(t.centre)),
+    );
+    let centre = 0.5 * (lo + hi);
+    let radius = present()
+        .map(|t| (t.centre - centre).length() + t.radius)
+        .fold(None, |r: Option<f64>, x| Some(r.map_or(x, |r| r.max(x))))?;
+    let reach = present().map(|t| t.reach).fold(0.0, f64::max);
+    Some(TetBound {
+        centre,
+        radius,
+        reach,
+    })
 }
 
 /// Sort and remove repeats.
@@ -111,7 +138,8 @@ impl ActiveRegion {
                     reach,
                 })
             })
-            .collect();
+            .collect::<Vec<_>>();
+        let blocks = bounds.chunks(TETS_PER_BLOCK).map(block_bound).collect();
         // The all-embedded mass, summed as the relump sums it.
         let always = (0..node_fixed.len())
             .filter(|&i| {
@@ -126,6 +154,7 @@ impl ActiveRegion {
             .collect();
         ActiveRegion {
             bounds,
+            blocks,
             always,
             ..ActiveRegion::default()
         }
@@ -145,7 +174,9 @@ impl ActiveRegion {
     /// Particles the mode machine must visit: the live ones and those of every tet whose
     /// particles the tool may reach (|C − c| − ρ − reach·max|u| − R < activation radius plus a
     /// margin twice the per-particle skip's, so every particle left out would be skipped
-    /// there too), ascending.
+    /// there too), ascending. A block of tets is skipped whole when its bound fails the same
+    /// test with a margin at least each of its tets' (its tets' |C − c| − ρ are at least the
+    /// block's, their reach at most the block's), so the result is that of the test per tet.
     pub fn candidates(&self, inp: &ModeInputs, tet_offsets: &[u32]) -> Vec<u32> {
         let c = inp.centre.as_dvec3();
         let c_scale = c.abs().max_element();
@@ -154,21 +185,41 @@ impl ActiveRegion {
         let u_max = inp.u_max as f64;
         // The near tets' particles come out ascending (tets in order, each a run).
         let mut near = Vec::new();
-        for (e, b) in self.bounds.iter().enumerate() {
-            let Some(b) = b else { continue };
+        for (k, block) in self.blocks.iter().enumerate() {
+            let Some(b) = block else { continue };
             let to_centre = (b.centre - c).length();
-            let scale = b.centre.abs().max_element() + b.radius + c_scale;
-            let margin = 2e-4 * (to_centre + b.radius + scale + radius + 1.0);
-            if to_centre - b.radius - b.reach * u_max - radius < limit + margin {
-                near.extend(tet_offsets[e]..tet_offsets[e + 1]);
+            // Each tet's margin term to_centre + ρ + |C| + ρ is at most this block sum.
+            let scale = b.centre.abs().max_element() + 4.0 * b.radius + c_scale;
+            let margin = 2e-4 * (to_centre + scale + radius + 1.0);
+            if to_centre - b.radius - b.reach * u_max - radius >= limit + margin {
+                continue;
+            }
+            let first = k * TETS_PER_BLOCK;
+            for (e, t) in self
+                .bounds
+                .iter()
+                .enumerate()
+                .skip(first)
+                .take(TETS_PER_BLOCK)
+            {
+                let Some(b) = t else { continue };
+                let to_centre = (b.centre - c).length();
+                let scale = b.centre.abs().max_element() + b.radius + c_scale;
+                let margin = 2e-4 * (to_centre + b.radius + scale + radius + 1.0);
+                if to_centre - b.radius - b.reach * u_max - radius < limit + margin {
+                    near.extend(tet_offsets[e]..tet_offsets[e + 1]);
+                }
             }
         }
         merged(&self.live, &near)
     }
 
     /// The mode machine over `candidates` (in parallel; each particle is independent, so the
-    /// result is that of the full pass over them).
-    pub fn update(inp: &ModeInputs, candidates: &[u32], state: ModeArrays) {
+    /// result is that of the full pass over them). True when a particle became dynamic, was
+    /// released or finished blending back (its `DYNAMIC` or `BLENDING` bit changed): only
+    /// then can the sets, weights, masses and flags the activation derives differ from the
+    /// last ones.
+    pub fn update(inp: &ModeInputs, candidates: &[u32], state: ModeArrays) -> bool {
         use rayon::prelude::*;
         let updated: Vec<UpdatedParticle> = candidates
             .par_iter()
@@ -196,14 +247,31 @@ impl ActiveRegion {
                 (u, v, m, t, o)
             })
             .collect();
+        let mut changed = false;
         for (&p, (u, v, m, t, o)) in candidates.iter().zip(updated) {
             let p = p as usize;
+            changed |= (state.mode[p] ^ m) & (mode::DYNAMIC | mode::BLENDING) != 0;
             state.displacements[3 * p..3 * p + 3].copy_from_slice(&u);
             state.velocities[3 * p..3 * p + 3].copy_from_slice(&v);
             state.mode[p] = m;
             state.timer[p] = t;
             state.offset[3 * p..3 * p + 3].copy_from_slice(&o);
         }
+        changed
+    }
+
+    /// The vertices an activation that changed no set must still relump (see
+    /// [`ActiveRegion::update`]): the coupled vertices with no mass left (`inv_mass` < 0),
+    /// whose velocity is their dynamic particles' mean. Every other vertex's relump would give
+    /// back its mass, flags and velocity unchanged: a fixed vertex's velocity is already zero
+    /// (`integrate` zeroes it), a vertex with mass keeps it when no particle was released,
+    /// and a massless one that hosts no dynamic particle stays at rest. Ascending.
+    pub fn kinematic_vertices(&self, inv_mass: &[f32]) -> Vec<u32> {
+        self.coupled_vertices
+            .iter()
+            .copied()
+            .filter(|&v| inv_mass[v as usize] < 0.0)
+            .collect()
     }
 
     /// Mark `bit` on every particle of `sources` and on its neighbours; the particles that

@@ -229,6 +229,243 @@ impl Clone for ActivationProducts {
     }
 }
 
+/// What the particle chain (the stages [`is_chain_stage`] names) reads besides the particle
+/// arrays. The chain writes only those arrays (not the activation's products) and the
+/// status, so it can run beside the core's element forces.
+struct ChainInputs<'a> {
+    model: &'a Model,
+    params: &'a StepParams,
+    material: crate::material::MaterialModel,
+    tool: &'a ToolArrays,
+    vertex_displacements: &'a [f32],
+}
+
+/// The particle stages that read the vertices only through their displacements and write
+/// nothing but particle arrays and the status: everything after the activation.
+fn is_chain_stage(stage: Stage) -> bool {
+    matches!(
+        stage,
+        Stage::Follow
+            | Stage::SphStress
+            | Stage::SphForces
+            | Stage::SphForcesAccumulate
+            | Stage::IntegrateParticles
+            | Stage::ParticleReduce
+    )
+}
+
+/// The twin of a chain stage (see [`is_chain_stage`]; other stages do nothing here).
+fn run_chain_stage(stage: Stage, c: &ChainInputs, pa: &mut ParticleArrays, status: &mut [u32]) {
+    let (m, p) = (c.model, c.params);
+    let (Some(pd), Some(st)) = (m.particles.as_ref(), ParticleStatic::of(m)) else {
+        return;
+    };
+    let pp = pa.params;
+    let (noff, nbrs) = (&pa.lists.neighbour_offsets, &pa.lists.neighbours);
+    match stage {
+        Stage::Follow => super::follow::follow(
+            &pp,
+            &pa.act.force_list,
+            &pa.state.mode,
+            &st,
+            c.vertex_displacements,
+            &mut pa.state.timer,
+            &pa.state.offset,
+            &mut pa.state.displacements,
+        ),
+        Stage::SphStress => super::sph_stress::sph_stress(
+            p,
+            &pp,
+            c.material,
+            &pa.act.stress_list,
+            &pd.rest,
+            &pa.state.displacements,
+            noff,
+            nbrs,
+            &pa.correction,
+            Some(&pa.pairs),
+            &mut pa.stress,
+            &mut pa.gradient,
+            &mut pa.energy,
+        ),
+        Stage::SphForces | Stage::SphForcesAccumulate => {
+            let tool = m
+                .tool
+                .as_ref()
+                .map(|_| (&c.tool.params, &c.tool.input, &c.tool.state));
+            let inp = super::sph_forces::ForceInputs {
+                params: p,
+                pp: &pp,
+                tool,
+                mode: &pa.state.mode,
+                rest: &pd.rest,
+                displacements: &pa.state.displacements,
+                velocities: &pa.state.velocities,
+                neighbour_offsets: noff,
+                neighbours: nbrs,
+                stress: &pa.stress,
+                gradient: &pa.gradient,
+                area: &pd.contact_area,
+                contact_offset: &pd.contact_offset,
+                pairs: Some(&pa.pairs),
+            };
+            let accumulate = stage == Stage::SphForcesAccumulate;
+            if pa.act.pair_plan.valid {
+                pa.act.pair_plan.sph_forces(
+                    &inp,
+                    &pa.act.stress_list,
+                    &pa.act.force_list,
+                    accumulate,
+                    &mut pa.pair_scratch,
+                    &mut pa.forces,
+                    &mut pa.force_sum,
+                    &mut pa.contact,
+                );
+            } else {
+                super::sph_forces::sph_forces(
+                    &inp,
+                    &pa.act.force_list,
+                    accumulate,
+                    &mut pa.forces,
+                    &mut pa.force_sum,
+                    &mut pa.contact,
+                );
+            }
+        }
+        Stage::IntegrateParticles => super::integrate_particles::integrate_particles(
+            p,
+            &pp,
+            &pa.act.dynamic_list,
+            &pa.forces,
+            &mut pa.state.displacements,
+            &mut pa.state.velocities,
+            status,
+        ),
+        Stage::ParticleReduce => super::particle_reduce::particle_reduce(
+            &pp,
+            &pa.act.stress_list,
+            &pa.state.mode,
+            &pa.state.displacements,
+            &pa.state.velocities,
+            &pa.forces,
+            &pa.energy,
+            &mut pa.partials,
+            &mut pa.stats,
+        ),
+        _ => {}
+    }
+}
+
+/// The core's element forces and energies (`fem_forces`, every tet at full weight).
+fn core_element_forces(
+    m: &Model,
+    p: &StepParams,
+    state: &State,
+    corner_forces: &mut [f32],
+    tet_energy: &mut [f32],
+    variant: FemVariant,
+) {
+    fem_forces(
+        p,
+        &state.displacements,
+        &state.velocities,
+        &m.tets,
+        &m.dm_inv,
+        &m.rest_volume,
+        corner_forces,
+        tet_energy,
+        variant,
+    );
+}
+
+/// The PARTICLES variant of `fem_forces`: each tet keeps 1 − φₑ of its energy and forces
+/// (only the weighted tets: × 1 changes nothing), in parallel over every tet when most are
+/// weighted.
+fn weigh_element_forces(
+    m: &Model,
+    particles: Option<&ParticleArrays>,
+    corner_forces: &mut [f32],
+    tet_energy: &mut [f32],
+) {
+    let Some(pa) = particles else {
+        return;
+    };
+    if 4 * pa.act.weighted_tets.len() > m.n_tets() {
+        super::par::for_each_chunk2::<12, 1>(
+            corner_forces,
+            tet_energy,
+            m.n_tets(),
+            |e, corner, energy| {
+                let w = pa.act.tet_weight[e];
+                corner.iter_mut().for_each(|c| *c *= w);
+                energy[0] *= w;
+            },
+        );
+    } else {
+        for &e in &pa.act.weighted_tets {
+            let (e, w) = (e as usize, pa.act.tet_weight[e as usize]);
+            corner_forces[12 * e..12 * e + 12]
+                .iter_mut()
+                .for_each(|c| *c *= w);
+            tet_energy[e] *= w;
+        }
+    }
+}
+
+/// Where the plan runs particle chain stages (see [`is_chain_stage`]) every step right before
+/// the core's `FemForces`: their indices (`FemForces` at `end`). The chain reads the vertices'
+/// displacements and `FemForces` writes only the element forces and energies, so the two can
+/// run side by side (the tets' energy weights, which the chain does not touch, are applied
+/// after both).
+fn chain_before_core_forces(plan: &StepPlan) -> Option<std::ops::Range<usize>> {
+    use crate::plan::When;
+    let every = |k: usize| plan.stages[k].when == When::EveryStep;
+    let end = plan
+        .stages
+        .iter()
+        .position(|s| s.stage == Stage::FemForces)
+        .filter(|&e| every(e))?;
+    let start = (0..end)
+        .rev()
+        .take_while(|&k| is_chain_stage(plan.stages[k].stage) && every(k))
+        .last()?;
+    Some(start..end)
+}
+
+/// What the relump reads, from the model and the particle arrays.
+fn relump_inputs<'a>(
+    m: &'a Model,
+    pd: &'a crate::particles::Particles,
+    pa: &'a ParticleArrays,
+) -> RelumpInputs<'a> {
+    RelumpInputs {
+        pp: &pa.params,
+        slot_offsets: &pd.slot_offsets,
+        slots: &pd.slots,
+        weights: &pd.weights,
+        particle_mode: &pa.state.mode,
+        particle_velocities: &pa.state.velocities,
+        core_mass: &pd.core_mass,
+        node_fixed: &pa.node_fixed,
+        incidence_offsets: &m.incidence_offsets,
+        incidence: &m.incidence,
+        tet_weight: &pa.act.tet_weight,
+    }
+}
+
+/// How the CPU stepper's activations ran (see `cpu/active_region.rs`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ActivationCounts {
+    /// Over every particle, tet and vertex (the first, after a restore, on the reference
+    /// path, or without a deciding tool).
+    pub full: u64,
+    /// Over the region the tool can change, with some set changed.
+    pub region: u64,
+    /// Over the region, with no set changed: only the mode machine and the massless
+    /// vertices' velocities ran.
+    pub unchanged: u64,
+}
+
 /// A saved state: the vertices', the particles' with their activation's products, the step
 /// count (which steps activate) and where the tool is.
 struct Checkpoint {
@@ -260,6 +497,8 @@ struct ParticleArrays {
     region: ActiveRegion,
     /// Run every activation over all particles, tets and vertices (tests compare the two).
     full_activation: bool,
+    /// How the activations ran.
+    activations: ActivationCounts,
     /// Per neighbour slot, the same pair's slot in the neighbour's list.
     transpose: Vec<u32>,
     /// Scratch of the pair plan's build.
@@ -371,6 +610,7 @@ impl ParticleArrays {
             stats: vec![0.0; 8],
             region,
             full_activation: false,
+            activations: ActivationCounts::default(),
             transpose,
             plan_scratch: Default::default(),
             pair_scratch: Default::default(),
@@ -654,44 +894,20 @@ impl CpuStepper {
                 tool_force_final(&t.params, dynamic, &t.partials, &mut t.report);
             }
             Stage::FemForces => {
-                fem_forces(
+                core_element_forces(
+                    m,
                     p,
-                    &self.state.displacements,
-                    &self.state.velocities,
-                    &m.tets,
-                    &m.dm_inv,
-                    &m.rest_volume,
+                    &self.state,
                     &mut self.corner_forces,
                     &mut self.tet_energy,
                     self.variant,
                 );
-                // The PARTICLES variant of fem_forces: each tet keeps 1 − φₑ of its energy
-                // (only the weighted tets: × 1 changes nothing), in parallel over every tet
-                // when most are weighted.
-                if let Some(pa) = self
-                    .particles
-                    .as_ref()
-                    .filter(|pa| 4 * pa.act.weighted_tets.len() > m.n_tets())
-                {
-                    super::par::for_each_chunk2::<12, 1>(
-                        &mut self.corner_forces,
-                        &mut self.tet_energy,
-                        m.n_tets(),
-                        |e, corner, energy| {
-                            let w = pa.act.tet_weight[e];
-                            corner.iter_mut().for_each(|c| *c *= w);
-                            energy[0] *= w;
-                        },
-                    );
-                } else if let Some(pa) = &self.particles {
-                    for &e in &pa.act.weighted_tets {
-                        let (e, w) = (e as usize, pa.act.tet_weight[e as usize]);
-                        self.corner_forces[12 * e..12 * e + 12]
-                            .iter_mut()
-                            .for_each(|c| *c *= w);
-                        self.tet_energy[e] *= w;
-                    }
-                }
+                weigh_element_forces(
+                    m,
+                    self.particles.as_ref(),
+                    &mut self.corner_forces,
+                    &mut self.tet_energy,
+                );
             }
             Stage::FollowerPressure => {
                 let (Some(f), c) = (&m.follower, &mut self.cardiac) else {
@@ -868,6 +1084,7 @@ impl CpuStepper {
         let n = pd.len();
         let (noff, nbrs) = (&pa.lists.neighbour_offsets, &pa.lists.neighbours);
         let inp = mode_inputs(m, &pp, &st, &self.tool, &self.state);
+        pa.activations.full += 1;
         super::activate::activate(&inp, pa.state.mode_arrays());
         mark_set(n, mode::DYNAMIC, mode::IN_S, noff, nbrs, &mut pa.state.mode);
         mark_set(n, mode::IN_S, mode::IN_F, noff, nbrs, &mut pa.state.mode);
@@ -922,6 +1139,11 @@ impl CpuStepper {
         })
     }
 
+    /// How the activations so far ran (None without particles).
+    pub fn activation_counts(&self) -> Option<ActivationCounts> {
+        self.particles.as_ref().map(|pa| pa.activations)
+    }
+
     /// The reference path (`true`): every activation runs over all particles, tets and
     /// vertices, every tet's forces are weighted and `gather_coupled` walks every slot. The
     /// default (`false`) does each only where it can change anything; the results are
@@ -953,7 +1175,31 @@ impl CpuStepper {
                     return;
                 }
                 let candidates = pa.region.candidates(&inp, &pd.tet_offsets);
-                ActiveRegion::update(&inp, &candidates, pa.state.mode_arrays());
+                let changed = ActiveRegion::update(&inp, &candidates, pa.state.mode_arrays());
+                if !changed {
+                    // No particle became dynamic, was released or finished blending: the
+                    // lists, counts, tet weights, masses, flags, slot lists and pair plan of
+                    // the last activation stand. The mode machine cleared the per-update set
+                    // bits, which go back on the same particles; the vertices that move with
+                    // their dynamic particles take those particles' velocity again.
+                    for &q in &pa.act.stress_list {
+                        pa.state.mode[q as usize] |= mode::IN_S;
+                    }
+                    for &q in &pa.act.force_list {
+                        pa.state.mode[q as usize] |= mode::IN_F;
+                    }
+                    let vertices = pa.region.kinematic_vertices(&pa.state.inv_mass);
+                    let inputs = relump_inputs(m, pd, pa);
+                    for &i in &vertices {
+                        let i = i as usize;
+                        let lump =
+                            relump_vertex(&inputs, i, super::load3(&self.state.velocities, i));
+                        super::store3(&mut self.state.velocities, i, lump.velocity);
+                    }
+                    pa.activations.unchanged += 1;
+                    return;
+                }
+                pa.activations.region += 1;
                 let with = |bit: u32, modes: &[u32]| -> Vec<u32> {
                     candidates
                         .iter()
@@ -983,19 +1229,7 @@ impl CpuStepper {
                         .filter(|&&p| pa.state.mode[p as usize] & mode::RELEASED != 0),
                 );
                 let vertices = pa.region.vertices_to_relump(&coupled, &pd.host, &m.tets);
-                let inputs = RelumpInputs {
-                    pp: &pp,
-                    slot_offsets: &pd.slot_offsets,
-                    slots: &pd.slots,
-                    weights: &pd.weights,
-                    particle_mode: &pa.state.mode,
-                    particle_velocities: &pa.state.velocities,
-                    core_mass: &pd.core_mass,
-                    node_fixed: &pa.node_fixed,
-                    incidence_offsets: &m.incidence_offsets,
-                    incidence: &m.incidence,
-                    tet_weight: &pa.act.tet_weight,
-                };
+                let inputs = relump_inputs(m, pd, pa);
                 let lumps: Vec<VertexLump> = {
                     use rayon::prelude::*;
                     let v = &self.state.velocities;
@@ -1020,96 +1254,18 @@ impl CpuStepper {
                 pa.act.force_list = force;
                 pa.rebuild_pair_plan();
             }
-            Stage::Follow => super::follow::follow(
-                &pp,
-                &pa.act.force_list,
-                &pa.state.mode,
-                &st,
-                &self.state.displacements,
-                &mut pa.state.timer,
-                &pa.state.offset,
-                &mut pa.state.displacements,
-            ),
-            Stage::SphStress => super::sph_stress::sph_stress(
-                p,
-                &pp,
-                self.variant.model,
-                &pa.act.stress_list,
-                &pd.rest,
-                &pa.state.displacements,
-                noff,
-                nbrs,
-                &pa.correction,
-                Some(&pa.pairs),
-                &mut pa.stress,
-                &mut pa.gradient,
-                &mut pa.energy,
-            ),
-            Stage::SphForces | Stage::SphForcesAccumulate => {
-                let tool = m
-                    .tool
-                    .as_ref()
-                    .map(|_| (&self.tool.params, &self.tool.input, &self.tool.state));
-                let inp = super::sph_forces::ForceInputs {
+            _ => run_chain_stage(
+                stage,
+                &ChainInputs {
+                    model: m,
                     params: p,
-                    pp: &pp,
-                    tool,
-                    mode: &pa.state.mode,
-                    rest: &pd.rest,
-                    displacements: &pa.state.displacements,
-                    velocities: &pa.state.velocities,
-                    neighbour_offsets: noff,
-                    neighbours: nbrs,
-                    stress: &pa.stress,
-                    gradient: &pa.gradient,
-                    area: &pd.contact_area,
-                    contact_offset: &pd.contact_offset,
-                    pairs: Some(&pa.pairs),
-                };
-                let accumulate = stage == Stage::SphForcesAccumulate;
-                if pa.act.pair_plan.valid {
-                    pa.act.pair_plan.sph_forces(
-                        &inp,
-                        &pa.act.stress_list,
-                        &pa.act.force_list,
-                        accumulate,
-                        &mut pa.pair_scratch,
-                        &mut pa.forces,
-                        &mut pa.force_sum,
-                        &mut pa.contact,
-                    );
-                } else {
-                    super::sph_forces::sph_forces(
-                        &inp,
-                        &pa.act.force_list,
-                        accumulate,
-                        &mut pa.forces,
-                        &mut pa.force_sum,
-                        &mut pa.contact,
-                    );
-                }
-            }
-            Stage::IntegrateParticles => super::integrate_particles::integrate_particles(
-                p,
-                &pp,
-                &pa.act.dynamic_list,
-                &pa.forces,
-                &mut pa.state.displacements,
-                &mut pa.state.velocities,
+                    material: self.variant.model,
+                    tool: &self.tool,
+                    vertex_displacements: &self.state.displacements,
+                },
+                pa,
                 &mut self.status,
             ),
-            Stage::ParticleReduce => super::particle_reduce::particle_reduce(
-                &pp,
-                &pa.act.stress_list,
-                &pa.state.mode,
-                &pa.state.displacements,
-                &pa.state.velocities,
-                &pa.forces,
-                &pa.energy,
-                &mut pa.partials,
-                &mut pa.stats,
-            ),
-            _ => {}
         }
     }
 
@@ -1158,14 +1314,69 @@ impl CpuStepper {
     }
 
     fn step_in_batch(&mut self, s: u32, len: u32) {
-        for k in 0..self.plan.stages.len() {
+        let overlap = if rayon::current_num_threads() > 1 {
+            chain_before_core_forces(&self.plan)
+        } else {
+            None
+        };
+        let mut k = 0;
+        while k < self.plan.stages.len() {
+            if let Some(chain) = overlap.clone().filter(|c| c.start == k) {
+                self.run_chain_beside_core_forces(chain.clone());
+                for j in chain.start..=chain.end {
+                    self.counts[j].1 += 1;
+                }
+                k = chain.end + 1;
+                continue;
+            }
             let planned = self.plan.stages[k];
             if planned.runs_at(self.steps_done, s, len) {
                 self.run_stage(planned.stage);
                 self.counts[k].1 += 1;
             }
+            k += 1;
         }
         self.steps_done += 1;
+    }
+
+    /// The plan's stages `chain` (chain stages, see [`chain_before_core_forces`]) on one
+    /// side of a `rayon::join` and the core's element forces (the stage at `chain.end`) on
+    /// the other; then the tets' energy weights. Neither side writes what the other reads,
+    /// and each keeps its own arithmetic, so the result is that of the plan's order.
+    fn run_chain_beside_core_forces(&mut self, chain: std::ops::Range<usize>) {
+        let m = &*self.model;
+        let stages = &self.plan.stages[chain];
+        let inputs = ChainInputs {
+            model: m,
+            params: &self.params,
+            material: self.variant.model,
+            tool: &self.tool,
+            vertex_displacements: &self.state.displacements,
+        };
+        let (state, params, variant) = (&self.state, &self.params, self.variant);
+        let (corner_forces, tet_energy) = (&mut self.corner_forces, &mut self.tet_energy);
+        let status = &mut self.status;
+        if let Some(pa) = self.particles.as_mut() {
+            // The element forces on the calling thread (they start at once), the chain on a
+            // worker (it steals it; its own loops' tasks stay on that worker while the
+            // caller's deque has element forces left, and the caller joins in when done).
+            rayon::join(
+                || core_element_forces(m, params, state, corner_forces, tet_energy, variant),
+                || {
+                    for planned in stages {
+                        run_chain_stage(planned.stage, &inputs, pa, status);
+                    }
+                },
+            );
+        } else {
+            core_element_forces(m, params, state, corner_forces, tet_energy, variant);
+        }
+        weigh_element_forces(
+            m,
+            self.particles.as_ref(),
+            &mut self.corner_forces,
+            &mut self.tet_energy,
+        );
     }
 
     /// The last computed per-vertex forces (internal + gravity), packed xyz.
