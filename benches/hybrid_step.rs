@@ -42,16 +42,17 @@ fn variants() -> Vec<(&'static str, Scene)> {
     ]
 }
 
-/// A simulation of `scene` with the tool pressed to its deepest hold (t = 3.5 time units,
-/// then held there), so the particles under it are awake.
-fn pressed(scene: &Scene, backend: Backend) -> Simulation {
+/// Where the tool is held: the deepest hold (t = 3.5 time units, 288 dynamic particles) and
+/// the press on its way there (t = 2.0, 208 dynamic: the "about 200").
+const DEEPEST: f64 = 3.5;
+const PRESSING: f64 = 2.0;
+
+/// A simulation of `scene` with the tool moved along its path to `t` and held there, so the
+/// particles under it are awake.
+fn pressed(scene: &Scene, backend: Backend, t: f64) -> Simulation {
     let mut sim = Simulation::new(scene, backend, SimOptions::default()).expect("simulation");
-    let hold = scene
-        .tool
-        .as_ref()
-        .expect("hm1 has a tool")
-        .position_at(3.5);
-    while sim.time < 3.5 {
+    let hold = scene.tool.as_ref().expect("hm1 has a tool").position_at(t);
+    while sim.time < t {
         sim.advance(STEPS).expect("warm-up");
     }
     sim.tool_target = Some(hold);
@@ -67,7 +68,7 @@ fn hybrid_step(c: &mut Criterion) {
         .measurement_time(Duration::from_secs(4));
     for backend in backends() {
         for (label, scene) in variants() {
-            let mut sim = pressed(&scene, backend);
+            let mut sim = pressed(&scene, backend, DEEPEST);
             let name = if backend == Backend::Gpu {
                 "gpu"
             } else {
@@ -86,50 +87,60 @@ const ROUNDS: usize = 21;
 
 fn ratio_table() {
     println!(
-        "\nhybrid_step: HM1 with the tool held pressed, µs per step (median of {ROUNDS} calls of {STEPS} steps; the core alone and hm1 take turns call by call, so a host whose speed drifts slows both alike, and the all-dynamic variant runs its calls after them; paired: the median of each round's hm1 / core)"
+        "\nhybrid_step: HM1 with the tool held pressed, µs per step (median of {ROUNDS} calls of {STEPS} steps; the core alone and hm1 take turns call by call, so a host whose speed drifts slows both alike, and the all-dynamic variant runs its calls after them; paired: the median of each round's hm1 / core); at the deepest hold (t = {DEEPEST}) and pressing (t = {PRESSING}, without the all-dynamic variant)"
     );
-    println!("| backend | core alone | hm1 (dynamic particles) | all 27,751 dynamic | hm1 / core | hm1 / core, paired | all / core |");
-    println!("|---|---:|---:|---:|---:|---:|---:|");
+    println!("| backend | hold (t) | core alone | hm1 (dynamic particles) | all 27,751 dynamic | hm1 / core | hm1 / core, paired | all / core |");
+    println!("|---|---:|---:|---:|---:|---:|---:|---:|");
     for backend in backends() {
-        let mut sims: Vec<Simulation> = variants()
-            .iter()
-            .map(|(_, scene)| pressed(scene, backend))
-            .collect();
-        let mut us = vec![Vec::with_capacity(ROUNDS); sims.len()];
-        // The core and hm1 take turns; the all-dynamic variant runs its rounds after them:
-        // timed between them, its 27,751 particles evicted hm1's data from the caches and
-        // added 14–30 µs to each hm1 call (ratio 1.43 against 1.40, and 1.41 against 1.33,
-        // in A/B runs at two times of one session).
-        let (paired, all) = sims.split_at_mut(2);
-        let (paired_us, all_us) = us.split_at_mut(2);
-        for (turns, times) in [(paired, paired_us), (all, all_us)] {
-            for _ in 0..ROUNDS {
-                for (sim, times) in turns.iter_mut().zip(times.iter_mut()) {
-                    let t = Instant::now();
-                    sim.advance(STEPS).expect("advance");
-                    times.push(1e6 * t.elapsed().as_secs_f64() / STEPS as f64);
-                }
+        ratio_row(backend, DEEPEST, true);
+        ratio_row(backend, PRESSING, false);
+    }
+}
+
+/// One row of the ratio table: the tool held at `t`; `with_all`: time the all-dynamic variant
+/// too.
+fn ratio_row(backend: Backend, t: f64, with_all: bool) {
+    let mut sims: Vec<Simulation> = variants()
+        .iter()
+        .take(if with_all { 3 } else { 2 })
+        .map(|(_, scene)| pressed(scene, backend, t))
+        .collect();
+    let mut us = vec![Vec::with_capacity(ROUNDS); sims.len()];
+    // The core and hm1 take turns; the all-dynamic variant runs its rounds after them:
+    // timed between them, its 27,751 particles evicted hm1's data from the caches and
+    // added 14–30 µs to each hm1 call (ratio 1.43 against 1.40, and 1.41 against 1.33,
+    // in A/B runs at two times of one session).
+    let (paired, all) = sims.split_at_mut(2);
+    let (paired_us, all_us) = us.split_at_mut(2);
+    for (turns, times) in [(paired, paired_us), (all, all_us)] {
+        for _ in 0..ROUNDS {
+            for (sim, times) in turns.iter_mut().zip(times.iter_mut()) {
+                let start = Instant::now();
+                sim.advance(STEPS).expect("advance");
+                times.push(1e6 * start.elapsed().as_secs_f64() / STEPS as f64);
             }
         }
-        let mid = |v: &[f64]| {
-            let mut v = v.to_vec();
-            v.sort_by(f64::total_cmp);
-            v[v.len() / 2]
-        };
-        let paired: Vec<f64> = us[1].iter().zip(&us[0]).map(|(h, c)| h / c).collect();
-        let m: Vec<f64> = us.iter().map(|v| mid(v)).collect();
-        let dynamic = sims[1].last_particles.map_or(0, |p| p.dynamic);
-        println!(
-            "| {} | {:.0} | {:.0} ({dynamic}) | {:.0} | {:.2} | {:.2} | {:.2} |",
-            sims[0].backend_name(),
-            m[0],
-            m[1],
-            m[2],
-            m[1] / m[0],
-            mid(&paired),
-            m[2] / m[0]
-        );
     }
+    let mid = |v: &[f64]| {
+        let mut v = v.to_vec();
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let paired: Vec<f64> = us[1].iter().zip(&us[0]).map(|(h, c)| h / c).collect();
+    let m: Vec<f64> = us.iter().map(|v| mid(v)).collect();
+    let dynamic = sims[1].last_particles.map_or(0, |p| p.dynamic);
+    let (all_us, all_ratio) = match m.get(2) {
+        Some(a) => (format!("{a:.0}"), format!("{:.2}", a / m[0])),
+        None => ("–".into(), "–".into()),
+    };
+    println!(
+        "| {} | {t} | {:.0} | {:.0} ({dynamic}) | {all_us} | {:.2} | {:.2} | {all_ratio} |",
+        sims[0].backend_name(),
+        m[0],
+        m[1],
+        m[1] / m[0],
+        mid(&paired),
+    );
 }
 
 criterion_group!(benches, hybrid_step);
