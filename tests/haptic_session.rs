@@ -182,12 +182,21 @@ fn held_still_matches_statics(
         "{name}: passivity observer reached {} J",
         servo.passivity_min_energy_j
     );
-    // Each batch starts on the newest tick's pose, so the model a tick renders is one period
-    // old (it was two when the physics read the pose before waiting for the clock).
+    // Each batch starts on the newest tick's pose, so the model a tick renders is as many
+    // periods old as a batch takes ticks: one when batches take less than a period (it was
+    // one more when the physics read the pose before waiting for the clock). On a host that
+    // slows the batches past a period (a noisy 2-core VM: p50 1.04 ms once, and the age 2 ms)
+    // the bound grows with them, by whole periods.
+    let period_ms = 1e3 / servo.target_rate_hz;
+    let batch_ticks = (h.haptic.physics.batch_wall_ms.p99 / period_ms)
+        .ceil()
+        .max(1.0);
     assert!(
-        servo.model_age_ms.p50 < 1.5,
-        "{name}: model age p50 {} ms",
-        servo.model_age_ms.p50
+        servo.model_age_ms.p50 < (batch_ticks + 0.5) * period_ms,
+        "{name}: model age p50 {} ms with batches of p50 {} ms, p99 {} ms",
+        servo.model_age_ms.p50,
+        h.haptic.physics.batch_wall_ms.p50,
+        h.haptic.physics.batch_wall_ms.p99,
     );
     let at = DVec3::from_array(h.run.tool_position.unwrap());
     let force = DVec3::from_array(h.run.tool_force.unwrap());
@@ -340,16 +349,50 @@ fn the_physics_sleeps_while_the_body_rests_and_wakes_as_the_tool_approaches() {
     assert!(q.slept_seconds == 0.0);
     assert!(asleep.run.steps < awake.run.steps);
     assert!(p.contact_batches > 500, "{}", p.contact_batches);
-    let f = DVec3::from_array(p.peak_tool_force);
     let g = DVec3::from_array(q.peak_tool_force);
     assert!(g.z > 0.0, "the tissue pushes the tool up: {g:?}");
-    eprintln!("peak force {f:?} after sleeping, {g:?} without");
-    // The peak over the press and hold moves a little with where the batches fall against
-    // the script (about 1 % from session to session).
-    assert!(
-        (f - g).length() <= 0.03 * g.length(),
-        "peak force {f:?} after sleeping against {g:?} without"
+    // The force held at the bottom of the press (its median over 1.6–2.3 s, from each
+    // session's haptic.csv). Not the peak: that moves with where the batches fall against
+    // the script (about 1 % from session to session on a quiet host, and once 4.6× on a
+    // noisy one, where a late batch let the tool jump deeper in one step).
+    let (f_held, g_held) = (
+        held_force(&out_dir("sleep"), 1.6, 2.3),
+        held_force(&out_dir("nosleep"), 1.6, 2.3),
     );
+    eprintln!("force held {f_held:.4} N after sleeping, {g_held:.4} N without");
+    assert!(g_held > 0.0, "the tissue pushes the device up: {g_held} N");
+    assert!(
+        (f_held - g_held).abs() <= 0.03 * g_held,
+        "force held {f_held} N after sleeping against {g_held} N without"
+    );
+}
+
+/// The median of the z force sent to the device between `t0` and `t1` (s), from the
+/// session's `haptic.csv` in `dir`.
+fn held_force(dir: &std::path::Path, t0: f64, t1: f64) -> f64 {
+    let csv = std::fs::read_to_string(dir.join("haptic.csv")).unwrap();
+    let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
+    let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
+    let (fz, t) = (col("force_z"), col("time_s"));
+    let mut held: Vec<f64> = csv
+        .lines()
+        .skip(1)
+        .map(|l| {
+            l.split(',')
+                .map(|v| v.parse().unwrap())
+                .collect::<Vec<f64>>()
+        })
+        .filter(|r| r[t] >= t0 && r[t] <= t1)
+        .map(|r| r[fz])
+        .collect();
+    assert!(
+        held.len() > 100,
+        "{} ticks held in {}",
+        held.len(),
+        dir.display()
+    );
+    held.sort_by(f64::total_cmp);
+    held[held.len() / 2]
 }
 
 fn palpate() -> Command {
