@@ -715,11 +715,23 @@ fn an_unchanged_activation_still_moves_the_massless_vertices() {
             region.particle_state().unwrap(),
             everything.particle_state().unwrap(),
         );
+        let (ma, mb) = (region.vertex_masses(), everything.vertex_masses());
+        let (oa, ob) = (
+            region.activation_outputs().unwrap(),
+            everything.activation_outputs().unwrap(),
+        );
         assert!(
             bits(&sa.velocities) == bits(&sb.velocities)
                 && bits(&sa.displacements) == bits(&sb.displacements)
                 && bits(&pa.velocities) == bits(&pb.velocities)
-                && pa.modes == pb.modes,
+                && bits(&pa.displacements) == bits(&pb.displacements)
+                && bits(&pa.timers) == bits(&pb.timers)
+                && pa.modes == pb.modes
+                && bits(ma.0) == bits(mb.0)
+                && bits(ma.1) == bits(mb.1)
+                && bits(oa.0) == bits(ob.0)
+                && oa.1 == ob.1
+                && bits(oa.2) == bits(ob.2),
             "t = {t:.4}: the region's activation differs from the full one"
         );
         massless = region

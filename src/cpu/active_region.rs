@@ -188,7 +188,9 @@ impl ActiveRegion {
         for (k, block) in self.blocks.iter().enumerate() {
             let Some(b) = block else { continue };
             let to_centre = (b.centre - c).length();
-            // Each tet's margin term to_centre + ρ + |C| + ρ is at most this block sum.
+            // Each tet's margin term to_centre + ρ + |C| + ρ is at most the block's
+            // to_centre + |C| + 2ρ_B (its centre lies within ρ_B − ρ of the block's); 4ρ_B
+            // is a looser bound of it.
             let scale = b.centre.abs().max_element() + 4.0 * b.radius + c_scale;
             let margin = 2e-4 * (to_centre + scale + radius + 1.0);
             if to_centre - b.radius - b.reach * u_max - radius >= limit + margin {

@@ -1568,3 +1568,35 @@ impl Stepper for CpuStepper {
         Ok(self.particle_state())
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::chain_before_core_forces;
+    use crate::model::Model;
+    use crate::plan::StepPlan;
+
+    /// The chain the stepper runs beside the element forces: on hm1 the four particle stages
+    /// after the activation, on a plan of 3 sub-steps all twelve; none without particles or
+    /// when another stage stands between the chain and `FemForces`.
+    #[test]
+    fn the_particle_chain_before_the_element_forces_is_found() {
+        let scene = crate::Scene::load("hm1").unwrap();
+        let m = Model::from_scene(&scene);
+        let one = StepPlan::for_model(&m);
+        assert_eq!(chain_before_core_forces(&one), Some(2..6), "{one:?}");
+        let three = StepPlan::for_model_at(&m, 3);
+        assert_eq!(chain_before_core_forces(&three), Some(2..14), "{three:?}");
+        let mut between = one.clone();
+        between.stages.insert(6, between.stages[0]);
+        assert_eq!(chain_before_core_forces(&between), None);
+        // A chain stage that does not run every step ends the chain (right before
+        // `FemForces`, it leaves none).
+        let mut last = one.clone();
+        let reduce = *last.stages.last().unwrap();
+        assert_eq!(reduce.stage, crate::plan::Stage::ParticleReduce);
+        last.stages.insert(6, reduce);
+        assert_eq!(chain_before_core_forces(&last), None);
+        let lv = Model::from_scene(&crate::Scene::load("lv").unwrap());
+        assert_eq!(chain_before_core_forces(&StepPlan::for_model(&lv)), None);
+    }
+}
