@@ -268,12 +268,11 @@ impl ActiveRegion {
     /// back its mass, flags and velocity unchanged: a fixed vertex's velocity is already zero
     /// (`integrate` zeroes it), a vertex with mass keeps it when no particle was released,
     /// and a massless one that hosts no dynamic particle stays at rest. Ascending.
-    pub fn kinematic_vertices(&self, inv_mass: &[f32]) -> Vec<u32> {
+    pub fn kinematic_vertices<'a>(&'a self, inv_mass: &'a [f32]) -> impl Iterator<Item = u32> + 'a {
         self.coupled_vertices
             .iter()
             .copied()
             .filter(|&v| inv_mass[v as usize] < 0.0)
-            .collect()
     }
 
     /// Mark `bit` on every particle of `sources` and on its neighbours; the particles that

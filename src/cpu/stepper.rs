@@ -655,6 +655,9 @@ impl CardiacArrays {
 pub struct CpuStepper {
     model: Arc<Model>,
     plan: StepPlan,
+    /// The plan's particle chain that runs beside `FemForces` (see
+    /// [`chain_before_core_forces`]; on more than one thread).
+    chain: Option<std::ops::Range<usize>>,
     params: StepParams,
     variant: FemVariant,
     pool: Arc<rayon::ThreadPool>,
@@ -782,6 +785,7 @@ impl CpuStepper {
             tool,
             particles,
             counts: plan.stages.iter().map(|p| (p.stage, 0)).collect(),
+            chain: chain_before_core_forces(&plan),
             plan,
             variant: model.fem_variant(),
             corner_forces: vec![0.0; 12 * model.n_tets()],
@@ -1188,9 +1192,8 @@ impl CpuStepper {
                     for &q in &pa.act.force_list {
                         pa.state.mode[q as usize] |= mode::IN_F;
                     }
-                    let vertices = pa.region.kinematic_vertices(&pa.state.inv_mass);
                     let inputs = relump_inputs(m, pd, pa);
-                    for &i in &vertices {
+                    for i in pa.region.kinematic_vertices(&pa.state.inv_mass) {
                         let i = i as usize;
                         let lump =
                             relump_vertex(&inputs, i, super::load3(&self.state.velocities, i));
@@ -1314,11 +1317,10 @@ impl CpuStepper {
     }
 
     fn step_in_batch(&mut self, s: u32, len: u32) {
-        let overlap = if rayon::current_num_threads() > 1 {
-            chain_before_core_forces(&self.plan)
-        } else {
-            None
-        };
+        let overlap = self
+            .chain
+            .clone()
+            .filter(|_| rayon::current_num_threads() > 1);
         let mut k = 0;
         while k < self.plan.stages.len() {
             if let Some(chain) = overlap.clone().filter(|c| c.start == k) {
