@@ -82,20 +82,29 @@ fn cpu_results_are_bit_identical_for_any_thread_count() {
 /// HM1 pressed for 300 steps on `threads` threads: the vertices' state, the particles'
 /// displacements, velocities and modes, and how many particles were dynamic.
 fn run_hm1(threads: usize) -> (State, Vec<u32>, usize) {
-    let scene = palpate::Scene::load("hm1").unwrap();
+    run_hybrid(&palpate::Scene::load("hm1").unwrap(), threads, 3)
+}
+
+/// `batches` batches of 100 steps of `scene` on `threads` CPU threads: the vertex state, the
+/// particles' bits and the dynamic particles at the end.
+fn run_hybrid(scene: &palpate::Scene, threads: usize, batches: usize) -> (State, Vec<u32>, usize) {
+    let name = &scene.name;
     let options = SimOptions {
         threads: Some(threads),
         ..Default::default()
     };
-    let mut sim = Simulation::new(&scene, Backend::Cpu, options).unwrap();
-    for _ in 0..3 {
+    let mut sim = Simulation::new(scene, Backend::Cpu, options).unwrap();
+    for _ in 0..batches {
         match sim.advance(100).unwrap() {
             palpate::sim::Advance::Done(_) => {}
-            other => panic!("hm1: {other:?}"),
+            other => panic!("{name}: {other:?}"),
         }
     }
     let dynamic = sim.last_particles.map_or(0, |p| p.dynamic as usize);
-    let p = sim.particle_state().unwrap().expect("hm1 has particles");
+    let p = sim
+        .particle_state()
+        .unwrap()
+        .expect("the scene has particles");
     let mut particle_bits = bits(&p.displacements);
     particle_bits.extend(bits(&p.velocities));
     particle_bits.extend(&p.modes);
@@ -121,6 +130,29 @@ fn hybrid_results_are_bit_identical_for_any_thread_count() {
         );
     }
     eprintln!("hm1: 300 steps, {dynamic} dynamic particles, identical on 1, 2 and 3 threads");
+}
+
+/// lv_touch (the default haptic scene) with its blood pressure as a follower load: the
+/// pressure stands between the particle chain and the element forces, and on two threads
+/// runs beside the chain too.
+#[test]
+fn a_hybrid_scene_with_a_follower_pressure_is_bit_identical_on_one_and_two_threads() {
+    let text = palpate::Scene::builtin_text("lv_touch")
+        .unwrap()
+        .replace("[[loads.pressure]]", "[[loads.follower_pressure]]");
+    let scene = palpate::Scene::from_toml(&text, "lv_touch, follower", "lv_f", None).unwrap();
+    let (one, particles_one, dynamic) = run_hybrid(&scene, 1, 6);
+    assert!(
+        dynamic >= 20,
+        "lv_touch after 600 steps: only {dynamic} dynamic particles"
+    );
+    let (two, particles_two, _) = run_hybrid(&scene, 2, 6);
+    assert_same_bits(&one, &two, "for lv_touch between 1 and 2 threads");
+    assert!(
+        particles_one == particles_two,
+        "lv_touch: the particle state differs between 1 and 2 threads"
+    );
+    eprintln!("lv_touch with a follower pressure: 600 steps, {dynamic} dynamic particles, identical on 1 and 2 threads");
 }
 
 #[test]

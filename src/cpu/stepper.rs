@@ -356,6 +356,36 @@ fn run_chain_stage(stage: Stage, c: &ChainInputs, pa: &mut ParticleArrays, statu
     }
 }
 
+/// The follower pressures' vertex forces added to the model's dead loads in
+/// `external_forces` (nothing without a follower load).
+fn follower_pressure_forces(
+    m: &Model,
+    p: &StepParams,
+    state: &State,
+    c: &mut CardiacArrays,
+    external_forces: &mut [f32],
+) {
+    let Some(f) = &m.follower else {
+        return;
+    };
+    super::follower_pressure::follower_pressure(
+        &c.follower_load,
+        &m.rest,
+        &state.displacements,
+        &f.faces,
+        &f.face_pressure,
+        &mut c.follower_corner_forces,
+    );
+    super::follower_pressure_gather::follower_pressure_gather(
+        p,
+        &c.follower_corner_forces,
+        &f.incidence_offsets,
+        &f.incidence,
+        &m.external_forces,
+        external_forces,
+    );
+}
+
 /// The core's element forces and energies (`fem_forces`, every tet at full weight).
 fn core_element_forces(
     m: &Model,
@@ -412,11 +442,12 @@ fn weigh_element_forces(
     }
 }
 
-/// Where the plan runs particle chain stages (see [`is_chain_stage`]) every step right before
-/// the core's `FemForces`: their indices (`FemForces` at `end`). The chain reads the vertices'
-/// displacements and `FemForces` writes only the element forces and energies, so the two can
-/// run side by side (the tets' energy weights, which the chain does not touch, are applied
-/// after both).
+/// Where the plan runs particle chain stages (see [`is_chain_stage`]) every step before the
+/// core's `FemForces`, with at most a `FollowerPressure` between them: the indices of both
+/// (`FemForces` at `end`). The chain reads the vertices' displacements; `FollowerPressure`
+/// writes only its corner forces and the external forces, and `FemForces` only the element
+/// forces and energies, so the chain can run beside the other two (the tets' energy weights,
+/// which the chain does not touch, are applied after both).
 fn chain_before_core_forces(plan: &StepPlan) -> Option<std::ops::Range<usize>> {
     use crate::plan::When;
     let every = |k: usize| plan.stages[k].when == When::EveryStep;
@@ -425,7 +456,10 @@ fn chain_before_core_forces(plan: &StepPlan) -> Option<std::ops::Range<usize>> {
         .iter()
         .position(|s| s.stage == Stage::FemForces)
         .filter(|&e| every(e))?;
-    let start = (0..end)
+    let pressure = (end > 0
+        && plan.stages[end - 1].stage == Stage::FollowerPressure
+        && every(end - 1)) as usize;
+    let start = (0..end - pressure)
         .rev()
         .take_while(|&k| is_chain_stage(plan.stages[k].stage) && every(k))
         .last()?;
@@ -913,27 +947,13 @@ impl CpuStepper {
                     &mut self.tet_energy,
                 );
             }
-            Stage::FollowerPressure => {
-                let (Some(f), c) = (&m.follower, &mut self.cardiac) else {
-                    return;
-                };
-                super::follower_pressure::follower_pressure(
-                    &c.follower_load,
-                    &m.rest,
-                    &self.state.displacements,
-                    &f.faces,
-                    &f.face_pressure,
-                    &mut c.follower_corner_forces,
-                );
-                super::follower_pressure_gather::follower_pressure_gather(
-                    p,
-                    &c.follower_corner_forces,
-                    &f.incidence_offsets,
-                    &f.incidence,
-                    &m.external_forces,
-                    &mut self.external_forces,
-                );
-            }
+            Stage::FollowerPressure => follower_pressure_forces(
+                m,
+                p,
+                &self.state,
+                &mut self.cardiac,
+                &mut self.external_forces,
+            ),
             Stage::NodalPressure => {
                 let c = &mut self.cardiac;
                 super::tet_volume_change::tet_volume_change(
@@ -1341,13 +1361,17 @@ impl CpuStepper {
         self.steps_done += 1;
     }
 
-    /// The plan's stages `chain` (chain stages, see [`chain_before_core_forces`]) on one
-    /// side of a `rayon::join` and the core's element forces (the stage at `chain.end`) on
-    /// the other; then the tets' energy weights. Neither side writes what the other reads,
-    /// and each keeps its own arithmetic, so the result is that of the plan's order.
+    /// The plan's chain stages in `chain` (see [`chain_before_core_forces`]) on one side of
+    /// a `rayon::join`; on the other the follower pressures when `chain` ends with them and
+    /// the core's element forces (the stage at `chain.end`); then the tets' energy weights.
+    /// Neither side writes what the other reads, and each keeps its own arithmetic, so the
+    /// result is that of the plan's order.
     fn run_chain_beside_core_forces(&mut self, chain: std::ops::Range<usize>) {
         let m = &*self.model;
         let stages = &self.plan.stages[chain];
+        let pressure = stages
+            .last()
+            .is_some_and(|s| s.stage == Stage::FollowerPressure);
         let inputs = ChainInputs {
             model: m,
             params: &self.params,
@@ -1357,21 +1381,25 @@ impl CpuStepper {
         };
         let (state, params, variant) = (&self.state, &self.params, self.variant);
         let (corner_forces, tet_energy) = (&mut self.corner_forces, &mut self.tet_energy);
+        let (cardiac, external_forces) = (&mut self.cardiac, &mut self.external_forces);
+        let mut core = move || {
+            if pressure {
+                follower_pressure_forces(m, params, state, cardiac, external_forces);
+            }
+            core_element_forces(m, params, state, corner_forces, tet_energy, variant);
+        };
         let status = &mut self.status;
         if let Some(pa) = self.particles.as_mut() {
-            // The element forces on the calling thread (they start at once), the chain on a
+            // The core's stages on the calling thread (they start at once), the chain on a
             // worker (it steals it; its own loops' tasks stay on that worker while the
             // caller's deque has element forces left, and the caller joins in when done).
-            rayon::join(
-                || core_element_forces(m, params, state, corner_forces, tet_energy, variant),
-                || {
-                    for planned in stages {
-                        run_chain_stage(planned.stage, &inputs, pa, status);
-                    }
-                },
-            );
+            rayon::join(core, || {
+                for planned in stages.iter().filter(|s| is_chain_stage(s.stage)) {
+                    run_chain_stage(planned.stage, &inputs, pa, status);
+                }
+            });
         } else {
-            core_element_forces(m, params, state, corner_forces, tet_energy, variant);
+            core();
         }
         weigh_element_forces(
             m,
@@ -1578,8 +1606,9 @@ mod tests {
     use crate::plan::StepPlan;
 
     /// The chain the stepper runs beside the element forces: on hm1 the four particle stages
-    /// after the activation, on a plan of 3 sub-steps all twelve; none without particles or
-    /// when another stage stands between the chain and `FemForces`.
+    /// after the activation, on a plan of 3 sub-steps all twelve, on lv_touch with a
+    /// follower pressure; none without particles or when another stage stands between the
+    /// chain and `FemForces`.
     #[test]
     fn the_particle_chain_before_the_element_forces_is_found() {
         let scene = crate::Scene::load("hm1").unwrap();
@@ -1600,5 +1629,22 @@ mod tests {
         assert_eq!(chain_before_core_forces(&last), None);
         let lv = Model::from_scene(&crate::Scene::load("lv").unwrap());
         assert_eq!(chain_before_core_forces(&StepPlan::for_model(&lv)), None);
+        // lv_touch with its blood pressure as a follower load: the pressure stands between
+        // the chain and `FemForces` and runs on the core's side.
+        let text = crate::Scene::builtin_text("lv_touch")
+            .unwrap()
+            .replace("[[loads.pressure]]", "[[loads.follower_pressure]]");
+        let scene = crate::Scene::from_toml(&text, "lv_touch, follower", "lv_f", None).unwrap();
+        let touch = StepPlan::for_model(&Model::from_scene(&scene));
+        assert_eq!(
+            touch.stages[6].stage,
+            crate::plan::Stage::FollowerPressure,
+            "{touch:?}"
+        );
+        assert_eq!(chain_before_core_forces(&touch), Some(2..7), "{touch:?}");
+        // A pressure before a chain stage ends the chain there.
+        let mut swapped = touch.clone();
+        swapped.stages.swap(5, 6);
+        assert_eq!(chain_before_core_forces(&swapped), Some(6..7));
     }
 }
