@@ -772,10 +772,14 @@ impl CpuStepper {
         Ok(self.pool.clone())
     }
 
-    /// [`Self::pool_here`] for the helpers that return no `Result` (tests, profiling).
-    fn pool_here_or_panic(&mut self) -> Arc<rayon::ThreadPool> {
-        self.pool_here()
-            .unwrap_or_else(|e| panic!("no thread to step on: {e}"))
+    /// Run `f` on [`Self::pool_here`] (for the helpers that return no `Result`: tests,
+    /// profiling); on the calling thread when no worker can start (the results do not
+    /// depend on the threads they run on).
+    fn on_pool_here<R: Send>(&mut self, f: impl FnOnce(&mut Self) -> R + Send) -> R {
+        match self.pool_here() {
+            Ok(pool) => pool.install(|| f(self)),
+            Err(_) => f(self),
+        }
     }
 
     fn with_pool(
@@ -1294,36 +1298,34 @@ impl CpuStepper {
 
     /// Run one stage's twin on the stepper's thread pool.
     pub fn run_stage_pooled(&mut self, stage: Stage) {
-        let pool = self.pool_here_or_panic();
-        pool.install(|| self.run_stage(stage));
+        self.on_pool_here(|s| s.run_stage(stage));
     }
 
     /// One step of the plan (`reduce`: run the last-step-of-batch stages too), on the pool.
     pub fn step(&mut self, reduce: bool) {
-        let pool = self.pool_here_or_panic();
-        pool.install(|| self.step_in_batch(0, if reduce { 1 } else { 2 }));
+        self.on_pool_here(|s| s.step_in_batch(0, if reduce { 1 } else { 2 }));
     }
 
     /// Step `steps` steps (one batch, the tool held where it is) timing every stage: mean
     /// wall ns per step spent in each stage of the plan, in plan order (stages that run
     /// every k steps are averaged over all steps).
     pub fn profile_stages(&mut self, steps: u32) -> crate::gpu::stepper::StageTimes {
-        let pool = self.pool_here_or_panic();
         let steps = steps.max(1);
-        let mut totals = vec![0.0f64; self.plan.stages.len()];
-        pool.install(|| {
+        let totals = self.on_pool_here(|c| {
+            let mut totals = vec![0.0f64; c.plan.stages.len()];
             for s in 0..steps {
                 for (k, total) in totals.iter_mut().enumerate() {
-                    let planned = self.plan.stages[k];
-                    if planned.runs_at(self.steps_done, s, steps) {
+                    let planned = c.plan.stages[k];
+                    if planned.runs_at(c.steps_done, s, steps) {
                         let t = std::time::Instant::now();
-                        self.run_stage(planned.stage);
+                        c.run_stage(planned.stage);
                         *total += t.elapsed().as_nanos() as f64;
-                        self.counts[k].1 += 1;
+                        c.counts[k].1 += 1;
                     }
                 }
-                self.steps_done += 1;
+                c.steps_done += 1;
             }
+            totals
         });
         let mut per_stage: Vec<(Stage, f64)> = Vec::new();
         for (k, total) in totals.iter().enumerate() {
