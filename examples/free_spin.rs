@@ -1,0 +1,133 @@
+//! A free spin of the hybrid two-layer block: how far each kind of vertex and the dynamic
+//! particles get from the rigid motion, and where the kinetic energy goes. A probe for the
+//! light vertices of `docs/hybrid_coupling.md` (zone vertices that host only a few pinned
+//! followers drift far from the body); not a test, it asserts nothing.
+//!
+//! `cargo run --release --example free_spin -- [ω rad/s] [steps]` (defaults: 37 1000). The
+//! block is 20 × 10 × 10 mm, its lower half tet core, its upper half particle zone (1 mm
+//! lattice, every particle dynamic except those pinned beside the core); it spins about its
+//! long (x) axis through its centre, every vertex and particle started on the rigid motion.
+
+use glam::{DMat3, DVec3};
+use palpate::cpu::CpuStepper;
+use palpate::model::Model;
+use palpate::particles::params::mode;
+use palpate::stepper::{BatchInput, State, Stepper};
+use palpate::Scene;
+use std::sync::Arc;
+
+/// The two-layer block (the scene of `tests/hybrid.rs`' free-flight test).
+fn two_layer_block() -> Result<Scene, Box<dyn std::error::Error>> {
+    let text = "[mesh]\ngenerator = \"beam\"\nsize = [0.02, 0.01, 0.01]\ncells = [4, 2, 4]\n\n\
+        [material]\nyoungs_modulus = 3.0e4\npoisson_ratio = 0.3\ndensity = 1000.0\n\n\
+        [particles]\nregion = 0\nspacing = 0.001\nactivation_radius = 0.003\n\
+        activation = \"all\"\nactivation_interval = 1\n";
+    let mut scene = Scene::from_toml(text, "two-layer block", "block", None)?;
+    for e in 0..scene.mesh.n_tets() {
+        let z: f64 = scene.mesh.corners(e).iter().map(|p| p.z).sum::<f64>() / 4.0;
+        scene.mesh.regions[e] = if z < 0.005 { 1 } else { 0 };
+    }
+    Ok(scene)
+}
+
+fn v3(a: &[f32], i: usize) -> DVec3 {
+    DVec3::new(a[3 * i] as f64, a[3 * i + 1] as f64, a[3 * i + 2] as f64)
+}
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let omega: f64 = args.first().map_or(Ok(37.0), |s| s.parse())?;
+    let steps: u32 = args.get(1).map_or(Ok(1000), |s| s.parse())?;
+    let scene = two_layer_block()?;
+    let m = Arc::new(Model::from_scene(&scene));
+    let pd = m.particles.as_ref().ok_or("the block has particles")?;
+    let params = m.step_params(0.5 * m.bounds.dt_bound, 0.0);
+    let mut s = CpuStepper::new(m.clone(), params);
+
+    let w = DVec3::new(omega, 0.0, 0.0);
+    // One step at rest makes the particles dynamic and lumps the vertex masses; the spin
+    // is about the centre of mass of those masses and the dynamic particles'.
+    s.run(1)?;
+    let (mut mass_sum, mut moment) = (0.0f64, DVec3::ZERO);
+    let (mass, inv) = s.vertex_masses();
+    for i in (0..m.n_vertices()).filter(|&i| inv[i] >= 0.0) {
+        mass_sum += mass[i] as f64;
+        moment += v3(&m.rest, i) * mass[i] as f64;
+    }
+    let modes = s.particle_modes().ok_or("particle modes")?;
+    for p in (0..pd.len()).filter(|&p| modes[p] & mode::DYNAMIC != 0) {
+        mass_sum += pd.mass as f64;
+        moment += v3(&pd.rest, p) * pd.mass as f64;
+    }
+    let centre = moment / mass_sum;
+    println!("centre of mass {centre:?} m");
+    let rigid = |x: DVec3| w.cross(x - centre).as_vec3().to_array();
+    let v: Vec<f32> = (0..m.n_vertices())
+        .flat_map(|i| rigid(v3(&m.rest, i)))
+        .collect();
+    let zero = vec![0.0f32; 3 * m.n_vertices()];
+    let pv: Vec<f32> = (0..pd.len()).flat_map(|p| rigid(v3(&pd.rest, p))).collect();
+    s.set_particle_state(&State {
+        displacements: vec![0.0; pv.len()],
+        velocities: pv,
+    });
+    s.write_state(&State {
+        displacements: zero,
+        velocities: v,
+    })?;
+    s.run(1)?;
+    println!(
+        "free spin at {omega} rad/s, dt {:.2e} s; largest distance from the rigid motion, m, and \
+         kinetic energy, J (vertices: core, interface z = 5 mm, zone with mass, massless)",
+        s.dt()
+    );
+    let batch = (steps / 10).max(1);
+    let mut done = 1u32;
+    while done < steps {
+        s.submit(batch, &BatchInput::default())?;
+        let report = s.wait()?;
+        done += batch;
+        let angle = omega * done as f64 * s.dt() as f64;
+        let rot = DMat3::from_axis_angle(w.normalize(), angle);
+        let st = s.read_state()?;
+        let off = |rest: &[f32], u: &[f32], i: usize| {
+            let x0 = v3(rest, i);
+            (x0 + v3(u, i) - (centre + rot * (x0 - centre))).length()
+        };
+        let (mass, inv) = s.vertex_masses();
+        let (mut dev, mut ke) = ([0.0f64; 4], [0.0f64; 4]);
+        for i in 0..m.n_vertices() {
+            let z = m.rest[3 * i + 2];
+            let class = if inv[i] < 0.0 {
+                3
+            } else if z < 0.0049 {
+                0
+            } else if z < 0.0051 {
+                1
+            } else {
+                2
+            };
+            dev[class] = dev[class].max(off(&m.rest, &st.displacements, i));
+            if inv[i] >= 0.0 {
+                ke[class] += 0.5 * mass[i] as f64 * v3(&st.velocities, i).length_squared();
+            }
+        }
+        let ps = s.particle_state().ok_or("particle state")?;
+        let modes = s.particle_modes().ok_or("particle modes")?;
+        let particles = (0..pd.len())
+            .filter(|&p| modes[p] & mode::DYNAMIC != 0)
+            .map(|p| off(&pd.rest, &ps.displacements, p))
+            .fold(0.0f64, f64::max);
+        let pr = report.particles.unwrap_or_default();
+        let total = report.stats.kinetic_energy()
+            + report.stats.elastic_energy()
+            + pr.kinetic_energy
+            + pr.elastic_energy;
+        println!(
+            "step {done:5} ({angle:5.2} rad): vertices {:.2e} {:.2e} {:.2e} {:.2e}, particles \
+             {particles:.2e}; KE {:.2e} {:.2e} {:.2e} + particles {:.2e}; total energy {total:.5e}",
+            dev[0], dev[1], dev[2], dev[3], ke[0], ke[1], ke[2], pr.kinetic_energy
+        );
+    }
+    Ok(())
+}
