@@ -10,23 +10,24 @@ Needs numpy only; `python3 docs/coupling_design7_check.py` takes about three min
 import itertools, sys
 import numpy as np
 
-def run(n_cells, per_cell, ghosts, zone_from, uniform=False):
-    h = 1.0
+def kuhn_block(n_cells, per_cell, h=1.0):
+    """A cube of n_cells^3 cells of edge h, each split into 6 Kuhn tets, and a lattice at
+    spacing h/per_cell over it: vertices, tets, shape-function gradients, tet volumes, the
+    lattice's indices and positions, each point's host tet, barycentric weights and host
+    vertices, and the permutation of axes naming each Kuhn tet."""
     dx = h / per_cell
-    R = 2.4 * dx
-    hk = 0.5 * R
     nv = n_cells + 1
     vid = lambda i, j, k: (i * nv + j) * nv + k
     verts = np.array([[i, j, k] for i in range(nv) for j in range(nv) for k in range(nv)], float) * h
     # Kuhn tets: for permutation (a,b,c) of axes, [0, e_a, e_a+e_b, 1]
     perms = list(itertools.permutations(range(3)))
+    e = np.eye(3, dtype=int)
     tets = []
     for ci in range(n_cells):
         for cj in range(n_cells):
             for ck in range(n_cells):
                 base = np.array([ci, cj, ck])
                 for (a, b, c) in perms:
-                    e = np.eye(3, dtype=int)
                     corners = [base, base + e[a], base + e[a] + e[b], base + 1]
                     tets.append([vid(*v) for v in corners])
     tets = np.array(tets)
@@ -51,6 +52,16 @@ def run(n_cells, per_cell, ghosts, zone_from, uniform=False):
     rs = np.take_along_axis(r, order, axis=1)
     w = np.stack([1 - rs[:, 0], rs[:, 0] - rs[:, 1], rs[:, 1] - rs[:, 2], rs[:, 2]], axis=1)
     hv = tets[host]  # host vertices
+    return verts, tets, gradN, Vt, m, idx, P, host, w, hv, perms
+
+
+def run(n_cells, per_cell, ghosts, zone_from, uniform=False):
+    h = 1.0
+    dx = h / per_cell
+    R = 2.4 * dx
+    hk = 0.5 * R
+    verts, tets, gradN, Vt, m, idx, P, host, w, hv, perms = kuhn_block(n_cells, per_cell, h)
+    nt = len(tets)
     dynamic = P[:, 2] > zone_from * h
     part = np.ones(len(P), bool) if ghosts else dynamic.copy()
     # volumes per tet
@@ -127,36 +138,8 @@ def stiffness_check(n_cells=4, per_cell=3, zone_from=2, lam=1.0, mu=0.5, bregman
     dx = h / per_cell
     R = 2.4 * dx
     hk = 0.5 * R
-    nv = n_cells + 1
-    vid = lambda i, j, k: (i * nv + j) * nv + k
-    verts = np.array([[i, j, k] for i in range(nv) for j in range(nv) for k in range(nv)], float) * h
-    perms = list(itertools.permutations(range(3)))
-    tets = []
-    for ci in range(n_cells):
-        for cj in range(n_cells):
-            for ck in range(n_cells):
-                base = np.array([ci, cj, ck])
-                e = np.eye(3, dtype=int)
-                for (a, b, c) in perms:
-                    tets.append([vid(*v) for v in [base, base + e[a], base + e[a] + e[b], base + 1]])
-    tets = np.array(tets); nt = len(tets)
-    X = verts[tets]
-    Dm = np.stack([X[:, 1] - X[:, 0], X[:, 2] - X[:, 0], X[:, 3] - X[:, 0]], axis=2)
-    Dinv = np.linalg.inv(Dm)
-    gradN = np.zeros((nt, 4, 3)); gradN[:, 1:, :] = Dinv; gradN[:, 0, :] = -Dinv.sum(axis=1)
-    Vt = np.abs(np.linalg.det(Dm)) / 6.0
-    m = n_cells * per_cell
-    idx = np.array(np.meshgrid(np.arange(m), np.arange(m), np.arange(m), indexing="ij")).reshape(3, -1).T
-    P = (idx + 0.5) * dx
-    cube = np.minimum((P // h).astype(int), n_cells - 1)
-    r = P / h - cube
-    order = np.argsort(-r, axis=1, kind="stable")
-    perm_id = {p: i for i, p in enumerate(perms)}
-    pid = np.array([perm_id[tuple(o)] for o in order])
-    host = ((cube[:, 0] * n_cells + cube[:, 1]) * n_cells + cube[:, 2]) * 6 + pid
-    rs = np.take_along_axis(r, order, axis=1)
-    w = np.stack([1 - rs[:, 0], rs[:, 0] - rs[:, 1], rs[:, 1] - rs[:, 2], rs[:, 2]], axis=1)
-    hv = tets[host]
+    verts, tets, gradN, Vt, m, idx, P, host, w, hv, perms = kuhn_block(n_cells, per_cell, h)
+    nt = len(tets)
     dynamic = P[:, 2] > zone_from * h
     n = len(P)
     V = dx**3

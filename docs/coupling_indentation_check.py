@@ -40,45 +40,48 @@ class Asm:
     def mat(s):
         return sp.csr_matrix((np.concatenate(s.v), (np.concatenate(s.r), np.concatenate(s.c))), shape=(3 * s.n,) * 2)
 
-def fe_pressure(n_cells, L, lam, mu, radius, load):
+def fe_stiffness(n_cells, L, lam, mu):
+    """The all-tet block of n_cells^3 cells: its mesh and stiffness matrix."""
     h = L / n_cells
     verts, tets, g, Vt, perms = mesh(n_cells, h)
     A = Asm(len(verts), lam, mu)
     for t in range(len(tets)):
         A.add(Vt[t], [(tets[t, a], g[t, a]) for a in range(4)])
-    K = A.mat()
+    return h, verts, tets, perms, A.mat()
+
+def solve_clamped(K, f, clamped):
+    """K u = f with the dofs `clamped` held at 0."""
+    u = np.zeros_like(f); u[~clamped] = spsolve(K[~clamped][:, ~clamped].tocsc(), f[~clamped])
+    return u
+
+def fe_pressure(n_cells, L, lam, mu, radius, load):
+    h, verts, tets, perms, K = fe_stiffness(n_cells, L, lam, mu)
     topv = np.nonzero((verts[:, 2] > L - 1e-9) & (np.linalg.norm(verts[:, :2] - L / 2, axis=1) < radius))[0]
     f = np.zeros(3 * len(verts)); f[3 * topv + 2] = load / len(topv)
-    cl = np.repeat(verts[:, 2] < 1e-9, 3)
-    u = np.zeros_like(f); u[~cl] = spsolve(K[~cl][:, ~cl].tocsc(), f[~cl])
+    u = solve_clamped(K, f, np.repeat(verts[:, 2] < 1e-9, 3))
     return u[3 * topv + 2].mean()
 
 def fe_only(n_cells, L, lam, mu, load_pts, load):
-    h = L / n_cells
-    verts, tets, g, Vt, perms = mesh(n_cells, h)
-    A = Asm(len(verts), lam, mu)
-    for t in range(len(tets)):
-        A.add(Vt[t], [(tets[t, a], g[t, a]) for a in range(4)])
-    K = A.mat()
+    h, verts, tets, perms, K = fe_stiffness(n_cells, L, lam, mu)
     f = np.zeros(3 * len(verts))
-    hostw = locate(load_pts, n_cells, h, tets, perms)
+    hostw = [(hv, w) for _, hv, w in locate(load_pts, n_cells, h, tets, perms)]
     for (hv, w) in hostw:
         for a in range(4):
             f[3 * hv[a] + 2] += w[a] * load / len(load_pts)
-    cl = np.repeat(verts[:, 2] < 1e-9, 3)
-    u = np.zeros_like(f); u[~cl] = spsolve(K[~cl][:, ~cl].tocsc(), f[~cl])
+    u = solve_clamped(K, f, np.repeat(verts[:, 2] < 1e-9, 3))
     # displacement under the load: interpolated at the load points
     uz = np.mean([sum(w[a] * u[3 * hv[a] + 2] for a in range(4)) for hv, w in hostw])
     return uz
 
 def locate(pts, n_cells, h, tets, perms):
+    """Per point: its host Kuhn tet, that tet's vertices and the barycentric weights."""
     out = []
     perm_id = {p: i for i, p in enumerate(perms)}
     for P in pts:
         cube = np.minimum((P // h).astype(int), n_cells - 1); r = P / h - cube
         o = np.argsort(-r, kind="stable"); rs = r[o]
         t = ((cube[0] * n_cells + cube[1]) * n_cells + cube[2]) * 6 + perm_id[tuple(o)]
-        out.append((tets[t], np.array([1 - rs[0], rs[0] - rs[1], rs[1] - rs[2], rs[2]])))
+        out.append((t, tets[t], np.array([1 - rs[0], rs[0] - rs[1], rs[1] - rs[2], rs[2]])))
     return out
 
 def hybrid(mode, n_cells, per_cell, L, lam, mu, zone_from, load_radius, load):
@@ -87,21 +90,13 @@ def hybrid(mode, n_cells, per_cell, L, lam, mu, zone_from, load_radius, load):
     m = n_cells * per_cell
     idx = np.array(np.meshgrid(np.arange(m), np.arange(m), np.arange(m), indexing="ij")).reshape(3, -1).T
     P = (idx + 0.5) * dx
-    zone = P[:, 2] > zone_from * h
-    ghosts = mode in ("design7", "design8")
-    part = np.ones(len(P), bool) if ghosts else zone
-    keep = np.nonzero(part)[0]; P = P[keep]; idx = idx[keep]; zone = zone[keep]; n = len(P)
-    dynamic = zone.copy()
+    n = len(P)
+    # the lattice covers the core too (followers there); the zone's particles are dynamic
+    dynamic = P[:, 2] > zone_from * h
     hw = locate(P, n_cells, h, tets, perms)
-    hv = np.array([a for a, _ in hw]); w = np.array([b for _, b in hw])
-    perm_id = {p: i for i, p in enumerate(perms)}
-    host = []
-    for p in P:
-        cube = np.minimum((p // h).astype(int), n_cells - 1); r = p / h - cube
-        o = np.argsort(-r, kind="stable")
-        host.append(((cube[0] * n_cells + cube[1]) * n_cells + cube[2]) * 6 + perm_id[tuple(o)])
-    host = np.array(host)
-    V = dx**3 if mode != "shipped" else (zone_from and (L * L * (L - zone_from * h)) / n)
+    host = np.array([t for t, _, _ in hw])
+    hv = np.array([a for _, a, _ in hw]); w = np.array([b for _, _, b in hw])
+    V = dx**3
     lookup = -np.ones(m**3, int); lookup[(idx[:, 0] * m + idx[:, 1]) * m + idx[:, 2]] = np.arange(n)
     k = int(np.ceil(R / dx))
     offs = [np.array(o) for o in itertools.product(range(-k, k + 1), repeat=3) if 0 < np.linalg.norm(o) * dx < R]
@@ -123,12 +118,7 @@ def hybrid(mode, n_cells, per_cell, L, lam, mu, zone_from, load_radius, load):
     dofp = lambda q: nvtx + dyn_index[q]
     A = Asm(ndof, lam, mu)
     counts = np.bincount(host, minlength=nt)
-    if mode == "design7":
-        tw = 1 - counts * V / Vt
-    elif mode == "design8":
-        tw = np.ones(nt)
-    else:  # shipped: phi = fraction of the tet's particles in S (all zone particles are in S here)
-        tw = np.where(counts > 0, 0.0, 1.0)
+    tw = 1 - counts * V / Vt if mode == "design7" else np.ones(nt)
     for t in range(nt):
         if tw[t] != 0:
             A.add(tw[t] * Vt[t], [(tets[t, a], gN[t, a]) for a in range(4)])
@@ -143,33 +133,20 @@ def hybrid(mode, n_cells, per_cell, L, lam, mu, zone_from, load_radius, load):
         for q, cq in zip(nbr[p], c[p]):
             if dynamic[q]:
                 put(dofp(q), cq)
-                if mode != "shipped":
-                    for a in range(4):
-                        put(hv[q, a], -w[q, a] * cq)
-            elif mode == "shipped":
                 for a in range(4):
-                    put(hv[q, a], w[q, a] * cq)
+                    put(hv[q, a], -w[q, a] * cq)
         if dynamic[p]:
             put(dofp(p), -csum)
-            if mode != "shipped":
-                for a in range(4):
-                    put(hv[p, a], w[p, a] * csum)
-        elif mode == "shipped":
             for a in range(4):
-                put(hv[p, a], -w[p, a] * csum)
+                put(hv[p, a], w[p, a] * csum)
         if ent:
             A.add(V, list(ent.items()))
     K = A.mat()
-    # slaving of vertices hosting only dynamic particles (design 7/8), or massless ones (shipped: they
-    # carry no stiffness there; slave them too so the system is not singular)
+    # slaving of the vertices that host only dynamic particles
     hosts_follower = np.zeros(nvtx, bool)
     for p in np.nonzero(~dynamic)[0]:
         hosts_follower[hv[p][w[p] > 0]] = True
-    in_core_tet = np.zeros(nvtx, bool)
-    for t in range(nt):
-        if tw[t] != 0 or mode == "design8":
-            in_core_tet[tets[t]] = True
-    slaved = ~hosts_follower & (True if mode != "shipped" else ~in_core_tet)
+    slaved = ~hosts_follower
     free_v = np.nonzero(~slaved)[0]; red = {v: i for i, v in enumerate(free_v)}
     nred = len(free_v) + int(dynamic.sum())
     rows, cols, vals = [], [], []
@@ -199,7 +176,7 @@ def hybrid(mode, n_cells, per_cell, L, lam, mu, zone_from, load_radius, load):
     for v in free_v:
         if verts[v, 2] < 1e-9:
             cl[3 * red[v]:3 * red[v] + 3] = True
-    u = np.zeros(3 * nred); u[~cl] = spsolve(Kr[~cl][:, ~cl].tocsc(), f[~cl])
+    u = solve_clamped(Kr, f, cl)
     uz = np.mean([u[3 * (len(free_v) + dyn_index[q]) + 2] for q in top])
     return uz, P[top], int(slaved.sum())
 
@@ -207,10 +184,8 @@ if __name__ == "__main__":
     L, lam, mu = 4.0, 1.0, 0.5
     n_cells, per_cell = 4, int(sys.argv[1]) if len(sys.argv) > 1 else 3
     rad = float(sys.argv[2]) if len(sys.argv) > 2 else 1.0
-    res = {}
     for mode in ("design7", "design8"):
         uz, pts, ns = hybrid(mode, n_cells, per_cell, L, lam, mu, 2, rad, -1.0)
-        res[mode] = uz
         print(f"{mode}: indentation {uz:.4e} ({len(pts)} loaded particles, {ns} slaved vertices)"); sys.stdout.flush()
     print(f"the tets alone (4^3 cells), the load at the particles' points: {fe_only(4, L, lam, mu, pts, -1.0):.4e}")
     for nf in (8, 16, 24, 32):

@@ -464,14 +464,15 @@ fn settled_press(scene: &Scene, tag: &str) -> palpate::output::summary::RunSumma
     s
 }
 
-/// The default haptic scene feels the same whichever way it is pressed: `lv_touch`'s press
-/// (2 mm along the inward normal, held; about 220 of 5,268 particles awake) rotated about the
+/// The default haptic scene feels the same whichever way it is pressed: `lv_touch`'s press (2
+/// mm along the inward normal, held; about 220 of 5,268 particles awake) rotated about the
 /// long axis to 0°, 30° and 45° from its particle lattice's x axis gives the same force after
-/// 2 s within 12 % (measured 0.0735 / 0.0771 / 0.0763 N, 2026-11-24; 0.0857 / 0.0845 /
-/// 0.0835 N when only 1 mm of particles woke; 0.1013 / 0.0978 / 0.0930 N with 12 disk cells
-/// and a support of 2.4), and no tet or dynamic particle ends inverted. With StVK, which lost its restoring force where the particles under the tool
-/// inverted, the same presses gave 0.0900 / 0.0680 / 0.0678 N with 6 inverted particles at 30°
-/// (BENCHMARKS.md, "The bias depends on the direction of the press").
+/// 2 s within 12 % (measured 0.0735 / 0.0771 / 0.0763 N, 2026-11-24; 0.0857 / 0.0845 / 0.0835
+/// N when only 1 mm of particles woke; 0.1013 / 0.0978 / 0.0930 N with 12 disk cells and a
+/// support of 2.4), and no tet or dynamic particle ends inverted. With StVK, which lost its
+/// restoring force where the particles under the tool inverted, the same presses gave 0.0900 /
+/// 0.0680 / 0.0678 N with 6 inverted particles at 30° (BENCHMARKS.md, "The bias depends on the
+/// direction of the press").
 #[test]
 fn lv_touch_feels_the_same_pressed_along_or_across_its_particle_lattice() {
     let base = Scene::load("lv_touch").unwrap();

@@ -1,16 +1,16 @@
 //! The CPU stepper's SPH force stage with each pair evaluated once (tlsph).
 //!
-//! tlsph's pair terms are antisymmetric: on particle c from the pair (c, b) they are
-//! V²(A_c + A_b)∇W(X_b − X_c) plus the hourglass term along x_cb, and b gets their negatives
-//! (∇W is odd; the hourglass term changes sign with x_cb and X_cb). `sph_forces`, the kernel's
-//! twin, visits every pair from both ends, as one GPU thread per particle must; a CPU can do
-//! each pair once. Each activation lists the pairs that carry a force (both particles in the
-//! force set F, at least one in S) once, grouped by the particle that owns them: the one in S,
-//! or the lower index when both are. Each step computes the pairs (in parallel over their
-//! owners) and every particle of F sums its pairs in its neighbour-list order, with its end's
-//! sign, then adds gravity and the tool's contact as the kernel does. The terms are the
-//! kernel's, from each particle's quantities packed once per step (V²A, F, u in an aligned
-//! record per particle); the products are grouped differently ((V²A_c + V²A_b)∇W, (F_c + F_b)X_cb) and
+//! tlsph's pair terms are antisymmetric: on particle c from the pair (c, b) they are V²(A_c +
+//! A_b)∇W(X_b − X_c) plus the hourglass term along x_cb, and b gets their negatives (∇W is
+//! odd; the hourglass term changes sign with x_cb and X_cb). `sph_forces`, the kernel's twin,
+//! visits every pair from both ends, as one GPU thread per particle must; a CPU can do each
+//! pair once. Each activation lists the pairs that carry a force (both particles in the force
+//! set F, at least one in S) once, grouped by the particle that owns them: the one in S, or
+//! the lower index when both are. Each step computes the pairs (in parallel over their owners)
+//! and every particle of F sums its pairs in its neighbour-list order, with its end's sign,
+//! then adds gravity and the tool's contact as the kernel does. The terms are the kernel's,
+//! from each particle's quantities packed once per step (V²A, F, u in an aligned record per
+//! particle); the products are grouped differently ((V²A_c + V²A_b)∇W, (F_c + F_b)X_cb) and
 //! the hourglass term's relative position is rounded once instead of at each end, so the
 //! forces equal the twin's to rounding (tested), and the two ends of a pair get exactly
 //! opposite forces.
