@@ -3,7 +3,8 @@
 //! light vertices of `docs/hybrid_coupling.md` (zone vertices that host only a few pinned
 //! followers drift far from the body); not a test, it asserts nothing.
 //!
-//! `cargo run --release --example free_spin -- [ω rad/s] [steps]` (defaults: 37 1000). The
+//! `cargo run --release --example free_spin -- [ω rad/s] [steps] [dt/bound]` (defaults: 37 1000
+//! 0.5; the last is the core step as a fraction of its stable bound). The
 //! block is 20 × 10 × 10 mm, its lower half tet core, its upper half particle zone (1 mm
 //! lattice, every particle dynamic except those pinned beside the core); it spins about its
 //! long (x) axis through its centre, every vertex and particle started on the rigid motion.
@@ -38,10 +39,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let omega: f64 = args.first().map_or(Ok(37.0), |s| s.parse())?;
     let steps: u32 = args.get(1).map_or(Ok(1000), |s| s.parse())?;
+    let dt_fraction: f64 = args.get(2).map_or(Ok(0.5), |s| s.parse())?;
     let scene = two_layer_block()?;
     let m = Arc::new(Model::from_scene(&scene));
     let pd = m.particles.as_ref().ok_or("the block has particles")?;
-    let params = m.step_params(0.5 * m.bounds.dt_bound, 0.0);
+    let params = m.step_params(dt_fraction * m.bounds.dt_bound, 0.0);
     let mut s = CpuStepper::new(m.clone(), params);
 
     let w = DVec3::new(omega, 0.0, 0.0);
@@ -77,9 +79,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     })?;
     s.run(1)?;
     println!(
-        "free spin at {omega} rad/s, dt {:.2e} s; largest distance from the rigid motion, m, and \
+        "free spin at {omega} rad/s, dt {:.2e} s ({} particle sub-steps); largest distance from the rigid motion, m, and \
          kinetic energy, J (vertices: core, interface z = 5 mm, zone with mass, massless)",
-        s.dt()
+        s.dt(),
+        m.particle_substeps(s.dt() as f64)
     );
     let batch = (steps / 10).max(1);
     let mut done = 1u32;
