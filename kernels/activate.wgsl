@@ -7,7 +7,8 @@
 //   activate_tet_weights      per tet: 1 - phi_e, phi_e = (its particles in S)/(its particles)
 //   activate_relump           per vertex: mass = core + sum w_i m_p over non-dynamic hosted
 //                             particles; velocity keeps the momentum of released particles;
-//                             vertices with no mass left follow their dynamic particles; the
+//                             vertices with no mass left take their dynamic particles'
+//                             velocity field at their rest place (kinematic_velocity); the
 //                             short list of its force-set embedded particles' slots for
 //                             gather_coupled (coupled_slots from its CSR offset, coupled_count)
 // Mode machine (a particle at distance d from the tool's surface; PINNED never moves):
@@ -59,6 +60,7 @@
 @group(0) @binding(29) var<storage, read_write> coupled_slots: array<u32>;
 @group(0) @binding(30) var<storage, read_write> coupled_count: array<u32>;
 @group(0) @binding(31) var<storage, read_write> coupled_valid: array<u32>;
+@group(0) @binding(32) var<storage, read> rest_positions: array<f32>;
 
 // Pipeline constant: the scene has a tool (else only activation = "all" runs particles).
 override TOOL: bool = false;
@@ -226,6 +228,35 @@ fn activate_tet_weights(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(
     tet_weight[e] = w;
 }
 
+// A vertex with no mass left moves with its dynamic particles: the weighted linear least-squares
+// fit v(d) = a + G d of their velocities over their rest offsets d = (X_p - X_i)/spacing,
+// weights b = w m_p, at d = 0: G = Cov(v, d) Cov(d, d)^-1, a = mean(v) - G mean(d). Exact for a
+// rigid or affine velocity field; the mean where the offsets do not span three dimensions
+// (det Cov(d, d) <= 1e-3 (trace/3)^3), zero without particles. CPU twin: KinematicFit.
+fn kinematic_velocity(b: f32, bd: vec3<f32>, bv: vec3<f32>, bdd: mat3x3<f32>, bvd: mat3x3<f32>) -> vec3<f32> {
+    if !(b > 0.0) {
+        return vec3<f32>(0.0);
+    }
+    let inv_b = 1.0 / b;
+    let d_mean = bd * inv_b;
+    let v_mean = bv * inv_b;
+    let cov_dd = bdd * inv_b - mat3x3<f32>(d_mean * d_mean.x, d_mean * d_mean.y, d_mean * d_mean.z);
+    let cov_vd = bvd * inv_b - mat3x3<f32>(v_mean * d_mean.x, v_mean * d_mean.y, v_mean * d_mean.z);
+    let c0 = cov_dd[0];
+    let c1 = cov_dd[1];
+    let c2 = cov_dd[2];
+    let t0 = cross(c1, c2);
+    let t1 = cross(c2, c0);
+    let t2 = cross(c0, c1);
+    let det = dot(c2, t2);
+    let trace = (c0.x + c1.y + c2.z) / 3.0;
+    if !(det > 1e-3 * trace * trace * trace) {
+        return v_mean;
+    }
+    let inv = transpose(mat3x3<f32>(t0, t1, t2)) * (1.0 / det);
+    return v_mean - cov_vd * (inv * d_mean);
+}
+
 @compute @workgroup_size(64)
 fn activate_relump(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear_index(gid, nwg, WORKGROUP);
@@ -236,8 +267,13 @@ fn activate_relump(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_w
     var m = particle_core_mass[i];
     var m_released = 0.0;
     var p_released = vec3<f32>(0.0);
-    var m_dynamic = 0.0;
-    var p_dynamic = vec3<f32>(0.0);
+    // Kinematic fit sums (see kinematic_velocity): sum b, b d, b v, b d d^T, b v d^T.
+    var b_sum = 0.0;
+    var bd_sum = vec3<f32>(0.0);
+    var bv_sum = vec3<f32>(0.0);
+    var bdd_sum = mat3x3<f32>(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0));
+    var bvd_sum = mat3x3<f32>(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0));
+    let x_i = vec3<f32>(rest_positions[3u * i], rest_positions[3u * i + 1u], rest_positions[3u * i + 2u]);
     var coupled = false;
     var released = false;
     let first = particle_slot_offsets[i];
@@ -260,8 +296,15 @@ fn activate_relump(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_w
                 listed += 1u;
             }
         } else {
-            m_dynamic += w * mp;
-            p_dynamic += particle_v(p) * (w * mp);
+            let beta = w * mp;
+            let d = (particle_x0(p) - x_i) / particle_params.spacing;
+            let vp = particle_v(p);
+            b_sum += beta;
+            bd_sum += d * beta;
+            bv_sum += vp * beta;
+            let bd = d * beta;
+            bdd_sum += mat3x3<f32>(d * bd.x, d * bd.y, d * bd.z);
+            bvd_sum += mat3x3<f32>(vp * bd.x, vp * bd.y, vp * bd.z);
         }
     }
     coupled_count[i] = listed;
@@ -280,10 +323,7 @@ fn activate_relump(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_w
     } else {
         // No mass left: the vertex is carried (kinematically) by its dynamic particles.
         w_inv = -1.0;
-        v = vec3<f32>(0.0);
-        if m_dynamic > 0.0 {
-            v = p_dynamic / m_dynamic;
-        }
+        v = kinematic_velocity(b_sum, bd_sum, bv_sum, bdd_sum, bvd_sum);
     }
     inv_mass[i] = w_inv;
     velocities[3u * i] = v.x;

@@ -93,6 +93,12 @@ pub fn tool<'a>(model: &'a Model, tool_params: &'a ToolParams) -> BufferGroup<'a
                 Usage::Storage,
                 std::mem::size_of::<ToolState>() as u64,
             ));
+            // `activate_relump` fits the massless vertices' velocities over rest offsets.
+            specs.push(BufferSpec::data(
+                "rest_positions",
+                Usage::Storage,
+                &model.rest,
+            ));
         }
         return BufferGroup {
             name: "tool",
@@ -352,8 +358,8 @@ pub fn cardiac<'a>(model: &'a Model, t: &'a CardiacTables) -> BufferGroup<'a> {
                 Usage::Storage,
                 &t.dead_load,
             ));
-            if model.tool.is_none() {
-                // The tool group holds `rest_positions` when there is a tool.
+            if model.tool.is_none() && model.particles.is_none() {
+                // The tool group holds `rest_positions` when there is a tool or particles.
                 specs.push(BufferSpec::data(
                     "rest_positions",
                     Usage::Storage,
