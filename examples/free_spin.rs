@@ -38,8 +38,9 @@ fn two_layer_block() -> Result<Scene, Box<dyn std::error::Error>> {
 
 /// The rigid motion x ≈ c + R (X − C) that best fits `points` (rest X, now x, mass):
 /// C, c the mass centres, R the rotation of the polar decomposition of
-/// H = Σ m (x − c)(X − C)ᵀ (Newton's iteration R ← (R + R⁻ᵀ)/2).
-fn best_rigid_fit(points: &[(DVec3, DVec3, f64)]) -> (DMat3, DVec3, DVec3) {
+/// H = Σ m (x − c)(X − C)ᵀ (Newton's iteration R ← (R + R⁻ᵀ)/2, which needs det H > 0:
+/// None for a body turned inside out, which no rotation fits).
+fn best_rigid_fit(points: &[(DVec3, DVec3, f64)]) -> Option<(DMat3, DVec3, DVec3)> {
     let total: f64 = points.iter().map(|p| p.2).sum();
     let rest_centre = points.iter().map(|p| p.0 * p.2).sum::<DVec3>() / total;
     let centre = points.iter().map(|p| p.1 * p.2).sum::<DVec3>() / total;
@@ -48,12 +49,19 @@ fn best_rigid_fit(points: &[(DVec3, DVec3, f64)]) -> (DMat3, DVec3, DVec3) {
         let (a, b) = (x - centre, x0 - rest_centre);
         h += DMat3::from_cols(a * b.x, a * b.y, a * b.z) * mi;
     }
-    let mut r = h * (1.0 / h.determinant().abs().cbrt());
+    let positive = h.determinant() > 0.0; // (false for NaN too)
+    if !positive {
+        return None;
+    }
+    let mut r = h * (1.0 / h.determinant().cbrt());
     for _ in 0..30 {
         r = (r + r.inverse().transpose()) * 0.5;
     }
-    (r, rest_centre, centre)
+    Some((r, rest_centre, centre))
 }
+
+/// The error when the body has turned inside out.
+const NO_FIT: &str = "the body is inverted: no rotation fits it";
 
 fn v3(a: &[f32], i: usize) -> DVec3 {
     DVec3::new(a[3 * i] as f64, a[3 * i + 1] as f64, a[3 * i + 2] as f64)
@@ -124,38 +132,34 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         // The body's own rigid motion: the best fit (mass-weighted) of the vertices that carry
         // mass and the dynamic particles. (The lumped masses' principal axes are not the
         // block's: a spin about x precesses, so the prescribed turn is no reference.)
-        let mut points: Vec<(DVec3, DVec3, f64)> = (0..m.n_vertices())
+        let vertex_points: Vec<(DVec3, DVec3, f64)> = (0..m.n_vertices())
             .filter(|&i| inv[i] > 0.0)
             .map(|i| {
                 let x0 = v3(&m.rest, i);
                 (x0, x0 + v3(&st.displacements, i), mass[i] as f64)
             })
             .collect();
-        points.extend(
-            (0..pd.len())
-                .filter(|&p| modes[p] & mode::DYNAMIC != 0)
-                .map(|p| {
-                    let x0 = v3(&pd.rest, p);
-                    (x0, x0 + v3(&ps.displacements, p), pd.mass as f64)
-                }),
-        );
-        let (body_rot, rest_centre, centre_now) = best_rigid_fit(&points);
+        let particle_points: Vec<(DVec3, DVec3, f64)> = (0..pd.len())
+            .filter(|&p| modes[p] & mode::DYNAMIC != 0)
+            .map(|p| {
+                let x0 = v3(&pd.rest, p);
+                (x0, x0 + v3(&ps.displacements, p), pd.mass as f64)
+            })
+            .collect();
+        let points = [&vertex_points[..], &particle_points[..]].concat();
+        let (body_rot, rest_centre, centre_now) = best_rigid_fit(&points).ok_or(NO_FIT)?;
         if std::env::var("SPIN_PARTS").is_ok() {
             // The core's vertices and the dynamic particles, each fitted on its own: how far
             // each is from its own rigid motion, and how far the particles' motion is from the
             // core's (at the particles).
-            let core: Vec<_> = points
+            let core: Vec<_> = vertex_points
                 .iter()
                 .copied()
-                .filter(|p| p.0.z < 0.0049 && p.2 > 1e-5)
+                .filter(|p| p.0.z < 0.0049)
                 .collect();
-            let layer: Vec<_> = points
-                .iter()
-                .copied()
-                .filter(|p| p.2 == pd.mass as f64 && p.0.z > 0.0051)
-                .collect();
-            let (rc, cc0, cc1) = best_rigid_fit(&core);
-            let (rl, cl0, cl1) = best_rigid_fit(&layer);
+            let layer = &particle_points;
+            let (rc, cc0, cc1) = best_rigid_fit(&core).ok_or(NO_FIT)?;
+            let (rl, cl0, cl1) = best_rigid_fit(layer).ok_or(NO_FIT)?;
             let own = |pts: &[(DVec3, DVec3, f64)], r: DMat3, c0: DVec3, c1: DVec3| {
                 pts.iter()
                     .map(|&(x0, x, _)| (x - (c1 + r * (x0 - c0))).length())
@@ -170,7 +174,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 core.len(),
                 own(&core, rc, cc0, cc1),
                 layer.len(),
-                own(&layer, rl, cl0, cl1),
+                own(layer, rl, cl0, cl1),
                 between
             );
         }

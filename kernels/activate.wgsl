@@ -232,7 +232,8 @@ fn activate_tet_weights(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(
 // fit v(d) = a + G d of their velocities over their rest offsets d = (X_p - X_i)/spacing,
 // weights b = w m_p, at d = 0: G = Cov(v, d) Cov(d, d)^-1, a = mean(v) - G mean(d). Exact for a
 // rigid or affine velocity field; the mean where the offsets do not span three dimensions
-// (det Cov(d, d) <= 1e-3 (trace/3)^3), zero without particles. CPU twin: KinematicFit.
+// (tr Cov(d, d) <= 1e-4 tr E[d d^T] or det Cov(d, d) <= 1e-3 (trace/3)^3), zero without
+// particles. CPU twin: KinematicFit.
 fn kinematic_velocity(b: f32, bd: vec3<f32>, bv: vec3<f32>, bdd: mat3x3<f32>, bvd: mat3x3<f32>) -> vec3<f32> {
     if !(b > 0.0) {
         return vec3<f32>(0.0);
@@ -250,7 +251,9 @@ fn kinematic_velocity(b: f32, bd: vec3<f32>, bv: vec3<f32>, bdd: mat3x3<f32>, bv
     let t2 = cross(c0, c1);
     let det = dot(c2, t2);
     let trace = (c0.x + c1.y + c2.z) / 3.0;
-    if !(det > 1e-3 * trace * trace * trace) {
+    // The spread must stand above the rounding of E[d d^T] - mean(d) mean(d)^T.
+    let second_moment = (bdd[0].x + bdd[1].y + bdd[2].z) * inv_b / 3.0;
+    if !(trace > 1e-4 * second_moment && det > 1e-3 * trace * trace * trace) {
         return v_mean;
     }
     let inv = transpose(mat3x3<f32>(t0, t1, t2)) * (1.0 / det);

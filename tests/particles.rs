@@ -728,8 +728,13 @@ fn massless_vertices_take_their_particles_rigid_velocity_on_both_backends() {
     for i in (0..nv).filter(|&i| inv_mass[i] < 0.0) {
         massless += 1;
         let want = spin(glam::Vec3::from_slice(&m.rest[3 * i..3 * i + 3]));
-        for v in [&gpu_v, &cpu_v] {
-            worst = worst.max((glam::Vec3::from_slice(&v[3 * i..3 * i + 3]) - want).length());
+        for (name, v) in [("GPU", &gpu_v), ("CPU", &cpu_v)] {
+            let err = (glam::Vec3::from_slice(&v[3 * i..3 * i + 3]) - want).length();
+            assert!(
+                err.is_finite(),
+                "{name}: vertex {i}'s velocity is not finite"
+            );
+            worst = worst.max(err);
         }
         // The mean over the hosted particles, weights w m_p, all dynamic here.
         let (mut b, mut sum) = (0.0f32, glam::Vec3::ZERO);

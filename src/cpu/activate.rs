@@ -337,7 +337,8 @@ pub struct VertexLump {
 /// any rigid or affine velocity field, so the vertex stays on a rotating body. (The mean v̄
 /// alone is the velocity of the particles' weighted centroid, which lies up to a third of a
 /// tet from the vertex: in a spin at 3.7 rad/s such vertices drifted 1.3 mm in 0.18 s.)
-/// Where the offsets do not span three dimensions (det Cov(d, d) ≤ 10⁻³ (tr/3)³) it is v̄.
+/// Where the offsets do not span three dimensions (tr Cov(d, d) ≤ 10⁻⁴ tr E[d dᵀ] or
+/// det Cov(d, d) ≤ 10⁻³ (tr/3)³) it is v̄.
 /// One pass of sums, in the order of the vertex's slots (twin of `activate_relump`'s).
 #[derive(Clone, Copy, Debug)]
 pub struct KinematicFit {
@@ -392,8 +393,10 @@ impl KinematicFit {
         let (t0, t1, t2) = (c1.cross(c2), c2.cross(c0), c0.cross(c1));
         let det = c2.dot(t2);
         let trace = (c0.x + c1.y + c2.z) / 3.0;
-        // (NaN sums fall back too.)
-        let spans = det > 1e-3 * trace * trace * trace;
+        // The spread must also stand above the rounding of E[d dᵀ] − d̄ d̄ᵀ (one particle, or
+        // several at one offset, leave noise of either sign there); NaN sums fall back too.
+        let second_moment = (self.dd.x_axis.x + self.dd.y_axis.y + self.dd.z_axis.z) * inv_b / 3.0;
+        let spans = trace > 1e-4 * second_moment && det > 1e-3 * trace * trace * trace;
         if !spans {
             return v_mean;
         }
@@ -500,7 +503,9 @@ mod tests {
 
     /// The fit reproduces an affine velocity field at the vertex, even when the particles all
     /// lie on one side of it (the mean would not), and falls back to the mean for coplanar
-    /// offsets.
+    /// offsets and for one particle or several at one offset (whose spread is rounding noise
+    /// of either sign: without the floor on the trace, such noise passed the determinant test
+    /// and gave garbage or NaN).
     #[test]
     fn the_kinematic_fit_is_exact_for_an_affine_field_and_the_mean_when_flat() {
         let a = Mat3::from_cols(
@@ -530,5 +535,18 @@ mod tests {
         assert_eq!(flat.velocity_at_vertex(), mean);
         assert!((mean - c).length() > 0.1, "the mean would have been right");
         assert_eq!(KinematicFit::default().velocity_at_vertex(), Vec3::ZERO);
+        // One particle, or several at one offset: the mean, never the noise of a zero spread.
+        for d in [
+            Vec3::new(0.3, 1.7, 2.9),
+            Vec3::new(-2.5, 0.1, 3.3),
+            Vec3::splat(1.1),
+        ] {
+            let mut one = KinematicFit::default();
+            for _ in 0..3 {
+                one.add(1.3e-6, d, c + a * d);
+                let v = one.velocity_at_vertex();
+                assert_eq!(v, one.v * (1.0 / one.weight), "offset {d}");
+            }
+        }
     }
 }
