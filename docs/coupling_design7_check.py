@@ -55,14 +55,20 @@ def kuhn_block(n_cells, per_cell, h=1.0):
     return verts, tets, gradN, Vt, m, idx, P, host, w, hv, perms
 
 
-def run(n_cells, per_cell, ghosts, zone_from, uniform=False):
-    h = 1.0
+def block_setup(n_cells, per_cell, zone_from, h=1.0):
+    """The Kuhn block at lattice spacing dx = h/per_cell, its kernel support R = 2.4 dx and
+    smoothing length R/2, and which particles are dynamic (above z = zone_from h)."""
     dx = h / per_cell
     R = 2.4 * dx
-    hk = 0.5 * R
-    verts, tets, gradN, Vt, m, idx, P, host, w, hv, perms = kuhn_block(n_cells, per_cell, h)
+    block = kuhn_block(n_cells, per_cell, h)
+    P = block[6]
+    return h, dx, R, 0.5 * R, block, P[:, 2] > zone_from * h
+
+
+def run(n_cells, per_cell, ghosts, zone_from, uniform=False):
+    h, dx, R, hk, block, dynamic = block_setup(n_cells, per_cell, zone_from)
+    verts, tets, gradN, Vt, m, idx, P, host, w, hv, perms = block
     nt = len(tets)
-    dynamic = P[:, 2] > zone_from * h
     part = np.ones(len(P), bool) if ghosts else dynamic.copy()
     # volumes per tet
     counts = np.bincount(host[part], minlength=nt)
@@ -134,13 +140,9 @@ def stiffness_check(n_cells=4, per_cell=3, zone_from=2, lam=1.0, mu=0.5, bregman
     eigenvalues of K over all vertices and dynamic particles, and of T^T K T where every
     vertex that hosts only dynamic particles is slaved to them (x_v = sum_p s_vp x_p, an
     affine-reproducing linear fit)."""
-    h = 1.0
-    dx = h / per_cell
-    R = 2.4 * dx
-    hk = 0.5 * R
-    verts, tets, gradN, Vt, m, idx, P, host, w, hv, perms = kuhn_block(n_cells, per_cell, h)
+    h, dx, R, hk, block, dynamic = block_setup(n_cells, per_cell, zone_from)
+    verts, tets, gradN, Vt, m, idx, P, host, w, hv, perms = block
     nt = len(tets)
-    dynamic = P[:, 2] > zone_from * h
     n = len(P)
     V = dx**3
     counts = np.bincount(host, minlength=nt)

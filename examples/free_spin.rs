@@ -62,6 +62,13 @@ fn best_rigid_fit(points: &[(DVec3, DVec3, f64)]) -> Option<(DMat3, DVec3, DVec3
     Some((r, rest_centre, centre))
 }
 
+/// The angle of rotation R: acos((tr R − 1)/2).
+fn rotation_angle(r: DMat3) -> f64 {
+    ((r.x_axis.x + r.y_axis.y + r.z_axis.z - 1.0) / 2.0)
+        .clamp(-1.0, 1.0)
+        .acos()
+}
+
 fn v3(a: &[f32], i: usize) -> DVec3 {
     DVec3::new(a[3 * i] as f64, a[3 * i + 1] as f64, a[3 * i + 2] as f64)
 }
@@ -183,35 +190,19 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             if std::env::var("SPIN_GROUPS").is_ok() {
                 // Mean offset from the core's rigid motion, in the core's frame, by group.
                 let to_core = |x0: DVec3, x: DVec3| rc.transpose() * (x - (cc1 + rc * (x0 - cc0)));
-                let mean = |v: Vec<DVec3>| v.iter().sum::<DVec3>() / v.len().max(1) as f64;
-                let interface = mean(
-                    (0..m.n_vertices())
-                        .filter(|&i| (m.rest[3 * i + 2] - 0.005).abs() < 1e-4)
-                        .map(|i| to_core(v3(&m.rest, i), v3(&m.rest, i) + v3(&st.displacements, i)))
-                        .collect(),
-                );
-                let pinned = mean(
-                    (0..pd.len())
-                        .filter(|&p| modes[p] & mode::PINNED != 0)
-                        .map(|p| {
-                            to_core(v3(&pd.rest, p), v3(&pd.rest, p) + v3(&ps.displacements, p))
-                        })
-                        .collect(),
-                );
-                let dynamic = mean(
-                    (0..pd.len())
-                        .filter(|&p| modes[p] & mode::DYNAMIC != 0)
-                        .map(|p| {
-                            to_core(v3(&pd.rest, p), v3(&pd.rest, p) + v3(&ps.displacements, p))
-                        })
-                        .collect(),
-                );
-                let light = mean(
-                    (0..m.n_vertices())
-                        .filter(|&i| inv[i] > 0.0 && m.rest[3 * i + 2] > 0.0051)
-                        .map(|i| to_core(v3(&m.rest, i), v3(&m.rest, i) + v3(&st.displacements, i)))
-                        .collect(),
-                );
+                // The mean of `to_core` over the points of (rest, displacements) that `keep`.
+                let mean = |rest: &[f32], u: &[f32], keep: &dyn Fn(usize) -> bool| {
+                    let (sum, n) = (0..rest.len() / 3)
+                        .filter(|&i| keep(i))
+                        .map(|i| to_core(v3(rest, i), v3(rest, i) + v3(u, i)))
+                        .fold((DVec3::ZERO, 0usize), |(s, n), o| (s + o, n + 1));
+                    sum / n.max(1) as f64
+                };
+                let (u, pu) = (&st.displacements, &ps.displacements);
+                let interface = mean(&m.rest, u, &|i| (m.rest[3 * i + 2] - 0.005).abs() < 1e-4);
+                let pinned = mean(&pd.rest, pu, &|p| modes[p] & mode::PINNED != 0);
+                let dynamic = mean(&pd.rest, pu, &|p| modes[p] & mode::DYNAMIC != 0);
+                let light = mean(&m.rest, u, &|i| inv[i] > 0.0 && m.rest[3 * i + 2] > 0.0051);
                 let f = |v: DVec3| format!("({:+.1e}, {:+.1e}, {:+.1e})", v.x, v.y, v.z);
                 println!(
                     "  in the core's frame: interface {}, pinned {}, dynamic {}, zone vertices with mass {}",
@@ -221,14 +212,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                     f(light)
                 );
             }
-            let rel = (rc.transpose() * rl).to_cols_array();
-            let turn = ((rel[0] + rel[4] + rel[8] - 1.0) / 2.0)
-                .clamp(-1.0, 1.0)
-                .acos();
+            let turn = rotation_angle(rc.transpose() * rl);
+            let centre_off = (cl1 - cl0) - (cc1 + rc * (cl0 - cc0) - cl0);
             println!(
                 "  massless vertices off the particles' rigid motion {massless:.2e} m; the particles turned {turn:.2e} rad against the core, their centre {:.2e} m off ({:?} in the core's frame)",
-                ((cl1 - cl0) - (cc1 + rc * (cl0 - cc0) - cl0)).length(),
-                (rc.transpose() * ((cl1 - cl0) - (cc1 + rc * (cl0 - cc0) - cl0))).to_array()
+                centre_off.length(),
+                (rc.transpose() * centre_off).to_array()
             );
             println!(
                 "  core ({}) off its own rigid motion {:.2e} m, particles ({}) {:.2e} m; the particles' rigid motion off the core's {:.2e} m",
@@ -239,10 +228,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 between
             );
         }
-        let precession = (rot.transpose() * body_rot).to_cols_array();
-        let precession = ((precession[0] + precession[4] + precession[8] - 1.0) / 2.0)
-            .clamp(-1.0, 1.0)
-            .acos();
+        let precession = rotation_angle(rot.transpose() * body_rot);
         let off = |rest: &[f32], u: &[f32], i: usize| {
             let x0 = v3(rest, i);
             (x0 + v3(u, i) - (centre_now + body_rot * (x0 - rest_centre))).length()

@@ -265,6 +265,61 @@ fn rel(a: &[f32], b: &[f32]) -> f64 {
     common::rel_err(a, b)
 }
 
+/// The vertex arrays `cpu::activate::relump` writes besides the velocities.
+struct Relumped {
+    mass: Vec<f32>,
+    inv_mass: Vec<f32>,
+    flags: Vec<u32>,
+    contact_weight: Vec<f32>,
+}
+
+/// The CPU relump of `m`'s vertices from these particle modes and velocities, fixed-vertex
+/// flags and tet weights; `velocities` (the vertices') are updated in place.
+#[allow(clippy::too_many_arguments)]
+fn cpu_relump(
+    m: &Model,
+    params: &palpate::params::StepParams,
+    pp: &palpate::particles::params::ParticleParams,
+    particle_mode: &[u32],
+    particle_velocities: &[f32],
+    node_fixed: &[u32],
+    tet_weight: &[f32],
+    velocities: &mut [f32],
+) -> Relumped {
+    let pd = m.particles.as_ref().unwrap();
+    let nv = m.n_vertices();
+    let mut out = Relumped {
+        mass: vec![0.0; nv],
+        inv_mass: vec![0.0; nv],
+        flags: vec![0; nv],
+        contact_weight: vec![0.0; nv],
+    };
+    cpu::activate::relump(
+        params,
+        &cpu::activate::RelumpInputs {
+            pp,
+            slot_offsets: &pd.slot_offsets,
+            slots: &pd.slots,
+            weights: &pd.weights,
+            particle_mode,
+            particle_velocities,
+            particle_rest: &pd.rest,
+            rest: &m.rest,
+            core_mass: &pd.core_mass,
+            node_fixed,
+            incidence_offsets: &m.incidence_offsets,
+            incidence: &m.incidence,
+            tet_weight,
+        },
+        &mut out.mass,
+        &mut out.inv_mass,
+        velocities,
+        &mut out.flags,
+        &mut out.contact_weight,
+    );
+    out
+}
+
 /// The activate stage's inputs and outputs, as the GPU stepper's buffers hold them.
 struct ActivateIo {
     u: Vec<f32>,
@@ -360,31 +415,12 @@ fn particle_kernels_match_their_cpu_twins() {
     );
     let mut tw = vec![0.0f32; m.n_tets()];
     cpu::activate::tet_weights(&params, &pd.tet_offsets, &pmode, &mut tw);
-    let (mut mass, mut inv_mass) = (vec![0.0f32; m.n_vertices()], vec![0.0f32; m.n_vertices()]);
-    let (mut flags, mut cw) = (vec![0u32; m.n_vertices()], vec![0.0f32; m.n_vertices()]);
-    cpu::activate::relump(
-        &params,
-        &cpu::activate::RelumpInputs {
-            pp: &pp,
-            slot_offsets: &pd.slot_offsets,
-            slots: &pd.slots,
-            weights: &pd.weights,
-            particle_mode: &pmode,
-            particle_velocities: &pv,
-            particle_rest: &pd.rest,
-            rest: &m.rest,
-            core_mass: &pd.core_mass,
-            node_fixed: &node_fixed,
-            incidence_offsets: &m.incidence_offsets,
-            incidence: &m.incidence,
-            tet_weight: &tw,
-        },
-        &mut mass,
-        &mut inv_mass,
-        &mut v,
-        &mut flags,
-        &mut cw,
-    );
+    let Relumped {
+        mass,
+        inv_mass,
+        flags,
+        contact_weight: cw,
+    } = cpu_relump(&m, &params, &pp, &pmode, &pv, &node_fixed, &tw, &mut v);
     assert_eq!(bits_u32(&g, "particle_mode")[..n], pmode[..], "modes");
     assert!(
         counts[0] >= 20 && counts[1] > counts[0] && counts[2] > counts[1],
@@ -697,31 +733,17 @@ fn massless_vertices_take_their_particles_rigid_velocity_on_both_backends() {
     let inv_mass = g.read_f32("inv_mass").unwrap();
     let pmode = bits_u32(&g, "particle_mode");
     let (nv, mut cpu_v) = (m.n_vertices(), vec![0.0f32; 3 * m.n_vertices()]);
-    let (mut mass, mut cpu_inv) = (vec![0.0f32; nv], vec![0.0f32; nv]);
-    let (mut flags, mut cw) = (vec![0u32; nv], vec![0.0f32; nv]);
-    cpu::activate::relump(
+    let cpu_inv = cpu_relump(
+        &m,
         &params,
-        &cpu::activate::RelumpInputs {
-            pp: &pp,
-            slot_offsets: &pd.slot_offsets,
-            slots: &pd.slots,
-            weights: &pd.weights,
-            particle_mode: &pmode,
-            particle_velocities: &g.read_f32("particle_velocities").unwrap(),
-            particle_rest: &pd.rest,
-            rest: &m.rest,
-            core_mass: &pd.core_mass,
-            node_fixed: &bits_u32(&g, "node_fixed"),
-            incidence_offsets: &m.incidence_offsets,
-            incidence: &m.incidence,
-            tet_weight: &g.read_f32("tet_weight").unwrap(),
-        },
-        &mut mass,
-        &mut cpu_inv,
+        &pp,
+        &pmode,
+        &g.read_f32("particle_velocities").unwrap(),
+        &bits_u32(&g, "node_fixed"),
+        &g.read_f32("tet_weight").unwrap(),
         &mut cpu_v,
-        &mut flags,
-        &mut cw,
-    );
+    )
+    .inv_mass;
     assert_eq!(bits(&inv_mass[..nv]), bits(&cpu_inv), "inverse masses");
     let speed = omega.length() * 0.012; // the spin's speed at the block's corners
     let (mut massless, mut worst, mut worst_mean) = (0, 0.0f32, 0.0f32);

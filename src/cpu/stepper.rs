@@ -1127,30 +1127,24 @@ impl CpuStepper {
             &mut pa.act.dispatch,
         );
         super::activate::tet_weights(p, &pd.tet_offsets, &pa.state.mode, &mut pa.act.tet_weight);
-        let inputs = super::activate::RelumpInputs {
-            pp: &pp,
-            slot_offsets: &pd.slot_offsets,
-            slots: &pd.slots,
-            weights: &pd.weights,
-            particle_mode: &pa.state.mode,
-            particle_velocities: &pa.state.velocities,
-            particle_rest: &pd.rest,
-            rest: &m.rest,
-            core_mass: &pd.core_mass,
-            node_fixed: &pa.node_fixed,
-            incidence_offsets: &m.incidence_offsets,
-            incidence: &m.incidence,
-            tet_weight: &pa.act.tet_weight,
-        };
+        // The relump writes four of the arrays its inputs sit beside: lend them out (no copy).
+        let mut mass = std::mem::take(&mut pa.state.mass);
+        let mut inv_mass = std::mem::take(&mut pa.state.inv_mass);
+        let mut node_flags = std::mem::take(&mut pa.act.node_flags);
+        let mut contact_weight = std::mem::take(&mut pa.act.contact_weight);
         super::activate::relump(
             p,
-            &inputs,
-            &mut pa.state.mass,
-            &mut pa.state.inv_mass,
+            &relump_inputs(m, pd, pa),
+            &mut mass,
+            &mut inv_mass,
             &mut self.state.velocities,
-            &mut pa.act.node_flags,
-            &mut pa.act.contact_weight,
+            &mut node_flags,
+            &mut contact_weight,
         );
+        pa.state.mass = mass;
+        pa.state.inv_mass = inv_mass;
+        pa.act.node_flags = node_flags;
+        pa.act.contact_weight = contact_weight;
         pa.region.prime(
             &pa.state.mode,
             &pa.act.force_list,
