@@ -356,6 +356,72 @@ pub fn elastic_stress_energy(model: MaterialModel, h: Mat3, lambda: f32, mu: f32
     }
 }
 
+/// The directional derivative ∂P(H)[dH] of [`elastic_stress_energy`]'s stress, d/dt P(H + t dH)
+/// at t = 0 (the tangent C(F):dF), for the laws the particle layer can have; None for the split
+/// laws. With F = I + H:
+///
+/// * `stvk`: dP = dF S + F (λ tr(dE) I + 2μ dE), dE = ½(dFᵀF + FᵀdF);
+/// * `stable_neohookean`: dP = μ (dF − d cof F) + λ̂ [(cof F : dF) cof F + (J − 1) d cof F],
+///   d cof F the cofactor's derivative (column by column, d(a × b) = da × b + a × db);
+/// * `corotational`: with S = RᵀF and dR = R [w]×, (tr S I − S) w = axial(RᵀdF − dFᵀR),
+///   dP = 2μ (dF − dR) + λ tr(RᵀdF) R + λ (tr S − 3) dR.
+pub fn elastic_stress_differential(
+    model: MaterialModel,
+    h: Mat3,
+    dh: Mat3,
+    lambda: f32,
+    mu: f32,
+) -> Option<Mat3> {
+    let f = Mat3::IDENTITY + h;
+    match model {
+        MaterialModel::Stvk => {
+            let e = green_strain_from_gradient(h);
+            let s = stvk_second_piola(e, Mat3::ZERO, lambda, mu, 0.0, 0.0);
+            let de = (dh.transpose() * f + f.transpose() * dh) * 0.5;
+            let ds = Mat3::from_diagonal(Vec3::splat(lambda * trace(de))) + de * (2.0 * mu);
+            Some(dh * s + f * ds)
+        }
+        MaterialModel::StableNeohookean => {
+            let lambda_hat = lambda + mu;
+            let cof = cofactor(f);
+            let (a, b, c) = (f.x_axis, f.y_axis, f.z_axis);
+            let (da, db, dc) = (dh.x_axis, dh.y_axis, dh.z_axis);
+            let dcof = Mat3::from_cols(
+                db.cross(c) + b.cross(dc),
+                dc.cross(a) + c.cross(da),
+                da.cross(b) + a.cross(db),
+            );
+            let tr = trace(h);
+            let j_minus_1 = tr + 0.5 * (tr * tr - trace(h * h)) + h.determinant();
+            Some(
+                (dh - dcof) * mu
+                    + cof * (lambda_hat * ddot(cof, dh))
+                    + dcof * (lambda_hat * j_minus_1),
+            )
+        }
+        MaterialModel::Corotational => {
+            let r = extract_rotation(f);
+            let s = r.transpose() * f;
+            let k = r.transpose() * dh - dh.transpose() * r;
+            let axial = Vec3::new(k.y_axis.z, k.z_axis.x, k.x_axis.y);
+            let m = Mat3::from_diagonal(Vec3::splat(trace(s))) - s;
+            let w = m.inverse() * axial;
+            let skew = Mat3::from_cols(
+                Vec3::new(0.0, w.z, -w.y),
+                Vec3::new(-w.z, 0.0, w.x),
+                Vec3::new(w.y, -w.x, 0.0),
+            );
+            let dr = r * skew;
+            Some(
+                (dh - dr) * (2.0 * mu)
+                    + r * (lambda * trace(r.transpose() * dh))
+                    + dr * (lambda * (trace(s) - 3.0)),
+            )
+        }
+        _ => None,
+    }
+}
+
 // ---------------------------------------------------------------------------------------------
 // Volume/shape split laws and Guccione (module docs: "Volume/shape split").
 // ---------------------------------------------------------------------------------------------

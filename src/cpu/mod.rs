@@ -10,6 +10,7 @@ pub mod active_region;
 pub mod compact;
 pub mod contact;
 pub mod dispatch_probe;
+pub mod exact_coupling;
 pub mod fem_forces;
 pub mod fem_forces_split;
 pub mod follow;

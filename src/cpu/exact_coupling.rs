@@ -1,0 +1,306 @@
+//! Design 8 of `docs/hybrid_coupling.md`: the particle–tet coupling whose affine patch test is
+//! exact, as a CPU reference (energy and forces of one state). The stepper does not use it
+//! yet; it is the twin the coupling stages will be checked against.
+//!
+//! Every tet keeps its full energy, and every particle p of the stress set S adds the Bregman
+//! remainder of its own motion relative to its host tet:
+//!
+//! ```text
+//! E = Σ_t V_t Ψ(F_t) + Σ_{p∈S} V [Ψ(F̄_p + D_p) − Ψ(F̄_p) − P(F̄_p):D_p],
+//! δ_q = u_q − Σ_a w_aq u_a        (how far particle q is from its embedded place; 0 unless dynamic),
+//! D_p = Σ_{q∈N(p)} (δ_q − δ_p) ⊗ G_pᵀ V ∇W(X_q − X_p),
+//! ```
+//!
+//! F̄_p = I + H̄_p the host tet's gradient, G_p the kernel-gradient correction. Under any affine
+//! motion every δ is zero, so D = 0 and the particles add neither energy nor force: the
+//! residual is the FEM's at every vertex and zero at every particle, to rounding, across the
+//! interface and near the free surface alike. The remainder is ≥ 0 wherever Ψ is convex and
+//! its Hessian at D = 0 is V Dᵀ C(F̄) D, so it adds stiffness to the particles' own motion
+//! without softening the tets (design 1's flaw was to take energy away from them).
+//!
+//! Forces (−∂E/∂u), with A_p = [P(F̄_p + D_p) − P(F̄_p)] G_pᵀ:
+//!
+//! * on a dynamic particle q: f_q = V² Σ_{b∈N(q)} (A_q + A_b) ∇W(X_b − X_q), the tlsph pair
+//!   force with the stress difference;
+//! * on the hosts of q, through δ_q: −w_aq f_q (so Σ f = 0 exactly, and the layer cannot slide
+//!   on its tets: moving a tet's vertices under still particles changes δ);
+//! * on the hosts of every p in S, through F̄_p: −V T_p ∇N_a, the tangent term
+//!   T_p = P(F̄_p + D_p) − P(F̄_p) − ∂P(F̄_p)[D_p] ([`crate::material::elastic_stress_differential`]);
+//! * on every vertex, the tets' full FEM forces −V_t P(F_t) ∇N_a.
+//!
+//! Followers (particles that are not dynamic) have δ ≡ 0 whatever the vertices do, so they
+//! take no pair force. Not here yet: the hourglass term (it would act on δ), the slaving of
+//! vertices whose hosted particles are all dynamic (their forces go to the particles through
+//! the affine fit's weights, [`slave_weights`]), and the `paper` model (no Ψ; it keeps the
+//! partition of unity).
+
+use super::fem_forces::{displacement_gradient, load_dm_inv};
+use super::neighbours::NeighbourLists;
+use super::sph::kernel_gradient;
+use super::{load3, store3};
+use crate::material::{ddot, elastic_stress_differential, elastic_stress_energy, MaterialModel};
+use crate::model::Model;
+use crate::particles::params::{GridParams, ParticleParams};
+use crate::particles::Particles;
+use glam::{Mat3, Vec3};
+
+/// The static data of the coupling: particle constants, neighbour lists and corrections.
+pub struct ExactCoupling {
+    /// Particle constants (volume V, kernel).
+    pub pp: ParticleParams,
+    /// Reference neighbour lists (CSR).
+    pub lists: NeighbourLists,
+    /// G_p per particle, 9 floats column-major.
+    pub correction: Vec<f32>,
+    /// The particles (rest places, hosts, weights).
+    pub particles: Particles,
+    material: MaterialModel,
+    lambda: f32,
+    mu: f32,
+}
+
+/// Energy and forces of one state.
+pub struct CoupledForces {
+    /// E of the module docs, J.
+    pub energy: f64,
+    /// Force on each vertex, packed xyz, N.
+    pub vertex_forces: Vec<f32>,
+    /// Force on each particle, packed xyz, N (zero on those that are not dynamic).
+    pub particle_forces: Vec<f32>,
+}
+
+/// Why a model cannot take the exact coupling.
+#[derive(Debug, PartialEq, Eq)]
+pub enum CouplingError {
+    /// The model has no particles.
+    NoParticles,
+    /// The particle model is `paper` (no strain energy to take the remainder of).
+    PaperModel,
+    /// The material law has no stress differential here (the split laws).
+    Material(&'static str),
+}
+
+impl std::fmt::Display for CouplingError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            CouplingError::NoParticles => write!(f, "the model has no [particles]"),
+            CouplingError::PaperModel => {
+                write!(
+                    f,
+                    "particles.model = \"paper\" has no strain energy to couple exactly"
+                )
+            }
+            CouplingError::Material(m) => {
+                write!(f, "material.model = \"{m}\" has no stress differential")
+            }
+        }
+    }
+}
+
+impl ExactCoupling {
+    /// The coupling of `model`'s particles (neighbour lists and corrections as the stepper
+    /// builds them). `forces` and `embedded_offsets` take the same model's tets.
+    pub fn new(model: &Model) -> Result<ExactCoupling, CouplingError> {
+        let p = model.particles.as_ref().ok_or(CouplingError::NoParticles)?;
+        let params = model.step_params(model.bounds.dt_bound, 0.0);
+        let pp = model
+            .particle_params(&params)
+            .ok_or(CouplingError::NoParticles)?;
+        if pp.model != 0 {
+            return Err(CouplingError::PaperModel);
+        }
+        let material = model.material.model;
+        if elastic_stress_differential(material, Mat3::ZERO, Mat3::ZERO, 1.0, 1.0).is_none() {
+            return Err(CouplingError::Material(material.name()));
+        }
+        let grid = GridParams::over(&p.rest, p.support);
+        let lists = super::neighbours::build(&grid, &p.rest);
+        let mut correction = vec![0.0; 9 * p.len()];
+        super::sph_setup::sph_setup(
+            &pp,
+            &p.rest,
+            &lists.neighbour_offsets,
+            &lists.neighbours,
+            &mut correction,
+        );
+        Ok(ExactCoupling {
+            pp,
+            lists,
+            correction,
+            particles: p.clone(),
+            material,
+            lambda: params.lambda,
+            mu: params.mu,
+        })
+    }
+
+    /// δ_q = u_q − Σ_a w_aq u_a for the dynamic particles, zero for the others (packed xyz).
+    pub fn embedded_offsets(
+        &self,
+        model: &Model,
+        dynamic: &[bool],
+        vertex_u: &[f32],
+        particle_u: &[f32],
+    ) -> Vec<f32> {
+        let p = &self.particles;
+        let mut delta = vec![0.0; particle_u.len()];
+        for (q, _) in dynamic.iter().enumerate().filter(|(_, &d)| d) {
+            let d = load3(particle_u, q) - p.embed(&model.tets, vertex_u, q);
+            store3(&mut delta, q, d);
+        }
+        delta
+    }
+
+    /// S: the dynamic particles and every particle with a dynamic neighbour (D_p ≠ 0 is
+    /// possible only there).
+    pub fn stress_set(&self, dynamic: &[bool]) -> Vec<bool> {
+        let o = &self.lists.neighbour_offsets;
+        (0..dynamic.len())
+            .map(|p| {
+                dynamic[p]
+                    || (o[p]..o[p + 1]).any(|k| dynamic[self.lists.neighbours[k as usize] as usize])
+            })
+            .collect()
+    }
+
+    /// D_p = Σ_q (δ_q − δ_p) ⊗ G_pᵀ V ∇W(X_q − X_p).
+    fn remainder_gradient(&self, rest: &[f32], delta: &[f32], p: usize) -> Mat3 {
+        let pp = &self.pp;
+        let (x, dp) = (load3(rest, p), load3(delta, p));
+        let mut s = Mat3::ZERO;
+        let o = &self.lists.neighbour_offsets;
+        for k in o[p]..o[p + 1] {
+            let q = self.lists.neighbours[k as usize] as usize;
+            let w = kernel_gradient(pp.model, load3(rest, q) - x, pp.spacing, pp.support);
+            let d = load3(delta, q) - dp;
+            s += Mat3::from_cols(d * w.x, d * w.y, d * w.z) * pp.volume;
+        }
+        s * load_dm_inv(&self.correction, p)
+    }
+
+    /// P(H) and Ψ(H) of the material.
+    fn stress(&self, h: Mat3) -> (Mat3, f32) {
+        elastic_stress_energy(self.material, h, self.lambda, self.mu)
+    }
+
+    /// ∂P(H)[dH] (`new` refused the laws without one).
+    fn differential(&self, h: Mat3, dh: Mat3) -> Mat3 {
+        elastic_stress_differential(self.material, h, dh, self.lambda, self.mu)
+            .unwrap_or(Mat3::ZERO)
+    }
+
+    /// Energy and forces of the state with vertex displacements `vertex_u` and particle
+    /// displacements `particle_u` (read only for the dynamic particles).
+    pub fn forces(
+        &self,
+        model: &Model,
+        dynamic: &[bool],
+        vertex_u: &[f32],
+        particle_u: &[f32],
+    ) -> CoupledForces {
+        let parts = &self.particles;
+        let n = parts.len();
+        let mut vertex_forces = vec![0.0f32; vertex_u.len()];
+        let mut particle_forces = vec![0.0f32; 3 * n];
+        let mut energy = 0.0f64;
+        let add = |f: &mut [f32], i: usize, v: Vec3| store3(f, i, load3(f, i) + v);
+        // The tets' full energy.
+        let corner_u = |e: usize| model.tets[e].map(|v| load3(vertex_u, v as usize));
+        for e in 0..model.n_tets() {
+            let dmi = load_dm_inv(&model.dm_inv, e);
+            let (p, psi) = self.stress(displacement_gradient(corner_u(e), dmi));
+            energy += (model.rest_volume[e] * psi) as f64;
+            let fc = super::fem_forces::corner_forces_of_stress(p, dmi, model.rest_volume[e]);
+            for (c, &v) in model.tets[e].iter().enumerate() {
+                add(&mut vertex_forces, v as usize, fc[c]);
+            }
+        }
+        // The particles' remainders: A_p for the pair forces, T_p to the host tet.
+        let delta = self.embedded_offsets(model, dynamic, vertex_u, particle_u);
+        let in_s = self.stress_set(dynamic);
+        let mut a = vec![Mat3::ZERO; n];
+        let v = self.pp.volume;
+        for p in (0..n).filter(|&p| in_s[p]) {
+            let e = parts.host[p] as usize;
+            let dmi = load_dm_inv(&model.dm_inv, e);
+            let h_bar = displacement_gradient(corner_u(e), dmi);
+            let d = self.remainder_gradient(&parts.rest, &delta, p);
+            let (p1, psi1) = self.stress(h_bar + d);
+            let (p0, psi0) = self.stress(h_bar);
+            let dp = self.differential(h_bar, d);
+            energy += (v * (psi1 - psi0 - ddot(p0, d))) as f64;
+            a[p] = (p1 - p0) * load_dm_inv(&self.correction, p).transpose();
+            let fc = super::fem_forces::corner_forces_of_stress(p1 - p0 - dp, dmi, v);
+            for (c, &vx) in model.tets[e].iter().enumerate() {
+                add(&mut vertex_forces, vx as usize, fc[c]);
+            }
+        }
+        // Pair forces on the dynamic particles and, negated, on their embedded places.
+        let o = &self.lists.neighbour_offsets;
+        for q in (0..n).filter(|&q| dynamic[q]) {
+            let x = load3(&parts.rest, q);
+            let mut f = Vec3::ZERO;
+            for k in o[q]..o[q + 1] {
+                let b = self.lists.neighbours[k as usize] as usize;
+                let w = kernel_gradient(
+                    self.pp.model,
+                    load3(&parts.rest, b) - x,
+                    self.pp.spacing,
+                    self.pp.support,
+                );
+                f += (a[q] + a[b]) * w * (v * v);
+            }
+            store3(&mut particle_forces, q, f);
+            let host = model.tets[parts.host[q] as usize];
+            for (c, &vx) in host.iter().enumerate() {
+                add(
+                    &mut vertex_forces,
+                    vx as usize,
+                    -f * parts.weights[4 * q + c],
+                );
+            }
+        }
+        CoupledForces {
+            energy,
+            vertex_forces,
+            particle_forces,
+        }
+    }
+}
+
+/// The affine fit's weights s_q of a slaved vertex over its dynamic particles: with weights
+/// β_q (wᵢ m_p) and rest offsets d_q = X_q − X_V, s_q = (β_q/B)(1 − (d_q − d̄)·Cov⁻¹ d̄),
+/// B = Σ β, d̄ the β-mean and Cov the β-covariance of the offsets. Then Σ s = 1 and
+/// Σ s_q X_q = X_V, so x_V = Σ s_q x_q reproduces any affine motion, and the vertex's force
+/// goes to the particles as s_q f_V. This is [`super::activate::KinematicFit`]'s velocity as
+/// weights (v_V = Σ s_q v_q). None where the offsets do not span three dimensions.
+pub fn slave_weights(beta: &[f32], offsets: &[Vec3]) -> Option<Vec<f32>> {
+    let b: f64 = beta.iter().map(|&x| x as f64).sum();
+    if b <= 0.0 {
+        return None;
+    }
+    let to64 = |v: Vec3| glam::DVec3::new(v.x as f64, v.y as f64, v.z as f64);
+    let mean = beta
+        .iter()
+        .zip(offsets)
+        .fold(glam::DVec3::ZERO, |s, (&w, &d)| s + to64(d) * w as f64)
+        / b;
+    let mut cov = glam::DMat3::ZERO;
+    for (&w, &d) in beta.iter().zip(offsets) {
+        let c = to64(d) - mean;
+        cov += glam::DMat3::from_cols(c * c.x, c * c.y, c * c.z) * (w as f64 / b);
+    }
+    let scale = (cov.x_axis.x + cov.y_axis.y + cov.z_axis.z) / 3.0;
+    // NaN sums fail the first test too.
+    let spans = scale > 0.0 && cov.determinant() > 1e-6 * scale * scale * scale;
+    if !spans {
+        return None;
+    }
+    let k = cov.inverse() * mean;
+    Some(
+        beta.iter()
+            .zip(offsets)
+            .map(|(&w, &d)| ((w as f64 / b) * (1.0 - (to64(d) - mean).dot(k))) as f32)
+            .collect(),
+    )
+}
