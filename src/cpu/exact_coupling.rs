@@ -304,3 +304,108 @@ pub fn slave_weights(beta: &[f32], offsets: &[Vec3]) -> Option<Vec<f32>> {
             .collect(),
     )
 }
+
+/// The vertices slaved to the dynamic particles under design 8, and the lumped masses that go
+/// with them. A vertex is slaved when it is not fixed, carries no core mass (it touches only
+/// particle-holding zone tets) and hosts a dynamic particle: its tets keep their full
+/// stiffness, and with only its followers' small shares of mass it would need a far smaller
+/// step, so its place is the affine fit of its dynamic particles, x_V = Σ s_q x_q
+/// ([`slave_weights`], β = w_Vq m_p), and its force goes to them as s_q f_V (Σ s = 1 and
+/// x_V = Σ s_q x_q keep Σ f and Σ x × f). Its followers' mass goes to their other corners,
+/// in proportion to their weights.
+pub struct Slaving {
+    /// Per vertex, whether it is slaved.
+    pub slaved: Vec<bool>,
+    /// Per vertex, its (dynamic particle, s) pairs (empty unless slaved).
+    pub fit: Vec<Vec<(u32, f32)>>,
+    /// Lumped mass of each vertex, kg (zero on slaved ones).
+    pub vertex_mass: Vec<f32>,
+}
+
+/// Why a dynamic set cannot be slaved.
+#[derive(Debug, PartialEq, Eq)]
+pub enum SlavingError {
+    /// A vertex to slave whose dynamic particles' rest offsets do not span three dimensions.
+    FlatFit(usize),
+    /// A follower whose four corners are all slaved: its mass has nowhere to go.
+    AllCornersSlaved(usize),
+}
+
+impl Slaving {
+    /// The slaving of `dynamic` in `model` (`particles` = the model's).
+    pub fn new(
+        model: &Model,
+        particles: &Particles,
+        dynamic: &[bool],
+    ) -> Result<Slaving, SlavingError> {
+        let nv = model.n_vertices();
+        let mut hosted: Vec<Vec<(u32, f32)>> = vec![Vec::new(); nv];
+        for q in (0..particles.len()).filter(|&q| dynamic[q]) {
+            let t = model.tets[particles.host[q] as usize];
+            for (c, &v) in t.iter().enumerate() {
+                hosted[v as usize].push((q as u32, particles.weights[4 * q + c]));
+            }
+        }
+        let slaved: Vec<bool> = (0..nv)
+            .map(|v| {
+                model.inv_mass[v] != 0.0 && particles.core_mass[v] == 0.0 && !hosted[v].is_empty()
+            })
+            .collect();
+        let mut fit = vec![Vec::new(); nv];
+        for v in (0..nv).filter(|&v| slaved[v]) {
+            let x_v = load3(&model.rest, v);
+            let beta: Vec<f32> = hosted[v].iter().map(|&(_, w)| w * particles.mass).collect();
+            let offsets: Vec<Vec3> = hosted[v]
+                .iter()
+                .map(|&(q, _)| {
+                    (particles.rest_position(q as usize) - x_v) / particles.settings.spacing as f32
+                })
+                .collect();
+            let s = slave_weights(&beta, &offsets).ok_or(SlavingError::FlatFit(v))?;
+            fit[v] = hosted[v].iter().zip(s).map(|(&(q, _), s)| (q, s)).collect();
+        }
+        let mut mass: Vec<f64> = particles.core_mass.iter().map(|&m| m as f64).collect();
+        for q in (0..particles.len()).filter(|&q| !dynamic[q]) {
+            let t = model.tets[particles.host[q] as usize];
+            let w = &particles.weights[4 * q..4 * q + 4];
+            let free: f64 = (0..4)
+                .filter(|&c| !slaved[t[c] as usize])
+                .map(|c| w[c] as f64)
+                .sum();
+            if free <= 0.0 {
+                return Err(SlavingError::AllCornersSlaved(q));
+            }
+            for c in (0..4).filter(|&c| !slaved[t[c] as usize]) {
+                mass[t[c] as usize] += w[c] as f64 / free * particles.mass as f64;
+            }
+        }
+        Ok(Slaving {
+            slaved,
+            fit,
+            vertex_mass: mass.into_iter().map(|m| m as f32).collect(),
+        })
+    }
+
+    /// Pass each slaved vertex's force to its particles (f_q += s_q f_V) and zero it.
+    pub fn transfer_forces(&self, vertex_forces: &mut [f32], particle_forces: &mut [f32]) {
+        for (v, fit) in self.fit.iter().enumerate().filter(|(v, _)| self.slaved[*v]) {
+            let f = load3(vertex_forces, v);
+            for &(q, s) in fit {
+                let q = q as usize;
+                store3(particle_forces, q, load3(particle_forces, q) + f * s);
+            }
+            store3(vertex_forces, v, Vec3::ZERO);
+        }
+    }
+
+    /// Set each slaved vertex's value (displacement or velocity) from its particles':
+    /// a_V = Σ s_q a_q.
+    pub fn place(&self, vertex_values: &mut [f32], particle_values: &[f32]) {
+        for (v, fit) in self.fit.iter().enumerate().filter(|(v, _)| self.slaved[*v]) {
+            let a = fit.iter().fold(Vec3::ZERO, |a, &(q, s)| {
+                a + load3(particle_values, q as usize) * s
+            });
+            store3(vertex_values, v, a);
+        }
+    }
+}
