@@ -29,10 +29,11 @@
 //! * on every vertex, the tets' full FEM forces −V_t P(F_t) ∇N_a.
 //!
 //! Followers (particles that are not dynamic) have δ ≡ 0 whatever the vertices do, so they
-//! take no pair force. Not here yet: the hourglass term (it would act on δ), the slaving of
-//! vertices whose hosted particles are all dynamic (their forces go to the particles through
-//! the affine fit's weights, [`slave_weights`]), and the `paper` model (no Ψ; it keeps the
-//! partition of unity).
+//! take no pair force. The hourglass penalty is the shipped one (a central pair force on every
+//! pair with a dynamic particle, zero under affine motion), with F = I + H̄ + D. [`Slaving`]
+//! holds the vertices that carry no core mass to their dynamic particles. Not here: the
+//! `paper` model (no Ψ; it keeps the partition of unity), contact and gravity (they act on
+//! particles and vertices as they do now).
 
 use super::fem_forces::{displacement_gradient, load_dm_inv};
 use super::neighbours::NeighbourLists;
@@ -189,6 +190,71 @@ impl ExactCoupling {
             .unwrap_or(Mat3::ZERO)
     }
 
+    /// The hourglass penalty of `cpu::sph_forces` on every pair with a dynamic particle: on
+    /// side c, x_cb h W(r₀)/r₀² [(Σ_sides F_s X_cb)·x_cb / |x_cb|² − sides], h = ½ α E V², the
+    /// sum over the pair's particles in S (`f`, their F). A central pair force, zero under any
+    /// affine motion; a follower's share goes to its hosts. It is not the gradient of an
+    /// energy (as in the shipped model).
+    #[allow(clippy::too_many_arguments)]
+    fn add_hourglass(
+        &self,
+        model: &Model,
+        dynamic: &[bool],
+        vertex_u: &[f32],
+        particle_u: &[f32],
+        f: &[Option<Mat3>],
+        vertex_forces: &mut [f32],
+        particle_forces: &mut [f32],
+    ) {
+        let (parts, pp) = (&self.particles, &self.pp);
+        let place = |p: usize| {
+            parts.rest_position(p)
+                + if dynamic[p] {
+                    load3(particle_u, p)
+                } else {
+                    parts.embed(&model.tets, vertex_u, p)
+                }
+        };
+        let hg = 0.5 * pp.hourglass * pp.youngs * pp.volume * pp.volume;
+        let o = &self.lists.neighbour_offsets;
+        for c in 0..parts.len() {
+            let (x0c, xc) = (parts.rest_position(c), place(c));
+            let mut force = Vec3::ZERO;
+            for k in o[c]..o[c + 1] {
+                let b = self.lists.neighbours[k as usize] as usize;
+                if !(dynamic[c] || dynamic[b]) {
+                    continue;
+                }
+                let x0cb = x0c - parts.rest_position(b);
+                let xcb = xc - place(b);
+                let (r0, r2) = (x0cb.length(), xcb.length_squared());
+                if r0 <= 0.0 || r2 <= 0.0 {
+                    continue;
+                }
+                let (mut g, mut sides) = (Vec3::ZERO, 0.0);
+                for fs in [f[c], f[b]].into_iter().flatten() {
+                    g += fs * x0cb;
+                    sides += 1.0;
+                }
+                let weight = hg * super::sph::wendland(r0, pp.support) / (r0 * r0);
+                force += xcb * (weight * (g.dot(xcb) / r2 - sides));
+            }
+            if dynamic[c] {
+                store3(particle_forces, c, load3(particle_forces, c) + force);
+            } else {
+                let host = model.tets[parts.host[c] as usize];
+                for (i, &v) in host.iter().enumerate() {
+                    let w = parts.weights[4 * c + i];
+                    store3(
+                        vertex_forces,
+                        v as usize,
+                        load3(vertex_forces, v as usize) + force * w,
+                    );
+                }
+            }
+        }
+    }
+
     /// Energy and forces of the state with vertex displacements `vertex_u` and particle
     /// displacements `particle_u` (read only for the dynamic particles).
     pub fn forces(
@@ -235,6 +301,24 @@ impl ExactCoupling {
                 add(&mut vertex_forces, vx as usize, fc[c]);
             }
         }
+        // The hourglass penalty (the shipped tlsph's, with F = I + H̄ + D on the sides in S).
+        if self.pp.hourglass > 0.0 {
+            let f_of = |p: usize| {
+                let e = parts.host[p] as usize;
+                let h_bar = displacement_gradient(corner_u(e), load_dm_inv(&model.dm_inv, e));
+                Mat3::IDENTITY + h_bar + self.remainder_gradient(&parts.rest, &delta, p)
+            };
+            let f: Vec<Option<Mat3>> = (0..n).map(|p| in_s[p].then(|| f_of(p))).collect();
+            self.add_hourglass(
+                model,
+                dynamic,
+                vertex_u,
+                particle_u,
+                &f,
+                &mut vertex_forces,
+                &mut particle_forces,
+            );
+        }
         // Pair forces on the dynamic particles and, negated, on their embedded places.
         let o = &self.lists.neighbour_offsets;
         for q in (0..n).filter(|&q| dynamic[q]) {
@@ -250,7 +334,7 @@ impl ExactCoupling {
                 );
                 f += (a[q] + a[b]) * w * (v * v);
             }
-            store3(&mut particle_forces, q, f);
+            add(&mut particle_forces, q, f);
             let host = model.tets[parts.host[q] as usize];
             for (c, &vx) in host.iter().enumerate() {
                 add(
