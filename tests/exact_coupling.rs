@@ -204,7 +204,8 @@ fn random_state(m: &Model, seed: u64, size: f64) -> (Vec<f32>, Vec<f32>) {
     (vu, pu)
 }
 
-/// Σ f and Σ x × f over vertices and dynamic particles, against the largest force.
+/// Σ f and Σ x × f over vertices and dynamic particles, against the largest force (times the
+/// body's extent for the moment).
 fn momentum_residuals(m: &Model, f: &CoupledForces, vu: &[f32], pu: &[f32]) -> (f64, f64) {
     let p = m.particles.as_ref().unwrap();
     let (mut sum, mut torque, mut scale) = (DVec3::ZERO, DVec3::ZERO, 0.0f64);
@@ -222,7 +223,8 @@ fn momentum_residuals(m: &Model, f: &CoupledForces, vu: &[f32], pu: &[f32]) -> (
             point(&f.particle_forces, q),
         );
     }
-    (sum.length() / scale, torque.length() / (scale * 0.03))
+    let extent = m.rest.iter().fold(0.0f32, |a, &b| a.max(b.abs())) as f64;
+    (sum.length() / scale, torque.length() / (scale * extent))
 }
 
 /// At a random, strongly turned state (and so with F̄ far from I and every δ non-zero) the
@@ -518,4 +520,70 @@ fn a_free_spin_with_slaved_vertices_keeps_the_layer_on_the_core() {
             "energy {e0:.4e} → {energy:.4e}"
         );
     }
+}
+
+/// HM1 pressed by its tool to t = 2 with the shipped coupling (208 dynamic particles): design
+/// 8 can slave its dynamic set. Some vertices without core mass host too few dynamic particles
+/// to be placed by them and stay free with their followers' mass; some followers have all four
+/// corners slaved and join the dynamic set (measured 124, and 20 slaved vertices); no other
+/// vertex loses mass (so the core's step bound holds), and the forces at the pressed state
+/// conserve both momenta.
+#[test]
+fn hm1s_pressed_dynamic_set_can_be_slaved() {
+    use palpate::particles::params::mode;
+    use palpate::stepper::Stepper;
+    let scene = Scene::load("hm1").unwrap();
+    let m = std::sync::Arc::new(Model::from_scene(&scene));
+    let dt = scene.solver.dt.unwrap();
+    let mut s = palpate::cpu::CpuStepper::new(m.clone(), m.step_params(dt, scene.solver.damping));
+    let tool = scene.tool.clone().unwrap();
+    let mut t = 0.0;
+    while t < 2.0 {
+        let (a, b) = (tool.position_at(t), tool.position_at(t + 10.0 * dt));
+        s.submit(10, &palpate::stepper::BatchInput::moving(a, b))
+            .unwrap();
+        s.wait().unwrap();
+        t += 10.0 * dt;
+    }
+    let p = m.particles.as_ref().unwrap();
+    let snapshot = s.particle_state().unwrap();
+    let vu = s.read_state().unwrap().displacements;
+    let dynamic: Vec<bool> = snapshot
+        .modes
+        .iter()
+        .map(|&x| x & mode::DYNAMIC != 0)
+        .collect();
+    let n_dynamic = dynamic.iter().filter(|&&d| d).count();
+    let slaving = palpate::cpu::exact_coupling::Slaving::new(&m, p, &dynamic).unwrap();
+    let closed = slaving.dynamic.iter().filter(|&&d| d).count();
+    let n_slaved = slaving.slaved.iter().filter(|&&x| x).count();
+    let embedded = p.embedded_mass();
+    let lost = (0..m.n_vertices())
+        .filter(|&v| !slaving.slaved[v])
+        .map(|v| 1.0 - slaving.vertex_mass[v] / embedded[v].max(f32::MIN_POSITIVE))
+        .fold(0.0f32, f32::max);
+    eprintln!("hm1 at t = 2: {n_dynamic} dynamic, {} added by the closure, {n_slaved} slaved vertices, largest mass lost by a free vertex {lost:.1e}", closed - n_dynamic);
+    assert!(n_dynamic > 50 && closed >= n_dynamic && n_slaved > 0);
+    assert!(lost < 1e-4, "a free vertex lost {lost:.2e} of its mass");
+    // Every follower left has a free corner, and every placed vertex's fit reproduces its place.
+    for (v, fit) in slaving
+        .fit
+        .iter()
+        .enumerate()
+        .filter(|(v, _)| slaving.slaved[*v])
+    {
+        let x = fit
+            .iter()
+            .fold(Vec3::ZERO, |a, &(q, w)| a + p.rest_position(q as usize) * w);
+        let off = (x - Vec3::from_slice(&m.rest[3 * v..3 * v + 3])).length();
+        assert!(
+            off < 1e-4 * p.settings.spacing as f32,
+            "vertex {v}: fit off its place by {off}"
+        );
+    }
+    let c = ExactCoupling::new(&m).unwrap();
+    let f = c.forces(&m, &slaving.dynamic, &vu, &snapshot.displacements);
+    let (force, torque) = momentum_residuals(&m, &f, &vu, &snapshot.displacements);
+    eprintln!("hm1 pressed: Σf {force:.1e}, Σx×f {torque:.1e}");
+    assert!(force <= 1e-5 && torque <= 1e-5, "{force:.2e} {torque:.2e}");
 }

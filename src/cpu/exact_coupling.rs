@@ -396,8 +396,12 @@ pub fn slave_weights(beta: &[f32], offsets: &[Vec3]) -> Option<Vec<f32>> {
 /// step, so its place is the affine fit of its dynamic particles, x_V = Σ s_q x_q
 /// ([`slave_weights`], β = w_Vq m_p), and its force goes to them as s_q f_V (Σ s = 1 and
 /// x_V = Σ s_q x_q keep Σ f and Σ x × f). Its followers' mass goes to their other corners,
-/// in proportion to their weights.
+/// in proportion to their weights. A vertex whose dynamic particles' offsets do not span three
+/// dimensions (a few at the edge of the dynamic region) cannot be placed by them: it stays
+/// free, with its followers' mass.
 pub struct Slaving {
+    /// The dynamic set, closed: the given one plus the followers whose corners are all slaved.
+    pub dynamic: Vec<bool>,
     /// Per vertex, whether it is slaved.
     pub slaved: Vec<bool>,
     /// Per vertex, its (dynamic particle, s) pairs (empty unless slaved).
@@ -409,45 +413,42 @@ pub struct Slaving {
 /// Why a dynamic set cannot be slaved.
 #[derive(Debug, PartialEq, Eq)]
 pub enum SlavingError {
-    /// A vertex to slave whose dynamic particles' rest offsets do not span three dimensions.
+    /// A vertex with no mass left whose dynamic particles' rest offsets do not span three
+    /// dimensions, so it can be neither moved nor placed.
     FlatFit(usize),
-    /// A follower whose four corners are all slaved: its mass has nowhere to go.
+    /// A follower whose four corners are all slaved: its mass has nowhere to go (the closure
+    /// of the dynamic set prevents it).
     AllCornersSlaved(usize),
 }
 
 impl Slaving {
-    /// The slaving of `dynamic` in `model` (`particles` = the model's).
+    /// The slaving of `dynamic` in `model` (`particles` = the model's). Followers whose four
+    /// corners are all slaved become dynamic (their place would be fixed by the particles
+    /// anyway, and their mass would have no vertex to go to), until no more do.
     pub fn new(
         model: &Model,
         particles: &Particles,
         dynamic: &[bool],
     ) -> Result<Slaving, SlavingError> {
         let nv = model.n_vertices();
-        let mut hosted: Vec<Vec<(u32, f32)>> = vec![Vec::new(); nv];
-        for q in (0..particles.len()).filter(|&q| dynamic[q]) {
-            let t = model.tets[particles.host[q] as usize];
-            for (c, &v) in t.iter().enumerate() {
-                hosted[v as usize].push((q as u32, particles.weights[4 * q + c]));
-            }
-        }
-        let slaved: Vec<bool> = (0..nv)
-            .map(|v| {
-                model.inv_mass[v] != 0.0 && particles.core_mass[v] == 0.0 && !hosted[v].is_empty()
-            })
-            .collect();
-        let mut fit = vec![Vec::new(); nv];
-        for v in (0..nv).filter(|&v| slaved[v]) {
-            let x_v = load3(&model.rest, v);
-            let beta: Vec<f32> = hosted[v].iter().map(|&(_, w)| w * particles.mass).collect();
-            let offsets: Vec<Vec3> = hosted[v]
-                .iter()
-                .map(|&(q, _)| {
-                    (particles.rest_position(q as usize) - x_v) / particles.settings.spacing as f32
+        let mut dynamic = dynamic.to_vec();
+        let (slaved, fit) = loop {
+            let (slaved, fit) = Self::fits(model, particles, &dynamic);
+            let enclosed: Vec<usize> = (0..particles.len())
+                .filter(|&q| {
+                    !dynamic[q]
+                        && model.tets[particles.host[q] as usize]
+                            .iter()
+                            .all(|&v| slaved[v as usize])
                 })
                 .collect();
-            let s = slave_weights(&beta, &offsets).ok_or(SlavingError::FlatFit(v))?;
-            fit[v] = hosted[v].iter().zip(s).map(|(&(q, _), s)| (q, s)).collect();
-        }
+            if enclosed.is_empty() {
+                break (slaved, fit);
+            }
+            for q in enclosed {
+                dynamic[q] = true;
+            }
+        };
         let mut mass: Vec<f64> = particles.core_mass.iter().map(|&m| m as f64).collect();
         for q in (0..particles.len()).filter(|&q| !dynamic[q]) {
             let t = model.tets[particles.host[q] as usize];
@@ -463,11 +464,54 @@ impl Slaving {
                 mass[t[c] as usize] += w[c] as f64 / free * particles.mass as f64;
             }
         }
+        if let Some(v) = (0..nv).find(|&v| !slaved[v] && model.inv_mass[v] != 0.0 && mass[v] <= 0.0)
+        {
+            return Err(SlavingError::FlatFit(v));
+        }
         Ok(Slaving {
+            dynamic,
             slaved,
             fit,
             vertex_mass: mass.into_iter().map(|m| m as f32).collect(),
         })
+    }
+
+    /// Which vertices `dynamic` slaves (no core mass, not fixed, a dynamic particle hosted and
+    /// offsets that span three dimensions) and their fits.
+    fn fits(
+        model: &Model,
+        particles: &Particles,
+        dynamic: &[bool],
+    ) -> (Vec<bool>, Vec<Vec<(u32, f32)>>) {
+        let nv = model.n_vertices();
+        let mut hosted: Vec<Vec<(u32, f32)>> = vec![Vec::new(); nv];
+        for q in (0..particles.len()).filter(|&q| dynamic[q]) {
+            let t = model.tets[particles.host[q] as usize];
+            for (c, &v) in t.iter().enumerate() {
+                hosted[v as usize].push((q as u32, particles.weights[4 * q + c]));
+            }
+        }
+        let mut slaved = vec![false; nv];
+        let mut fit = vec![Vec::new(); nv];
+        for v in 0..nv {
+            if model.inv_mass[v] == 0.0 || particles.core_mass[v] != 0.0 || hosted[v].is_empty() {
+                continue;
+            }
+            let x_v = load3(&model.rest, v);
+            let beta: Vec<f32> = hosted[v].iter().map(|&(_, w)| w * particles.mass).collect();
+            let offsets: Vec<Vec3> = hosted[v]
+                .iter()
+                .map(|&(q, _)| {
+                    (particles.rest_position(q as usize) - x_v) / particles.settings.spacing as f32
+                })
+                .collect();
+            // Too few dynamic particles to place it: it keeps its place and its followers' mass.
+            if let Some(s) = slave_weights(&beta, &offsets) {
+                slaved[v] = true;
+                fit[v] = hosted[v].iter().zip(s).map(|(&(q, _), s)| (q, s)).collect();
+            }
+        }
+        (slaved, fit)
     }
 
     /// Pass each slaved vertex's force to its particles (f_q += s_q f_V) and zero it.
