@@ -41,7 +41,7 @@ use super::sph::kernel_gradient;
 use super::{load3, store3};
 use crate::material::{ddot, elastic_stress_differential, elastic_stress_energy, MaterialModel};
 use crate::model::Model;
-use crate::particles::params::{GridParams, ParticleParams};
+use crate::particles::params::ParticleParams;
 use crate::particles::Particles;
 use glam::{Mat3, Vec3};
 
@@ -114,16 +114,7 @@ impl ExactCoupling {
         if elastic_stress_differential(material, Mat3::ZERO, Mat3::ZERO, 1.0, 1.0).is_none() {
             return Err(CouplingError::Material(material.name()));
         }
-        let grid = GridParams::over(&p.rest, p.support);
-        let lists = super::neighbours::build(&grid, &p.rest);
-        let mut correction = vec![0.0; 9 * p.len()];
-        super::sph_setup::sph_setup(
-            &pp,
-            &p.rest,
-            &lists.neighbour_offsets,
-            &lists.neighbours,
-            &mut correction,
-        );
+        let (lists, correction) = super::sph_setup::lists_and_corrections(&pp, &p.rest, p.support);
         Ok(ExactCoupling {
             pp,
             lists,

@@ -48,6 +48,26 @@ pub fn sph_setup(
     });
 }
 
+/// The reference neighbour lists of particles at `rest` (kernel support `support`) and every
+/// particle's correction G_p over them, as `sph_setup` leaves them (packed, 9 floats each).
+pub fn lists_and_corrections(
+    pp: &ParticleParams,
+    rest: &[f32],
+    support: f32,
+) -> (super::neighbours::NeighbourLists, Vec<f32>) {
+    let grid = crate::particles::params::GridParams::over(rest, support);
+    let lists = super::neighbours::build(&grid, rest);
+    let mut correction = vec![0.0; 9 * (rest.len() / 3)];
+    sph_setup(
+        pp,
+        rest,
+        &lists.neighbour_offsets,
+        &lists.neighbours,
+        &mut correction,
+    );
+    (lists, correction)
+}
+
 /// Σ_b V (a_b − a_p) ⊗ ∇W(X_b − X_p) (the bracket of F_p; a = displacements or positions),
 /// with the kernel gradients from `pairs` when given. Summed in SIMD-width columns
 /// (`Vec3A`): the same products and sums, element by element, as the kernel.

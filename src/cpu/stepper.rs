@@ -19,7 +19,7 @@ use crate::cpu::reduce::{n_partials, PARTIAL_LEN};
 use crate::error::{PalpateError, Result};
 use crate::model::Model;
 use crate::params::{stat, StepParams};
-use crate::particles::params::{mode, GridParams, ParticleParams};
+use crate::particles::params::{mode, ParticleParams};
 use crate::plan::{Stage, StepPlan};
 use crate::stepper::{
     BatchInput, BatchReport, BatchStats, ParticleReport, ParticleSnapshot, State, Stepper,
@@ -600,16 +600,7 @@ impl ParticleArrays {
         let p = model.particles.as_ref()?;
         let pp = model.particle_params(params)?;
         let n = p.len();
-        let grid = GridParams::over(&p.rest, p.support);
-        let lists = super::neighbours::build(&grid, &p.rest);
-        let mut correction = vec![0.0; 9 * n];
-        super::sph_setup::sph_setup(
-            &pp,
-            &p.rest,
-            &lists.neighbour_offsets,
-            &lists.neighbours,
-            &mut correction,
-        );
+        let (lists, correction) = super::sph_setup::lists_and_corrections(&pp, &p.rest, p.support);
         let modes = p.initial_modes();
         let pairs =
             super::sph::PairTable::new(&pp, &p.rest, &lists.neighbour_offsets, &lists.neighbours);
