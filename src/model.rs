@@ -56,6 +56,9 @@ pub struct Model {
     pub hyperelastic: Option<HyperelasticParams>,
     /// Follower pressures (None: no follower stages).
     pub follower: Option<FollowerModel>,
+    /// `particles.coupling = "exact"`: the vertices slaved to the (fixed) dynamic set and the
+    /// masses that go with them (None: the energy blend, or no particles).
+    pub slaving: Option<std::sync::Arc<crate::cpu::exact_coupling::Slaving>>,
 }
 
 /// Follower pressures as the kernels read them.
@@ -201,6 +204,7 @@ impl Model {
             particles: None,
             hyperelastic: None,
             follower: None,
+            slaving: None,
         }
     }
 
@@ -283,7 +287,7 @@ impl Model {
             model = model.with_particles(&scene.fixed, p);
         }
         let Some(tool) = &scene.tool else {
-            return Ok(model);
+            return model.with_exact_coupling(&scene.origin);
         };
         let model = model.with_tool(&scene.mesh, tool.clone());
         let b = model.bounds;
@@ -310,7 +314,38 @@ impl Model {
                 ),
             });
         }
-        Ok(model)
+        model.with_exact_coupling(&scene.origin)
+    }
+
+    /// `particles.coupling = "exact"`: slave the vertices that carry no core mass to the
+    /// dynamic set (every unpinned particle) and take the particles' step bound as the core's
+    /// (the exact coupling runs particles and vertices at one rate: no sub-steps). An error
+    /// names a vertex that its particles can neither move nor place.
+    fn with_exact_coupling(mut self, origin: &str) -> crate::error::Result<Model> {
+        let Some(p) = self
+            .particles
+            .as_ref()
+            .filter(|p| p.settings.exact_coupling)
+        else {
+            return Ok(self);
+        };
+        let dynamic: Vec<bool> = p.pinned.iter().map(|&pin| !pin).collect();
+        let slaving =
+            crate::cpu::exact_coupling::Slaving::new(&self, p, &dynamic).map_err(|e| {
+                crate::error::PalpateError::SceneValue {
+                    origin: origin.to_string(),
+                    item: "particles.coupling".into(),
+                    message: format!("\"exact\" cannot slave this zone: {e}"),
+                }
+            })?;
+        let contact = self
+            .tool
+            .as_ref()
+            .map(|t| (t.tool.stiffness, t.tool.damping));
+        let bound = p.dt_bound(&self.material, contact);
+        self.bounds = self.bounds.with_particles(bound);
+        self.slaving = Some(std::sync::Arc::new(slaving));
+        Ok(self)
     }
 
     /// Add the particle layer: vertex masses become the core mass plus the particles'
@@ -442,10 +477,12 @@ impl Model {
     }
 
     /// Particle sub-steps per core step of `dt`: ⌈dt / (safety·particle bound)⌉ with the
-    /// scene's safety factor (1 without particles; at most 64).
+    /// scene's safety factor (1 without particles or with the exact coupling, whose core
+    /// step is the particles'; at most 64).
     pub fn particle_substeps(&self, dt: f64) -> u32 {
         match &self.particles {
             None => 1,
+            Some(_) if self.slaving.is_some() => 1,
             Some(p) => {
                 let contact = self
                     .tool

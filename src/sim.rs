@@ -242,6 +242,11 @@ impl Simulation {
             )));
         }
         let params = model.step_params(dt, damping);
+        if backend == Backend::Gpu && model.slaving.is_some() {
+            return Err(PalpateError::Usage(
+                crate::gpu::stepper::EXACT_COUPLING_CPU_ONLY.into(),
+            ));
+        }
         if backend == Backend::Gpu && opts.threads.is_some() {
             return Err(PalpateError::Usage(
                 "--threads sets the CPU backend's threads; it does not apply to --backend gpu"
@@ -249,6 +254,11 @@ impl Simulation {
             ));
         }
         let (backend, backend_reason, adapter) = match backend {
+            Backend::Auto if model.slaving.is_some() => (
+                Backend::Cpu,
+                format!("auto: {}", crate::gpu::stepper::EXACT_COUPLING_CPU_ONLY),
+                None,
+            ),
             Backend::Auto if opts.gpu.is_some() => (
                 Backend::Gpu,
                 "auto: the GPU context given".to_string(),

@@ -47,6 +47,9 @@ pub struct TimeStepBounds {
     pub dt_elastic: f64,
     /// The bound of the tool's contact springs alone (∞ without a tool), s.
     pub dt_contact: f64,
+    /// The particles' bound when they share the core's step (`particles.coupling =
+    /// "exact"`; ∞ otherwise), s.
+    pub dt_particles: f64,
 }
 
 impl TimeStepBounds {
@@ -67,7 +70,16 @@ impl TimeStepBounds {
             dt_paper_eq14: h_edge / paper_c,
             dt_elastic: dt_bound,
             dt_contact: f64::INFINITY,
+            dt_particles: f64::INFINITY,
         }
+    }
+
+    /// Take the particles' bound (which already holds their contact springs) as a floor of
+    /// the step: dt_bound = min(dt_bound, dt_particles).
+    pub fn with_particles(mut self, dt_particles: f64) -> Self {
+        self.dt_particles = dt_particles;
+        self.dt_bound = self.dt_bound.min(dt_particles);
+        self
     }
 
     /// Combine with the contact springs' own bound: the highest frequencies add in
@@ -89,8 +101,16 @@ impl TimeStepBounds {
         } else {
             String::new()
         };
+        let particles = if self.dt_particles.is_finite() {
+            format!(
+                ", particles at the core's step (coupling \"exact\") {:.3e} s",
+                self.dt_particles
+            )
+        } else {
+            String::new()
+        };
         format!(
-            "h = {:.3e} m smallest tet altitude, c_p = {:.3e} m/s; paper eq. 14 gives {:.3e} s{contact}",
+            "h = {:.3e} m smallest tet altitude, c_p = {:.3e} m/s; paper eq. 14 gives {:.3e} s{contact}{particles}",
             self.h_altitude, self.p_wave_speed, self.dt_paper_eq14
         )
     }

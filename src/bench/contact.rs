@@ -192,6 +192,7 @@ impl HertzCase {
                 home: DVec3::new(0.0, 0.0, r),
             }),
             particles: self.particles.map(|layer| crate::scene::ParticleSettings {
+                exact_coupling: false,
                 region: 1,
                 spacing: layer.spacing * self.contact_radius(),
                 model: crate::scene::ParticleModel::Tlsph,

@@ -390,6 +390,7 @@ pub fn slave_weights(beta: &[f32], offsets: &[Vec3]) -> Option<Vec<f32>> {
 /// in proportion to their weights. A vertex whose dynamic particles' offsets do not span three
 /// dimensions (a few at the edge of the dynamic region) cannot be placed by them: it stays
 /// free, with its followers' mass.
+#[derive(Clone, Debug)]
 pub struct Slaving {
     /// The dynamic set, closed: the given one plus the followers whose corners are all slaved.
     pub dynamic: Vec<bool>,
@@ -410,6 +411,20 @@ pub enum SlavingError {
     /// A follower whose four corners are all slaved: its mass has nowhere to go (the closure
     /// of the dynamic set prevents it).
     AllCornersSlaved(usize),
+}
+
+impl std::fmt::Display for SlavingError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            SlavingError::FlatFit(v) => write!(
+                f,
+                "vertex {v} carries no core mass and its dynamic particles do not span three dimensions (refine particles.spacing or the mesh there)"
+            ),
+            SlavingError::AllCornersSlaved(q) => {
+                write!(f, "particle {q} has all four host corners slaved")
+            }
+        }
+    }
 }
 
 impl Slaving {

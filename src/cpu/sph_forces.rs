@@ -64,7 +64,11 @@ fn add_pair_terms(inp: &ForceInputs, k: usize, side: &Side, f: &mut Vec3A) {
 /// which lets `cpu::sph_pairs` evaluate each pair once (from per-step packed records, its
 /// own `pair_term`).
 #[inline]
-fn pair_terms(inp: &ForceInputs, k: usize, side: &Side) -> Option<(Vec3A, Option<Vec3A>)> {
+pub(crate) fn pair_terms(
+    inp: &ForceInputs,
+    k: usize,
+    side: &Side,
+) -> Option<(Vec3A, Option<Vec3A>)> {
     let pp = inp.pp;
     let b = inp.neighbours[k] as usize;
     let mode_b = inp.mode[b];
@@ -151,18 +155,18 @@ pub(crate) fn load_mat3a(a: &[f32], i: usize) -> Mat3A {
 }
 
 /// Particle c's own quantities for [`add_pair_terms`].
-struct Side {
+pub(crate) struct Side {
     mode: u32,
     in_s: bool,
     x0: Vec3A,
-    u: Vec3A,
+    pub(crate) u: Vec3A,
     a: Mat3A,
-    f: Mat3A,
+    pub(crate) f: Mat3A,
 }
 
 impl Side {
     /// Particle c's mode, rest position, displacement, A and F (A = 0, F = I outside S).
-    fn of(inp: &ForceInputs, c: usize) -> Side {
+    pub(crate) fn of(inp: &ForceInputs, c: usize) -> Side {
         let in_s = inp.mode[c] & mode::IN_S != 0;
         let (a, f) = if in_s {
             (

@@ -706,6 +706,8 @@ pub struct CpuStepper {
     status: Vec<u32>,
     tool: ToolArrays,
     particles: Option<ParticleArrays>,
+    /// Design 8's arrays (`particles.coupling = "exact"`; None for the energy blend).
+    exact: Option<super::exact_stages::ExactArrays>,
     steps_done: u64,
     reports: VecDeque<BatchReport>,
     counts: Vec<(Stage, u32)>,
@@ -812,11 +814,15 @@ impl CpuStepper {
             steps_done: 0,
             tool_at: tool.at,
         };
+        let exact = super::exact_stages::ExactArrays::new(&model);
         CpuStepper {
             tool,
             particles,
             counts: plan.stages.iter().map(|p| (p.stage, 0)).collect(),
-            chain: chain_before_core_forces(&plan),
+            // Design 8 integrates the particles after the vertices' gather: no chain beside
+            // the element forces.
+            chain: chain_before_core_forces(&plan).filter(|_| exact.is_none()),
+            exact,
             plan,
             variant: model.fem_variant(),
             corner_forces: vec![0.0; 12 * model.n_tets()],
@@ -856,6 +862,9 @@ impl CpuStepper {
 
     /// Run one stage's twin on the current arrays.
     pub fn run_stage(&mut self, stage: Stage) {
+        if self.exact.is_some() && self.run_exact_stage(stage) {
+            return;
+        }
         let m = &*self.model;
         let p = &self.params;
         let t = &mut self.tool;
@@ -937,9 +946,10 @@ impl CpuStepper {
                     &mut self.tet_energy,
                     self.variant,
                 );
+                // Design 8: every tet keeps its full energy.
                 weigh_element_forces(
                     m,
-                    self.particles.as_ref(),
+                    self.particles.as_ref().filter(|_| self.exact.is_none()),
                     &mut self.corner_forces,
                     &mut self.tet_energy,
                 );
@@ -1088,6 +1098,164 @@ impl CpuStepper {
             | Stage::IntegrateParticles
             | Stage::ParticleReduce => self.run_particle_stage(stage),
         }
+    }
+
+    /// The stages design 8 runs its own way (`particles.coupling = "exact"`, see
+    /// `cpu/exact_stages.rs`); false for the others, which run as for the energy blend.
+    fn run_exact_stage(&mut self, stage: Stage) -> bool {
+        use super::exact_stages as ex;
+        match stage {
+            Stage::Activate => {
+                self.run_particle_stage(stage);
+                self.after_exact_activation();
+                return true;
+            }
+            Stage::SphStress
+            | Stage::SphForces
+            | Stage::SphForcesAccumulate
+            | Stage::IntegrateParticles
+            | Stage::GatherCoupled
+            | Stage::Integrate => {}
+            _ => return false,
+        }
+        let m = &*self.model;
+        let p = &self.params;
+        let (Some(pa), Some(pd), Some(x)) = (
+            self.particles.as_mut(),
+            m.particles.as_ref(),
+            self.exact.as_mut(),
+        ) else {
+            return false;
+        };
+        let pp = pa.params;
+        match stage {
+            Stage::SphStress => {
+                ex::embedded_offsets(
+                    m,
+                    pd,
+                    &pa.act.dynamic_list,
+                    &self.state.displacements,
+                    &pa.state.displacements,
+                    &mut x.delta,
+                );
+                ex::exact_stress(
+                    &ex::StressInputs {
+                        model: m,
+                        pd,
+                        pp: &pp,
+                        material: (self.variant.model, p.lambda, p.mu),
+                        lists: (&pa.lists.neighbour_offsets, &pa.lists.neighbours),
+                        pairs: &pa.pairs,
+                        correction: &pa.correction,
+                        delta: &x.delta,
+                        vertex_u: &self.state.displacements,
+                    },
+                    &pa.act.stress_list,
+                    &mut pa.stress,
+                    &mut pa.gradient,
+                    &mut pa.energy,
+                    &mut x.tangent,
+                );
+            }
+            Stage::SphForces | Stage::SphForcesAccumulate => {
+                let t = &self.tool;
+                let inp = super::sph_forces::ForceInputs {
+                    params: p,
+                    pp: &pp,
+                    tool: m.tool.as_ref().map(|_| (&t.params, &t.input, &t.state)),
+                    mode: &pa.state.mode,
+                    rest: &pd.rest,
+                    displacements: &pa.state.displacements,
+                    velocities: &pa.state.velocities,
+                    neighbour_offsets: &pa.lists.neighbour_offsets,
+                    neighbours: &pa.lists.neighbours,
+                    stress: &pa.stress,
+                    gradient: &pa.gradient,
+                    area: &pd.contact_area,
+                    contact_offset: &pd.contact_offset,
+                    pairs: Some(&pa.pairs),
+                };
+                ex::exact_forces(
+                    &inp,
+                    &pa.act.force_list,
+                    &mut pa.forces,
+                    &mut pa.contact,
+                    &mut x.host_force,
+                );
+            }
+            // The particles step with the vertices, after their gather (see `Integrate`).
+            Stage::IntegrateParticles => {}
+            Stage::GatherCoupled => {
+                let surface_index = m.tool.as_ref().map_or(&[][..], |s| &s.surface_index);
+                ex::exact_gather(
+                    p,
+                    &self.corner_forces,
+                    (&m.incidence_offsets, &m.incidence),
+                    &pa.state.mass,
+                    &self.external_forces,
+                    &ex::ExactGather {
+                        surface_index,
+                        contact_forces: &self.tool.contact_forces,
+                        slots: (&pd.slot_offsets, &pd.slots),
+                        weights: &pd.weights,
+                        host_force: &x.host_force,
+                        tangent: &x.tangent,
+                    },
+                    &mut self.forces,
+                );
+            }
+            Stage::Integrate => {
+                x.slaving.transfer_forces(&mut self.forces, &mut pa.forces);
+                integrate(
+                    p,
+                    &self.forces,
+                    &pa.state.inv_mass,
+                    &mut self.state.displacements,
+                    &mut self.state.velocities,
+                    &mut self.status,
+                );
+                super::integrate_particles::integrate_particles(
+                    p,
+                    &pp,
+                    &pa.act.dynamic_list,
+                    &pa.forces,
+                    &mut pa.state.displacements,
+                    &mut pa.state.velocities,
+                    &mut self.status,
+                );
+                x.slaving
+                    .place(&mut self.state.displacements, &pa.state.displacements);
+                x.slaving
+                    .place(&mut self.state.velocities, &pa.state.velocities);
+            }
+            _ => {}
+        }
+        true
+    }
+
+    /// After an activation under design 8: the slaving's vertex masses (slaved vertices carry
+    /// none and are moved by their particles: inverse mass −1) and the slaved vertices placed
+    /// on their particles. The tets keep full weight because `FemForces` does not weigh them;
+    /// the blend's weights stay only in the vertices' contact weights (the dynamic particles
+    /// take the tool's contact where they cover a vertex's tets).
+    fn after_exact_activation(&mut self) {
+        let (Some(pa), Some(x)) = (self.particles.as_mut(), self.exact.as_ref()) else {
+            return;
+        };
+        let sl = &x.slaving;
+        for v in 0..sl.vertex_mass.len() {
+            let mass = sl.vertex_mass[v];
+            pa.state.mass[v] = mass;
+            pa.state.inv_mass[v] = if pa.node_fixed[v] != 0 {
+                0.0
+            } else if sl.slaved[v] {
+                -1.0
+            } else {
+                1.0 / mass
+            };
+        }
+        sl.place(&mut self.state.displacements, &pa.state.displacements);
+        sl.place(&mut self.state.velocities, &pa.state.velocities);
     }
 
     /// The activation over every particle, tet and vertex, as the kernel runs it; then the

@@ -18,6 +18,8 @@ use std::sync::Arc;
 
 pub use crate::plan::Stage;
 
+/// Why a model with `particles.coupling = "exact"` does not run here.
+pub const EXACT_COUPLING_CPU_ONLY: &str = "particles.coupling = \"exact\" runs on the CPU backend only (--backend cpu): its GPU kernels are not built yet";
 /// The pipeline-overridable constants a stage's kernels are built with for `model`.
 pub fn stage_constants(stage: Stage, model: &Model) -> Vec<(&'static str, f64)> {
     match stage {
@@ -192,6 +194,9 @@ pub struct GpuStepper {
 impl GpuStepper {
     /// Upload `model`, build its plan's pipelines and bind groups and the readback ring.
     pub fn new(ctx: Arc<GpuContext>, model: &Model, params: StepParams) -> Result<GpuStepper> {
+        if model.slaving.is_some() {
+            return Err(PalpateError::Usage(EXACT_COUPLING_CPU_ONLY.into()));
+        }
         let n = model.n_vertices() as u64;
         let m = model.n_tets() as u64;
         if n > u32::MAX as u64 / 4 || m > u32::MAX as u64 / 4 {

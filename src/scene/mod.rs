@@ -235,6 +235,24 @@ impl Scene {
             Some(spec) => Some(particles::resolve_particles(spec, &mesh, &bad)?),
             None => None,
         };
+        if particles.as_ref().is_some_and(|p| p.exact_coupling)
+            && crate::material::elastic_stress_differential(
+                material.model,
+                glam::Mat3::ZERO,
+                glam::Mat3::ZERO,
+                1.0,
+                1.0,
+            )
+            .is_none()
+        {
+            return Err(bad(
+                "particles.coupling",
+                format!(
+                    "\"exact\" needs a material law with a stress differential (stvk, stable_neohookean, corotational), not \"{}\"",
+                    material.model.name()
+                ),
+            ));
+        }
         Ok(Scene {
             name: file.name.unwrap_or_else(|| default_name.to_string()),
             origin: origin.to_string(),

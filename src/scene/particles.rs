@@ -34,6 +34,11 @@ pub struct ParticleSpec {
     /// `"tool"` (default: particles near the tool are dynamic) or `"all"` (every particle is
     /// dynamic, the zone is purely mesh-free; for validation).
     pub activation: Option<String>,
+    /// `"blend"` (default: the partition-of-unity energy blend of eq. 9–11) or `"exact"`
+    /// (design 8 of `docs/hybrid_coupling.md`: full-energy tets plus each particle's
+    /// Bregman remainder, zone-only vertices slaved to their particles; exact patch test).
+    /// `"exact"` needs `activation = "all"`, `model = "tlsph"` and runs on the CPU backend.
+    pub coupling: Option<String>,
 }
 
 /// The most particles a scene may ask for (estimated from the zone volume and spacing).
@@ -94,6 +99,8 @@ pub struct ParticleSettings {
     pub activation_interval: u32,
     /// Every particle dynamic, whatever the tool (`activation = "all"`).
     pub all_active: bool,
+    /// Design 8's coupling (`coupling = "exact"`) instead of the energy blend.
+    pub exact_coupling: bool,
 }
 
 /// Validate `[particles]` against the mesh: the region must exist.
@@ -211,8 +218,32 @@ pub(super) fn resolve_particles(
             ))
         }
     };
+    let exact_coupling = match spec.coupling.as_deref().unwrap_or("blend") {
+        "blend" => false,
+        "exact" => true,
+        other => {
+            return Err(bad(
+                "particles.coupling",
+                format!("must be \"blend\" or \"exact\", got \"{other}\""),
+            ))
+        }
+    };
+    if exact_coupling && !all_active {
+        return Err(bad(
+            "particles.coupling",
+            "\"exact\" needs particles.activation = \"all\" (a dynamic set that changes with the tool is not built for it yet)".into(),
+        ));
+    }
+    if exact_coupling && model != ParticleModel::Tlsph {
+        return Err(bad(
+            "particles.coupling",
+            "\"exact\" needs particles.model = \"tlsph\" (the paper model has no strain energy)"
+                .into(),
+        ));
+    }
     Ok(ParticleSettings {
         all_active,
+        exact_coupling,
         region,
         spacing,
         model,
