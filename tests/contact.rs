@@ -339,6 +339,7 @@ fn a_particle_top_layer_resolves_the_contact_that_a_coarse_core_alone_cannot() {
             layers: 2,
             kernel_radius: 2.4,
             activation: Some(2.0),
+            exact: false,
         }),
         ..coarse
     };
@@ -624,5 +625,42 @@ fn zone_tets_without_particles_do_not_pin_their_neighbours() {
         deepest_embedded < 0.1e-3,
         "an embedded particle lies {:.3} mm inside the tool: the tool sank through pinned particles",
         deepest_embedded * 1e3
+    );
+}
+
+/// Design 8's coupling (`particles.coupling = "exact"`) on the all-awake hybrid Hertz block
+/// (core 2a, particles a/2, d = 0.5 mm): the full-energy tets keep the coarse core's
+/// stiffness for a smooth deformation, and the particles' remainder relaxes it only where
+/// they move against their tets, under the tool. Relaxed to a static state, it must be near
+/// Hertz and clearly closer than the coarse core alone. Measured 2026-11-25: see the lines
+/// printed (BENCHMARKS.md).
+#[test]
+fn the_exact_coupling_resolves_the_hertz_contact_too() {
+    let out = std::env::temp_dir().join(format!("palpate-hertz-exact-{}", std::process::id()));
+    let coarse = run_case(
+        &HertzCase {
+            fine: 2.0,
+            ..Default::default()
+        },
+        Backend::Cpu,
+        &out,
+    )
+    .unwrap();
+    let exact = run_case(&HertzCase::exact_all_awake(), Backend::Cpu, &out).unwrap();
+    for r in [&coarse, &exact] {
+        eprintln!("{}", r.line());
+        assert_eq!(r.status, "ok", "{}", r.case.label());
+    }
+    assert!(exact.particles > 1000, "{} particles", exact.particles);
+    assert!(
+        exact.relative_error.abs() <= 0.15,
+        "exact coupling {:+.2} % from Hertz",
+        100.0 * exact.relative_error
+    );
+    assert!(
+        exact.relative_error.abs() < 0.5 * coarse.relative_error.abs(),
+        "exact coupling {:+.2} % is not clearly closer than the coarse core alone {:+.2} %",
+        100.0 * exact.relative_error,
+        100.0 * coarse.relative_error
     );
 }

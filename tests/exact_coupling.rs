@@ -767,8 +767,8 @@ fn a_free_spin_in_the_engine_keeps_both_momenta_and_the_layer_on_its_tets() {
         let ps = s.particle_state().unwrap();
         let (mass, _) = s.vertex_masses();
         let (mut lin, mut ang) = (DVec3::ZERO, DVec3::ZERO);
-        for i in 0..m.n_vertices() {
-            let mv = point(&st.velocities, i) * mass[i] as f64;
+        for (i, &mi) in mass.iter().enumerate() {
+            let mv = point(&st.velocities, i) * mi as f64;
             lin += mv;
             ang += (point(&m.rest, i) + point(&st.displacements, i)).cross(mv);
         }

@@ -55,6 +55,9 @@ pub struct ParticleLayer {
     /// Activation radius from the tool's surface, in contact radii (the bench uses 2); None:
     /// every particle dynamic (`activation = "all"`).
     pub activation: Option<f64>,
+    /// Design 8's coupling (`coupling = "exact"`; needs `activation` None) instead of the
+    /// energy blend.
+    pub exact: bool,
 }
 
 impl Default for HertzCase {
@@ -84,9 +87,19 @@ impl HertzCase {
                 layers: 2,
                 kernel_radius: 2.4,
                 activation,
+                exact: false,
             }),
             ..HertzCase::default()
         }
+    }
+
+    /// [`HertzCase::awake_within`]`(None)` under design 8's coupling (`coupling = "exact"`).
+    pub fn exact_all_awake() -> HertzCase {
+        let mut case = HertzCase::awake_within(None);
+        if let Some(p) = case.particles.as_mut() {
+            p.exact = true;
+        }
+        case
     }
 
     /// `cells a/3`, or `core 2a + particles a/3` for a hybrid block (with its kernel support
@@ -107,6 +120,9 @@ impl HertzCase {
             Some(2.0) => {}
             Some(r) => label.push_str(&format!(" (awake within {r}a)")),
             None => label.push_str(" (all awake)"),
+        }
+        if p.exact {
+            label.push_str(" (exact coupling)");
         }
         label
     }
@@ -192,7 +208,7 @@ impl HertzCase {
                 home: DVec3::new(0.0, 0.0, r),
             }),
             particles: self.particles.map(|layer| crate::scene::ParticleSettings {
-                exact_coupling: false,
+                exact_coupling: layer.exact,
                 region: 1,
                 spacing: layer.spacing * self.contact_radius(),
                 model: crate::scene::ParticleModel::Tlsph,
@@ -337,6 +353,7 @@ pub fn study(backend: Backend, quick: bool, log: &mut dyn FnMut(&str)) -> Result
                 layers: 2,
                 kernel_radius: 2.4,
                 activation: Some(2.0),
+                exact: false,
             }),
             ..base
         });
@@ -347,6 +364,7 @@ pub fn study(backend: Backend, quick: bool, log: &mut dyn FnMut(&str)) -> Result
         for activation in [Some(1.0), Some(4.0), None] {
             cases.push(HertzCase::awake_within(activation));
         }
+        cases.push(HertzCase::exact_all_awake());
     }
     let dir = std::env::temp_dir().join(format!("palpate-hertz-{}", std::process::id()));
     std::fs::create_dir_all(&dir).map_err(|source| crate::error::PalpateError::OutputIo {

@@ -34,6 +34,7 @@ pub const BUILTIN: &[(&str, &str)] = &[
     ("ed0", include_str!("../../scenes/ed0.toml")),
     ("lv", include_str!("../../scenes/lv.toml")),
     ("hm1", include_str!("../../scenes/hm1.toml")),
+    ("hm1_exact", include_str!("../../scenes/hm1_exact.toml")),
     ("hm2", include_str!("../../scenes/hm2.toml")),
     ("lv_touch", include_str!("../../scenes/lv_touch.toml")),
     ("land_p1", include_str!("../../scenes/land_p1.toml")),
