@@ -39,6 +39,14 @@ fn block_of(text: &str, size: f64) -> (Scene, Model) {
     (scene, m)
 }
 
+/// A 20 x 10 x 10 mm block on 4 x 2 x 4 cells whose upper half (z > 5 mm) is particle zone
+/// (1 mm lattice); `particle_keys` adds keys to `[particles]`.
+fn two_layer_block(particle_keys: &str) -> Model {
+    let text = format!("[mesh]\ngenerator = \"beam\"\nsize = [0.02, 0.01, 0.01]\ncells = [4, 2, 4]\n\n[material]\nyoungs_modulus = 3.0e4\npoisson_ratio = 0.3\ndensity = 1000.0\n\n[particles]\nregion = 0\nspacing = 0.001\nactivation_radius = 0.003\n{particle_keys}");
+    // block_of splits at half of `size`: z < 5 mm is core.
+    block_of(&text, 0.01).1
+}
+
 /// [`layered_cube`] and its scene.
 fn layered_cube_scene(size: f64, cells: usize, law: &str) -> (Scene, Model) {
     block_of(&layered_cube_text(size, cells, law), size)
@@ -412,13 +420,7 @@ fn rigid_fit(rest: &[DVec3], now: &[DVec3]) -> impl Fn(DVec3) -> DVec3 {
 /// conserved.
 #[test]
 fn a_free_spin_with_slaved_vertices_keeps_the_layer_on_the_core() {
-    let text = "[mesh]\ngenerator = \"beam\"\nsize = [0.02, 0.01, 0.01]\ncells = [4, 2, 4]\n\n[material]\nyoungs_modulus = 3.0e4\npoisson_ratio = 0.3\ndensity = 1000.0\n\n[particles]\nregion = 0\nspacing = 0.001\nactivation_radius = 0.003\n";
-    let mut scene = Scene::from_toml(text, "two-layer block", "block", None).unwrap();
-    for e in 0..scene.mesh.n_tets() {
-        let z: f64 = scene.mesh.corners(e).iter().map(|p| p.z).sum::<f64>() / 4.0;
-        scene.mesh.regions[e] = if z < 0.005 { 1 } else { 0 };
-    }
-    let m = Model::from_scene(&scene);
+    let m = two_layer_block("");
     let c = ExactCoupling::new(&m).unwrap();
     let p = m.particles.as_ref().unwrap();
     let dynamic: Vec<bool> = p.pinned.iter().map(|&pin| !pin).collect();
@@ -732,13 +734,9 @@ fn an_affine_stretch_leaves_no_residual_in_the_engine() {
 fn a_free_spin_in_the_engine_keeps_both_momenta_and_the_layer_on_its_tets() {
     use palpate::particles::params::mode;
     use palpate::stepper::{State, Stepper};
-    let text = "[mesh]\ngenerator = \"beam\"\nsize = [0.02, 0.01, 0.01]\ncells = [4, 2, 4]\n\n[material]\nyoungs_modulus = 3.0e4\npoisson_ratio = 0.3\ndensity = 1000.0\n\n[particles]\nregion = 0\nspacing = 0.001\nactivation_radius = 0.003\nactivation = \"all\"\nactivation_interval = 1\ncoupling = \"exact\"\n";
-    let mut scene = Scene::from_toml(text, "two-layer block", "block", None).unwrap();
-    for e in 0..scene.mesh.n_tets() {
-        let z: f64 = scene.mesh.corners(e).iter().map(|p| p.z).sum::<f64>() / 4.0;
-        scene.mesh.regions[e] = if z < 0.005 { 1 } else { 0 };
-    }
-    let m = std::sync::Arc::new(Model::from_scene(&scene));
+    let m = std::sync::Arc::new(two_layer_block(
+        "activation = \"all\"\nactivation_interval = 1\ncoupling = \"exact\"\n",
+    ));
     let p = m.particles.as_ref().unwrap();
     let mut s = exact_stepper(&m);
     let (omega, angle) = (3.7f64, 0.65f64);

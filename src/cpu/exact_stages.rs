@@ -211,8 +211,9 @@ pub(crate) struct ExactGather<'a> {
     pub tangent: &'a [f32],
 }
 
-/// Per vertex i: f = mᵢ g + f_ext + Σ incident corner forces + the tool's contact +
-/// Σ over its slots (p, a) of [w_ap host_force_p + tangent_(p,a)].
+/// Per vertex i: f = mᵢ g + f_ext + Σ incident corner forces + the tool's contact (the
+/// blend's `gather_coupled` without its particle term), then + Σ over its slots (p, a) of
+/// [w_ap host_force_p + tangent_(p,a)].
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn exact_gather(
     params: &crate::params::StepParams,
@@ -223,17 +224,29 @@ pub(crate) fn exact_gather(
     c: &ExactGather,
     forces: &mut [f32],
 ) {
-    let g = Vec3::from_array(params.gravity);
+    super::gather::gather_coupled(
+        params,
+        corner_forces,
+        incidence.0,
+        incidence.1,
+        mass,
+        external_forces,
+        forces,
+        &super::gather::Coupling {
+            surface_index: c.surface_index,
+            contact_forces: c.contact_forces,
+            contact: !c.surface_index.is_empty(),
+            node_flags: &[],
+            slot_offsets: &[],
+            slots: &[],
+            weights: &[],
+            mode: &[],
+            force_sum: &[],
+            particles: false,
+        },
+    );
     super::par::for_each_chunk::<3>(forces, params.n_vertices as usize, |i, out| {
-        let mut f = g * mass[i] + load3(external_forces, i);
-        for k in incidence.0[i]..incidence.0[i + 1] {
-            f += load3(corner_forces, incidence.1[k as usize] as usize);
-        }
-        if let Some(&s) = c.surface_index.get(i) {
-            if s != crate::contact::NOT_ON_SURFACE {
-                f += load3(c.contact_forces, s as usize);
-            }
-        }
+        let mut f = load3(out, 0);
         for k in c.slots.0[i]..c.slots.0[i + 1] {
             let slot = c.slots.1[k as usize] as usize;
             f += load3(c.host_force, slot / 4) * c.weights[slot] + load3(c.tangent, slot);
