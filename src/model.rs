@@ -318,7 +318,8 @@ impl Model {
     }
 
     /// `particles.coupling = "exact"`: slave the vertices that carry no core mass to the
-    /// dynamic set (every unpinned particle) and take the particles' step bound as the core's
+    /// initial dynamic set (every unpinned particle under `activation = "all"`, none under
+    /// the tool, whose activations re-slave: `cpu/exact_activation.rs`) and take the particles' step bound as the core's
     /// (the exact coupling runs particles and vertices at one rate: no sub-steps). An error
     /// names a vertex that its particles can neither move nor place.
     fn with_exact_coupling(mut self, origin: &str) -> crate::error::Result<Model> {
@@ -329,15 +330,27 @@ impl Model {
         else {
             return Ok(self);
         };
-        let dynamic: Vec<bool> = p.pinned.iter().map(|&pin| !pin).collect();
-        let slaving =
-            crate::cpu::exact_coupling::Slaving::new(&self, p, &dynamic).map_err(|e| {
+        let slave = |dynamic: &[bool]| {
+            crate::cpu::exact_coupling::Slaving::new(&self, p, dynamic).map_err(|e| {
                 crate::error::PalpateError::SceneValue {
                     origin: origin.to_string(),
                     item: "particles.coupling".into(),
                     message: format!("\"exact\" cannot slave this zone: {e}"),
                 }
-            })?;
+            })
+        };
+        // Every unpinned particle dynamic: the largest set an activation can make. A vertex
+        // that then has no mass hosts only dynamic particles, the same ones under any set
+        // that leaves it massless, so if their fit spans three dimensions here it does under
+        // every activation (and the closure keeps each follower a corner to lump onto).
+        let all: Vec<bool> = p.pinned.iter().map(|&pin| !pin).collect();
+        let slaving = slave(&all)?;
+        // Under the tool the run starts with nothing dynamic.
+        let slaving = if p.settings.all_active {
+            slaving
+        } else {
+            slave(&vec![false; p.len()])?
+        };
         let contact = self
             .tool
             .as_ref()

@@ -380,6 +380,13 @@ pub fn slave_weights(beta: &[f32], offsets: &[Vec3]) -> Option<Vec<f32>> {
     )
 }
 
+/// The largest Σ|s_q| a slaved vertex's fit may have: the factor by which the fit can magnify
+/// its particles' motion off an affine field. Fits over a vertex's whole set of hosted
+/// particles reach 4.03 on hm1 (a vertex at the edge of its particles' cloud is extrapolated);
+/// under the tool, a thin set at the edge of the dynamic region gave 25 and blew the run up
+/// within a step (2026-11-25). A vertex whose fit exceeds it stays free.
+pub const MAX_FIT_GAIN: f32 = 6.0;
+
 /// The vertices slaved to the dynamic particles under design 8, and the lumped masses that go
 /// with them. A vertex is slaved when it is not fixed, carries no core mass (it touches only
 /// particle-holding zone tets) and hosts a dynamic particle: its tets keep their full
@@ -388,8 +395,8 @@ pub fn slave_weights(beta: &[f32], offsets: &[Vec3]) -> Option<Vec<f32>> {
 /// ([`slave_weights`], β = w_Vq m_p), and its force goes to them as s_q f_V (Σ s = 1 and
 /// x_V = Σ s_q x_q keep Σ f and Σ x × f). Its followers' mass goes to their other corners,
 /// in proportion to their weights. A vertex whose dynamic particles' offsets do not span three
-/// dimensions (a few at the edge of the dynamic region) cannot be placed by them: it stays
-/// free, with its followers' mass.
+/// dimensions, or whose fit's gain exceeds [`MAX_FIT_GAIN`] (a few at the edge of the dynamic
+/// region), is not placed by them: it stays free, with its followers' mass.
 #[derive(Clone, Debug)]
 pub struct Slaving {
     /// The dynamic set, closed: the given one plus the followers whose corners are all slaved.
@@ -511,8 +518,11 @@ impl Slaving {
                     (particles.rest_position(q as usize) - x_v) / particles.settings.spacing as f32
                 })
                 .collect();
-            // Too few dynamic particles to place it: it keeps its place and its followers' mass.
-            if let Some(s) = slave_weights(&beta, &offsets) {
+            // Too few dynamic particles to place it, or too thin a set to place it well: it
+            // keeps its place and its followers' mass.
+            if let Some(s) = slave_weights(&beta, &offsets)
+                .filter(|s| s.iter().map(|x| x.abs()).sum::<f32>() <= MAX_FIT_GAIN)
+            {
                 slaved[v] = true;
                 fit[v] = hosted[v].iter().zip(s).map(|(&(q, _), s)| (q, s)).collect();
             }

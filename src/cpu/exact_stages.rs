@@ -1,7 +1,7 @@
 //! The CPU stages of design 8 (`particles.coupling = "exact"`; the energy and its forces are
 //! in [`super::exact_coupling`], which is these stages' reference): what the stepper runs in
 //! place of the energy blend's `sph_stress`, `sph_forces`, `gather_coupled` and
-//! `integrate_particles` while the dynamic set is fixed (`activation = "all"`). No GPU kernel
+//! `integrate_particles`; an activation under it is `cpu/exact_activation.rs`. No GPU kernel
 //! runs them yet.
 //!
 //! One step: δ_q = u_q − Σ wₐ_q uₐ per dynamic particle; per particle p of S, A_p =
@@ -13,6 +13,7 @@
 //! (f_q += s_q f_V), vertices and dynamic particles step, and slaved vertices take their
 //! particles' fitted displacement and velocity.
 
+use super::exact_activation::{ReslaveCounts, SlaveOffsets};
 use super::exact_coupling::Slaving;
 use super::fem_forces::{corner_forces_of_stress, displacement_gradient, load_dm_inv};
 use super::sph_forces::{add_external, pair_terms, ForceInputs, Side};
@@ -23,12 +24,22 @@ use crate::particles::params::{mode, ParticleParams};
 use crate::particles::Particles;
 use glam::{Mat3, Vec3, Vec3A};
 use rayon::prelude::*;
-use std::sync::Arc;
 
 /// Design 8's per-run arrays.
+#[derive(Clone)]
 pub(crate) struct ExactArrays {
-    /// The slaved vertices, their fits and the vertex masses (the model's).
-    pub slaving: Arc<Slaving>,
+    /// The slaved vertices, their fits and the vertex masses: the model's at the start, then
+    /// the last activation's (`cpu/exact_activation.rs`).
+    pub slaving: Slaving,
+    /// The slaved vertices' fading offsets.
+    pub offsets: SlaveOffsets,
+    /// The particles whose δ the stress stage computes: the dynamic ones, then those of the
+    /// stress set still blending back onto their host (set by each activation).
+    pub delta_list: Vec<u32>,
+    /// What the activations so far changed.
+    pub counts: ReslaveCounts,
+    /// Why an activation could not slave its dynamic set (the run stops with it).
+    pub failure: Option<String>,
     /// δ per particle (zero unless dynamic), packed xyz, m.
     pub delta: Vec<f32>,
     /// Per particle, the force its hosts take through its barycentric weights, N: minus its
@@ -43,9 +54,13 @@ pub(crate) struct ExactArrays {
 impl ExactArrays {
     /// The arrays of `model` (None unless it has the exact coupling).
     pub fn new(model: &Model) -> Option<ExactArrays> {
-        let slaving = model.slaving.clone()?;
+        let slaving = Slaving::clone(model.slaving.as_ref()?);
         let n = model.particles.as_ref()?.len();
         Some(ExactArrays {
+            offsets: SlaveOffsets::new(model.n_vertices()),
+            delta_list: Vec::new(),
+            counts: ReslaveCounts::default(),
+            failure: None,
             slaving,
             delta: vec![0.0; 3 * n],
             host_force: vec![0.0; 3 * n],
@@ -54,7 +69,9 @@ impl ExactArrays {
     }
 }
 
-/// δ_q = u_q − Σ wₐ_q uₐ for each particle q of `dynamic_list` (the others keep theirs: 0).
+/// δ_q = u_q − Σ wₐ_q uₐ for each particle q of `dynamic_list` (the dynamic particles, then
+/// those of the stress set still blending back onto their host, which `follow` has placed);
+/// the others keep theirs (0: an activation clears them).
 pub(crate) fn embedded_offsets(
     model: &Model,
     pd: &Particles,

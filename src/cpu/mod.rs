@@ -10,6 +10,7 @@ pub mod active_region;
 pub mod compact;
 pub mod contact;
 pub mod dispatch_probe;
+pub mod exact_activation;
 pub mod exact_coupling;
 pub(crate) mod exact_stages;
 pub mod fem_forces;

@@ -507,6 +507,8 @@ pub struct ActivationCounts {
 struct Checkpoint {
     state: State,
     particles: Option<(ParticleState, ActivationProducts)>,
+    /// Design 8's slaving and offsets (they change with each activation under the tool).
+    exact: Option<super::exact_stages::ExactArrays>,
     steps_done: u64,
     tool_at: glam::DVec3,
 }
@@ -807,6 +809,7 @@ impl CpuStepper {
         };
         let particles = pool.install(|| ParticleArrays::new(&model, &params));
         let checkpoint = Checkpoint {
+            exact: None,
             state: state.clone(),
             particles: particles
                 .as_ref()
@@ -815,6 +818,10 @@ impl CpuStepper {
             tool_at: tool.at,
         };
         let exact = super::exact_stages::ExactArrays::new(&model);
+        let checkpoint = Checkpoint {
+            exact: exact.clone(),
+            ..checkpoint
+        };
         CpuStepper {
             tool,
             particles,
@@ -1106,8 +1113,7 @@ impl CpuStepper {
         use super::exact_stages as ex;
         match stage {
             Stage::Activate => {
-                self.run_particle_stage(stage);
-                self.after_exact_activation();
+                self.activate_exact();
                 return true;
             }
             Stage::SphStress
@@ -1133,7 +1139,7 @@ impl CpuStepper {
                 ex::embedded_offsets(
                     m,
                     pd,
-                    &pa.act.dynamic_list,
+                    &x.delta_list,
                     &self.state.displacements,
                     &pa.state.displacements,
                     &mut x.delta,
@@ -1223,25 +1229,74 @@ impl CpuStepper {
                     &mut pa.state.velocities,
                     &mut self.status,
                 );
-                x.slaving
-                    .place(&mut self.state.displacements, &pa.state.displacements);
-                x.slaving
-                    .place(&mut self.state.velocities, &pa.state.velocities);
+                x.offsets.advance(p.dt);
+                super::exact_activation::place_slaved(
+                    &x.slaving,
+                    &x.offsets,
+                    pp.blend,
+                    (&mut self.state.displacements, &mut self.state.velocities),
+                    (&pa.state.displacements, &pa.state.velocities),
+                );
             }
             _ => {}
         }
         true
     }
 
-    /// After an activation under design 8: the slaving's vertex masses (slaved vertices carry
-    /// none and are moved by their particles: inverse mass −1) and the slaved vertices placed
-    /// on their particles. The tets keep full weight because `FemForces` does not weigh them;
-    /// the blend's weights stay only in the vertices' contact weights (the dynamic particles
-    /// take the tool's contact where they cover a vertex's tets).
-    fn after_exact_activation(&mut self) {
-        let (Some(pa), Some(x)) = (self.particles.as_mut(), self.exact.as_ref()) else {
+    /// An activation under design 8 (`cpu/exact_activation.rs`): the mode machine over every
+    /// particle, then the closure, the slaving and the momentum-keeping re-lump
+    /// ([`super::exact_activation::reslave`]); the vertex masses (slaved vertices carry none
+    /// and are moved by their particles: inverse mass −1); the stress set marked from the
+    /// dynamic particles and those blending back (their fading δ still strains their
+    /// neighbours), the force set from it; the lists; and the blend's tet weights, which design
+    /// 8 uses only for the vertices' contact weights (the dynamic particles take the tool's
+    /// contact where they cover a vertex's tets). The tets keep full energy: `FemForces` does not
+    /// weigh them.
+    fn activate_exact(&mut self) {
+        let m = &*self.model;
+        let p = &self.params;
+        let (Some(pa), Some(pd), Some(x)) = (
+            self.particles.as_mut(),
+            m.particles.as_ref(),
+            self.exact.as_mut(),
+        ) else {
             return;
         };
+        let Some(st) = ParticleStatic::of(m) else {
+            return;
+        };
+        let pp = pa.params;
+        let n = pd.len();
+        {
+            let inp = mode_inputs(m, &pp, &st, &self.tool, &self.state);
+            super::activate::activate(&inp, pa.state.mode_arrays());
+        }
+        pa.activations.full += 1;
+        let reslaved = super::exact_activation::reslave(
+            m,
+            pd,
+            &pp,
+            &x.slaving,
+            super::exact_activation::ExactParticleState {
+                mode: &mut pa.state.mode,
+                displacements: &mut pa.state.displacements,
+                velocities: &mut pa.state.velocities,
+                timer: &mut pa.state.timer,
+                offset: &mut pa.state.offset,
+            },
+            &mut self.state.displacements,
+            &mut self.state.velocities,
+            &mut x.offsets,
+        );
+        match reslaved {
+            Ok((slaving, counts)) => {
+                x.slaving = slaving;
+                x.counts.add(counts);
+            }
+            // The model checked the whole zone dynamic and at rest; keep the last slaving
+            // and stop the run at the end of the batch with this message.
+            Err(e) => x.failure = Some(e.to_string()),
+        }
         let sl = &x.slaving;
         for v in 0..sl.vertex_mass.len() {
             let mass = sl.vertex_mass[v];
@@ -1254,8 +1309,35 @@ impl CpuStepper {
                 1.0 / mass
             };
         }
-        sl.place(&mut self.state.displacements, &pa.state.displacements);
-        sl.place(&mut self.state.velocities, &pa.state.velocities);
+        let (noff, nbrs) = (&pa.lists.neighbour_offsets, &pa.lists.neighbours);
+        let moving = mode::DYNAMIC | mode::BLENDING;
+        mark_set(n, moving, mode::IN_S, noff, nbrs, &mut pa.state.mode);
+        mark_set(n, mode::IN_S, mode::IN_F, noff, nbrs, &mut pa.state.mode);
+        super::compact::compact(
+            &pa.state.mode,
+            &mut pa.act.dynamic_list,
+            &mut pa.act.stress_list,
+            &mut pa.act.force_list,
+            &mut pa.act.counts,
+            &mut pa.act.dispatch,
+        );
+        x.delta.iter_mut().for_each(|d| *d = 0.0);
+        x.delta_list.clone_from(&pa.act.dynamic_list);
+        x.delta_list.extend(
+            pa.act
+                .stress_list
+                .iter()
+                .filter(|&&q| pa.state.mode[q as usize] & mode::BLENDING != 0),
+        );
+        super::activate::tet_weights(p, &pd.tet_offsets, &pa.state.mode, &mut pa.act.tet_weight);
+        for v in 0..m.n_vertices() {
+            pa.act.contact_weight[v] = (m.incidence_offsets[v]..m.incidence_offsets[v + 1])
+                .map(|k| pa.act.tet_weight[m.incidence[k as usize] as usize / 4])
+                .fold(1.0f32, f32::min);
+        }
+        pa.region.forget();
+        pa.after_activation(0..m.n_tets() as u32, pd);
+        pa.rebuild_pair_plan();
     }
 
     /// The activation over every particle, tet and vertex, as the kernel runs it; then the
@@ -1622,6 +1704,20 @@ impl CpuStepper {
         }
     }
 
+    /// Design 8's current slaving, the slaved vertices' fading offsets and what the
+    /// activations so far changed (None unless `particles.coupling = "exact"`).
+    pub fn exact_slaving(
+        &self,
+    ) -> Option<(
+        &super::exact_coupling::Slaving,
+        &super::exact_activation::SlaveOffsets,
+        super::exact_activation::ReslaveCounts,
+    )> {
+        self.exact
+            .as_ref()
+            .map(|x| (&x.slaving, &x.offsets, x.counts))
+    }
+
     /// The CPU-built neighbour lists (None without particles).
     pub fn neighbour_lists(&self) -> Option<&NeighbourLists> {
         self.particles.as_ref().map(|pa| &pa.lists)
@@ -1673,6 +1769,12 @@ impl Stepper for CpuStepper {
                 self.step_in_batch(s, steps);
             }
         });
+        if let Some(why) = self.exact.as_mut().and_then(|x| x.failure.take()) {
+            return Err(PalpateError::Internal(format!(
+                "particles.coupling = \"exact\": an activation by step {} could not slave its dynamic set: {why}",
+                self.steps_done
+            )));
+        }
         let mut stats = BatchStats::default();
         stats.stats.copy_from_slice(&self.stats);
         stats.non_finite_vertex = (self.status[0] != ALL_FINITE).then_some(self.status[0]);
@@ -1716,6 +1818,9 @@ impl Stepper for CpuStepper {
             state.clone_from(&pa.state);
             act.clone_from(&pa.act);
         }
+        if let (Some(saved), Some(x)) = (&mut cp.exact, &self.exact) {
+            saved.clone_from(x);
+        }
         cp.steps_done = self.steps_done;
         cp.tool_at = self.tool.at;
         Ok(())
@@ -1731,6 +1836,9 @@ impl Stepper for CpuStepper {
             // and flags are those the restored modes were built with.
             pa.region.forget();
             pa.act.clone_from(act);
+        }
+        if let (Some(saved), Some(x)) = (&cp.exact, &mut self.exact) {
+            x.clone_from(saved);
         }
         self.steps_done = cp.steps_done;
         self.tool.at = cp.tool_at;

@@ -37,7 +37,7 @@ pub struct ParticleSpec {
     /// `"blend"` (default: the partition-of-unity energy blend of eq. 9–11) or `"exact"`
     /// (design 8 of `docs/hybrid_coupling.md`: full-energy tets plus each particle's
     /// Bregman remainder, zone-only vertices slaved to their particles; exact patch test).
-    /// `"exact"` needs `activation = "all"`, `model = "tlsph"` and runs on the CPU backend.
+    /// `"exact"` needs `model = "tlsph"` and runs on the CPU backend.
     pub coupling: Option<String>,
 }
 
@@ -228,12 +228,6 @@ pub(super) fn resolve_particles(
             ))
         }
     };
-    if exact_coupling && !all_active {
-        return Err(bad(
-            "particles.coupling",
-            "\"exact\" needs particles.activation = \"all\" (a dynamic set that changes with the tool is not built for it yet)".into(),
-        ));
-    }
     if exact_coupling && model != ParticleModel::Tlsph {
         return Err(bad(
             "particles.coupling",
