@@ -221,6 +221,14 @@ use std::sync::Arc;
 
 const KERNEL_TOL: f64 = 1e-5;
 
+/// The tolerance of `sph_forces` against its twin. Each particle's force is a sum over its
+/// neighbours of pair terms V²(A_a + A_b)∇W that nearly cancel (the net force is a difference
+/// of stresses across one spacing), so the rounding of the terms, which WGSL lets a GPU fuse
+/// into FMAs, shows in the net force magnified by the cancellation. Measured 2026-11-27: ≤ 1e-7
+/// on lavapipe (LLVM rounds as the Rust twin does), 2.45e-5 and 1.70e-5 on an NVIDIA H200
+/// (Vulkan, driver 580.159.04) where the other particle kernels agree to ≤ 3.5e-7.
+const SPH_FORCES_TOL: f64 = 1e-4;
+
 /// A 20 x 20 x 10 mm block on a fixed bottom, all of it particle zone (1 mm lattice), with a
 /// 3 mm tool pressing its top centre.
 const PRESSED_BLOCK: &str = "name = \"hybrid block\"\n[mesh]\ngenerator = \"beam\"\nsize = [0.02, 0.02, 0.01]\ncells = [4, 4, 2]\n[material]\nyoungs_modulus = 3.0e4\npoisson_ratio = 0.3\ndensity = 1000.0\n[[fixed]]\nplane = { normal = [0.0, 0.0, 1.0], offset = 0.0 }\n[particles]\nregion = 0\nspacing = 0.001\nactivation_radius = 0.003\n[tool]\nradius = 0.003\nstiffness = 1.0e8\npath = [[0.0, 0.01, 0.01, 0.0135], [0.02, 0.01, 0.01, 0.0120]]\n[solver]\ndamping = 50.0\n";
@@ -623,7 +631,7 @@ fn particle_kernels_match_their_cpu_twins() {
         let (a, b): (Vec<f32>, Vec<f32>) = idx.iter().map(|&i| (gv[i], c[i])).unzip();
         let e = rel(&a, &b);
         eprintln!("sph_forces: {name} rel err {e:.2e} ({touching} particles touch the tool)");
-        assert!(e <= KERNEL_TOL, "sph_forces: {name} rel err {e:.2e}");
+        assert!(e <= SPH_FORCES_TOL, "sph_forces: {name} rel err {e:.2e}");
     }
 
     // integrate_particles
@@ -744,7 +752,14 @@ fn massless_vertices_take_their_particles_rigid_velocity_on_both_backends() {
         &mut cpu_v,
     )
     .inv_mass;
-    assert_eq!(bits(&inv_mass[..nv]), bits(&cpu_inv), "inverse masses");
+    // The massless flag (−1) exactly, the masses to rounding (a GPU may fuse the lumping's
+    // multiply-adds: 1 ulp apart on an NVIDIA H200, 2026-11-27).
+    for (i, (&g, &c)) in inv_mass[..nv].iter().zip(&cpu_inv).enumerate() {
+        assert!(
+            (g < 0.0) == (c < 0.0) && (g - c).abs() <= 1e-6 * c.abs(),
+            "inverse mass of vertex {i}: GPU {g:e}, CPU {c:e}"
+        );
+    }
     let speed = omega.length() * 0.012; // the spin's speed at the block's corners
     let (mut massless, mut worst, mut worst_mean) = (0, 0.0f32, 0.0f32);
     for i in (0..nv).filter(|&i| inv_mass[i] < 0.0) {
@@ -794,12 +809,30 @@ fn hybrid_trajectory_300_steps_gpu_matches_cpu() {
 
 /// Snapshots of batches of 100 steps on the CPU (`c`) and the GPU (`g`) agree: the same
 /// dynamic-particle counts (some), vertex and particle displacements and the tool force within
-/// 1e-4 relative. `label` prefixes the printed lines.
+/// 1e-4 of the largest the CPU reaches over the whole trajectory (not of each snapshot's own:
+/// before the tool touches, the CPU's block is exactly at rest, while a GPU that fuses the
+/// force's multiply-adds moves it by rounding, 1e-11 m on an NVIDIA H200, 2026-11-27).
+/// `label` prefixes the printed lines.
 fn backends_agree(label: &str, c: &[Snapshot], g: &[Snapshot]) {
+    let largest = |x: &[f32]| x.iter().fold(0.0f64, |m, &v| m.max((v as f64).abs()));
+    let scale_u = c
+        .iter()
+        .map(|s| largest(&s.0))
+        .fold(f64::MIN_POSITIVE, f64::max);
+    let scale_p = c
+        .iter()
+        .map(|s| largest(&s.1))
+        .fold(f64::MIN_POSITIVE, f64::max);
+    let scale_f = c.iter().map(|s| s.2.length()).fold(1e-30, f64::max);
+    let off = |a: &[f32], b: &[f32]| {
+        a.iter()
+            .zip(b)
+            .fold(0.0f64, |m, (&x, &y)| m.max((x as f64 - y as f64).abs()))
+    };
     for (k, (cc, gg)) in c.iter().zip(g).enumerate() {
-        let eu = rel(&gg.0, &cc.0);
-        let ep = rel(&gg.1, &cc.1);
-        let ef = (gg.2 - cc.2).length() / cc.2.length().max(1e-30);
+        let eu = off(&gg.0, &cc.0) / scale_u;
+        let ep = off(&gg.1, &cc.1) / scale_p;
+        let ef = (gg.2 - cc.2).length() / scale_f;
         eprintln!(
             "{label}step {}: {} dynamic particles, |F| {:.4e} N; rel err vertices {eu:.2e}, particles {ep:.2e}, tool force {ef:.2e}",
             100 * (k + 1),
@@ -1014,7 +1047,7 @@ fn sph_forces_accumulate_and_particle_reduce_match_their_cpu_twins() {
             "sph_forces_accumulate: {name} rel err {e:.2e} ({touching} particles touch the tool)"
         );
         assert!(
-            e <= KERNEL_TOL,
+            e <= SPH_FORCES_TOL,
             "sph_forces_accumulate: {name} rel err {e:.2e}"
         );
     }
@@ -1499,20 +1532,34 @@ fn the_cpu_activation_skips_only_particles_the_kernel_leaves_unchanged() {
         if let Some(d) = differ(&gmode, &pmode[..n]) {
             panic!("tool position {k}: particle_mode: {d}");
         }
-        for (name, c) in [
-            ("particle_timer", &ptimer),
-            ("particle_offset", &poffset),
-            ("particle_displacements", &pu),
-            ("particle_velocities", &pv),
+        // The floats to rounding: a GPU may fuse the embedding's multiply-adds (1 ulp apart on
+        // an NVIDIA H200, 2026-11-27); a particle wrongly skipped keeps a stale timer, offset
+        // or place, far more than rounding off. A release offset u − Σ w u is a difference of
+        // displacements, so it is rounded on their scale (0 against 1.9e-9 m there).
+        let largest = |x: &[f32]| x.iter().fold(f32::MIN_POSITIVE, |m, &v| m.max(v.abs()));
+        for (name, c, scale) in [
+            ("particle_timer", &ptimer, largest(&ptimer)),
+            ("particle_offset", &poffset, largest(&pu)),
+            ("particle_displacements", &pu, largest(&pu)),
+            ("particle_velocities", &pv, largest(&pv)),
         ] {
-            if let Some(d) = differ(&bits(&g.read_f32(name).unwrap()), &bits(c)) {
-                panic!("tool position {k}: {name}: {d}");
+            let kernel = g.read_f32(name).unwrap();
+            let bad: Vec<usize> = (0..c.len())
+                .filter(|&i| (kernel[i] - c[i]).abs() > 1e-6 * scale)
+                .collect();
+            if let Some(&i) = bad.first() {
+                panic!(
+                    "tool position {k}: {name}: {} entries differ by more than rounding, first [{i}]: kernel {:e}, twin {:e}",
+                    bad.len(),
+                    kernel[i],
+                    c[i]
+                );
             }
         }
         dynamic_max = dynamic_max.max(pmode.iter().filter(|&&m| m & mode::DYNAMIC != 0).count());
     }
     eprintln!(
-        "activation sweep: {n} particles, {near} particle-positions within 10 % of the activation radius, up to {dynamic_max} dynamic: kernel and twin equal"
+        "activation sweep: {n} particles, {near} particle-positions within 10 % of the activation radius, up to {dynamic_max} dynamic: kernel and twin give the same modes, and values equal to rounding"
     );
     assert!(
         near > 100,

@@ -1,0 +1,96 @@
+#!/usr/bin/env bash
+# One call on a lent GPU machine (the `device` tool of this workplace): the GPU≡CPU tests and
+# the benchmarks on a real GPU, from binaries built on the development machine.
+#
+# Here, first:
+#   cargo build --release --all-targets
+#   bash benches/real_gpu.sh pack        # .devbin/bins.tgz: the stripped test/bench binaries
+# then on the device, from the repository root, with .gl (the Vulkan loader, see the device
+# tool's README) and .devbin carried:
+#   bash benches/real_gpu.sh tests       # the machine, the GPU tests, hybrid_step
+#   bash benches/real_gpu.sh benches     # fem_step, lv at 1M tets, haptic lv_touch, hm1 stages
+# (two calls of about five minutes each; each writes $OUT/log.txt).
+set -u
+BINS="gpu_vs_cpu particles contact cardiac_gpu cardiac_wiring lv_mesh step_plan cli hybrid_step fem_step"
+
+if [ "${1:-}" = "pack" ]; then
+  set -e
+  rm -rf .devbin && mkdir -p .devbin/bin
+  for n in $BINS; do
+    f=$(ls -t target/release/deps/"$n"-* | grep -v '\.d$' | head -1)
+    cp "$f" .devbin/bin/"$n"
+  done
+  cp target/release/palpate target/release/examples/profile_stages .devbin/bin/
+  strip .devbin/bin/*
+  (cd .devbin && tar czf bins.tgz bin && rm -rf bin)
+  ls -la .devbin
+  exit 0
+fi
+
+OUT=${OUT:-/tmp/out}
+mkdir -p "$OUT"
+log=$OUT/log.txt
+for f in .gl/*.deb; do dpkg -x "$f" /; done
+ldconfig
+tar xzf .devbin/bins.tgz -C .devbin
+B=$PWD/.devbin/bin
+# The test binaries were built in /work/main: their CARGO_BIN_EXE_palpate and manifest paths
+# point there.
+if [ ! -e /work/main ]; then mkdir -p /work && ln -s "$PWD" /work/main; fi
+mkdir -p target/release && cp "$B/palpate" target/release/palpate
+export XDG_RUNTIME_DIR=/tmp
+section() { echo; echo "=== $* ($(date -u +%T))"; }
+
+{
+  section "machine"
+  date -u
+  nvidia-smi --query-gpu=name,driver_version,memory.total,clocks.sm,clocks.mem,temperature.gpu --format=csv
+  nproc
+  "$B/palpate" info 2>&1 | head -40
+} 2>&1 | tee "$log"
+if ! "$B/palpate" info 2>&1 | grep -qi nvidia; then
+  export VK_DRIVER_FILES=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
+  export __EGL_VENDOR_LIBRARY_FILENAMES=/usr/local/nvidia/share/glvnd/egl_vendor.d/10_nvidia.json
+  { section "info with VK_DRIVER_FILES"; "$B/palpate" info 2>&1 | head -40; } 2>&1 | tee -a "$log"
+fi
+if ! "$B/palpate" info 2>&1 | grep -qi nvidia; then echo "no NVIDIA adapter: stop" | tee -a "$log"; exit 3; fi
+export PALPATE_ADAPTER=NVIDIA
+
+if [ "${1:-}" = "tests" ]; then
+{
+  section "GPU tests (PALPATE_ADAPTER=NVIDIA)"
+  for n in gpu_vs_cpu particles contact cardiac_gpu cardiac_wiring lv_mesh step_plan cli; do
+    echo "--- $n"
+    timeout 100 "$B/$n" --test-threads 8 2>&1 | grep -E "^test |test result|panicked|assert|FAILED|error" | grep -v " ok$"
+    echo "rc ${PIPESTATUS[0]}"
+  done
+
+  section "hybrid_step (criterion; ratio table last)"
+  timeout 200 "$B/hybrid_step" --bench 2>&1 | grep -v "^$\|Warming\|Collecting\|Analyzing\|Found\|outlier\|mild\|severe\|change:\|Performance\|No change"
+
+  section "done"
+} 2>&1 | tee -a "$log"
+exit 0
+fi
+
+{
+  section "fem_step (criterion; ratio table and GPU stage times last)"
+  timeout 200 "$B/fem_step" --bench 2>&1 | grep -v "^$\|Warming\|Collecting\|Analyzing\|Found\|outlier\|mild\|severe\|change:\|Performance\|No change"
+
+  section "lv at 1,022,208 tets (resolution 22), 100 steps: gpu, then cpu (all cores)"
+  sed 's/^resolution = 3 .*/resolution = 22/' scenes/lv.toml > /tmp/lv_1m.toml
+  for b in gpu cpu; do
+    timeout 120 "$B/palpate" run /tmp/lv_1m.toml --steps 100 --backend $b --out /tmp/lv1m_$b 2>&1 | tail -3
+    grep -E '"(backend|steps|wall_seconds|steps_per_second|realtime_factor|max_displacement)"' /tmp/lv1m_$b/summary.json
+  done
+
+  section "haptic lv_touch, 3 mm scripted press, 3 s, gpu then cpu"
+  printf 't,x,y,z\n0,0,0,0\n0.5,-0.003,0,0\n3,-0.003,0,0\n' > /tmp/press.csv
+  for b in gpu cpu; do
+    timeout 30 "$B/palpate" haptic --device scripted:/tmp/press.csv --seconds 3 --backend $b --out /tmp/hap_$b 2>&1 | tail -4
+  done
+
+  section "hm1 stage times on the GPU (timestamp queries), tool held at t = 3.5"
+  timeout 60 "$B/profile_stages" hm1 3.5 100 gpu 2>&1 | tail -40
+  section "done"
+} 2>&1 | tee -a "$log"
