@@ -13,9 +13,13 @@ use palpate::Scene;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let name = args.first().ok_or("usage: exact_tool_trace <scene> [duration] [batch]")?;
+    let name = args
+        .first()
+        .ok_or("usage: exact_tool_trace <scene> [duration] [batch]")?;
     let scene = Scene::load(name)?;
-    let duration: f64 = args.get(1).map_or(Ok(scene.solver.duration.unwrap_or(10.0)), |s| s.parse())?;
+    let duration: f64 = args
+        .get(1)
+        .map_or(Ok(scene.solver.duration.unwrap_or(10.0)), |s| s.parse())?;
     let batch: u32 = args.get(2).map_or(Ok(10), |s| s.parse())?;
     let sim = Simulation::new(&scene, Backend::Cpu, SimOptions::default())?;
     let model = sim.model.clone();
@@ -26,7 +30,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut from = tool.map(|tl| tl.position_at(0.0));
     while t < duration {
         let to = tool.map(|tl| tl.position_at(t + batch as f64 * sim.dt));
-        c.submit(batch, &BatchInput { tool: from.zip(to), tool_slice: None })?;
+        c.submit(
+            batch,
+            &BatchInput {
+                tool: from.zip(to),
+                tool_slice: None,
+            },
+        )?;
         let report = c.wait()?;
         from = to;
         t += batch as f64 * sim.dt;
@@ -37,8 +47,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             .chunks_exact(3)
             .map(|v| glam::Vec3::from_slice(v).length())
             .fold(0.0f32, f32::max);
-        let dynamic: Vec<usize> = (0..p.len()).filter(|&q| ps.modes[q] & mode::DYNAMIC != 0).collect();
-        let blending = (0..p.len()).filter(|&q| ps.modes[q] & mode::BLENDING != 0).count();
+        let dynamic: Vec<usize> = (0..p.len())
+            .filter(|&q| ps.modes[q] & mode::DYNAMIC != 0)
+            .collect();
+        let blending = (0..p.len())
+            .filter(|&q| ps.modes[q] & mode::BLENDING != 0)
+            .count();
         let delta = dynamic
             .iter()
             .map(|&q| {
@@ -51,7 +65,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let slaved = sl.slaved.iter().filter(|&&s| s).count();
         let offset = (0..sl.slaved.len())
             .filter(|&v| sl.slaved[v])
-            .map(|v| off.left(v, c.particle_params().map_or(0.0, |pp| pp.blend)).length())
+            .map(|v| {
+                off.left(v, c.particle_params().map_or(0.0, |pp| pp.blend))
+                    .length()
+            })
             .fold(0.0f32, f32::max);
         let spread = (0..sl.slaved.len())
             .filter(|&v| sl.slaved[v])

@@ -32,7 +32,7 @@ use super::{load3, store3};
 use crate::model::Model;
 use crate::particles::params::{mode, ParticleParams};
 use crate::particles::Particles;
-use glam::Vec3;
+use glam::{DMat3, DVec3, Vec3};
 
 /// The fading offsets of the slaved vertices (item 3 of the module's doc).
 #[derive(Clone, Debug, Default)]
@@ -188,12 +188,34 @@ pub fn reslave(
         }
         // A particle released by this update keeps its displacement, its velocity and an
         // expired dwell clock; one that was not released starts as any activated one.
-        particles.timer[q] = if m & mode::RELEASED != 0 { pp.dwell } else { -1.0 };
+        particles.timer[q] = if m & mode::RELEASED != 0 {
+            pp.dwell
+        } else {
+            -1.0
+        };
         particles.mode[q] = (m & !(mode::BLENDING | mode::RELEASED)) | mode::DYNAMIC;
         store3(particles.offset, q, Vec3::ZERO);
     }
-    // Mass shares: old leave at their vertices' velocities, new join at the particle's.
+    // What the re-lump touches, and its angular momentum before.
     let nv = model.n_vertices();
+    let touched: Vec<usize> = (0..nv)
+        .filter(|&a| {
+            model.inv_mass[a] != 0.0
+                && (old.slaved[a] != new.slaved[a] || old.vertex_mass[a] != new.vertex_mass[a])
+        })
+        .collect();
+    let switched: Vec<usize> = (0..n)
+        .filter(|&q| old.dynamic[q] != new.dynamic[q])
+        .collect();
+    let l_before = angular_momentum(&point_masses(
+        model,
+        pd,
+        old,
+        (&touched, &switched),
+        (vertex_u, vertex_v),
+        (particles.displacements, particles.velocities),
+    ));
+    // Mass shares: old leave at their vertices' velocities, new join at the particle's.
     let mut joined = vec![Vec3::ZERO; nv];
     for q in 0..n {
         let was_follower = !old.dynamic[q];
@@ -230,6 +252,49 @@ pub fn reslave(
         let v = load3(vertex_v, a) + joined[a] / new.vertex_mass[a];
         store3(vertex_v, a, v);
     }
+    // The angular momentum the moved masses carried: mass that changes hands between a
+    // vertex and a particle (or another vertex) changes place, so the re-lump alone keeps Σ m v
+    // but not Σ x × m v. The difference goes back as a rigid spin of the touched masses about
+    // their centre, v += δω × (x − c) with I δω = ΔL, which leaves Σ m v as it is.
+    let after = point_masses(
+        model,
+        pd,
+        &new,
+        (&touched, &switched),
+        (vertex_u, vertex_v),
+        (particles.displacements, particles.velocities),
+    );
+    let dl = l_before - angular_momentum(&after);
+    // Too few touched masses to spin (one vertex that took a released particle's mass whose
+    // other corners are slaved, say): spin every dynamic particle with them.
+    let (after, spin) = match spin_back(&after, dl) {
+        Some(spin) => (after, Some(spin)),
+        None => {
+            let dynamic: Vec<usize> = (0..n)
+                .filter(|&q| new.dynamic[q] && old.dynamic[q])
+                .collect();
+            let mut wider = after;
+            wider.extend(point_masses(
+                model,
+                pd,
+                &new,
+                (&[], &dynamic),
+                (vertex_u, vertex_v),
+                (particles.displacements, particles.velocities),
+            ));
+            let spin = spin_back(&wider, dl);
+            (wider, spin)
+        }
+    };
+    if let Some((centre, dw)) = spin {
+        for p in after {
+            let v = p.velocity + dw.cross(p.position - centre);
+            match p.index {
+                Lump::Vertex(a) => store3(vertex_v, a, v.as_vec3()),
+                Lump::Particle(q) => store3(particles.velocities, q, v.as_vec3()),
+            }
+        }
+    }
     // Fading offsets of the slaved vertices whose fit is new.
     for v in 0..nv {
         if !new.slaved[v] {
@@ -260,4 +325,81 @@ pub fn reslave(
         (particles.displacements, particles.velocities),
     );
     Ok((new, counts))
+}
+
+/// Whose mass a [`PointMass`] is.
+#[derive(Clone, Copy, Debug)]
+enum Lump {
+    Vertex(usize),
+    Particle(usize),
+}
+
+/// A lumped mass at its current place.
+struct PointMass {
+    index: Lump,
+    position: DVec3,
+    mass: f64,
+    velocity: DVec3,
+}
+
+/// The masses under `slaving` among the given vertices (free ones: their lumped mass) and
+/// particles (dynamic ones: the particle mass).
+fn point_masses(
+    model: &Model,
+    pd: &Particles,
+    slaving: &Slaving,
+    (vertices, particles): (&[usize], &[usize]),
+    (vertex_u, vertex_v): (&[f32], &[f32]),
+    (particle_u, particle_v): (&[f32], &[f32]),
+) -> Vec<PointMass> {
+    let vertex = vertices
+        .iter()
+        .filter(|&&a| !slaving.slaved[a])
+        .map(|&a| PointMass {
+            index: Lump::Vertex(a),
+            position: (load3(&model.rest, a) + load3(vertex_u, a)).as_dvec3(),
+            mass: slaving.vertex_mass[a] as f64,
+            velocity: load3(vertex_v, a).as_dvec3(),
+        });
+    let particle = particles
+        .iter()
+        .filter(|&&q| slaving.dynamic[q])
+        .map(|&q| PointMass {
+            index: Lump::Particle(q),
+            position: (pd.rest_position(q) + load3(particle_u, q)).as_dvec3(),
+            mass: pd.mass as f64,
+            velocity: load3(particle_v, q).as_dvec3(),
+        });
+    vertex.chain(particle).collect()
+}
+
+/// Σ x × m v.
+fn angular_momentum(masses: &[PointMass]) -> DVec3 {
+    masses.iter().fold(DVec3::ZERO, |l, p| {
+        l + p.position.cross(p.velocity * p.mass)
+    })
+}
+
+/// The centre c = Σ m x / Σ m of `masses` and the spin δω = I⁻¹ ΔL about it (I = Σ m (|r|² 𝟙
+/// − r rᵀ), r = x − c); None for no change or masses too nearly on a line to spin
+/// (det I ≤ 10⁻⁹ (tr I / 3)³).
+fn spin_back(masses: &[PointMass], dl: DVec3) -> Option<(DVec3, DVec3)> {
+    let total: f64 = masses.iter().map(|p| p.mass).sum();
+    if dl == DVec3::ZERO || total <= 0.0 {
+        return None;
+    }
+    let centre = masses
+        .iter()
+        .fold(DVec3::ZERO, |c, p| c + p.position * p.mass)
+        / total;
+    let mut inertia = DMat3::ZERO;
+    for p in masses {
+        let r = p.position - centre;
+        inertia += (DMat3::IDENTITY * r.length_squared()
+            - DMat3::from_cols(r * r.x, r * r.y, r * r.z))
+            * p.mass;
+    }
+    let trace = (inertia.x_axis.x + inertia.y_axis.y + inertia.z_axis.z) / 3.0;
+    (trace > 0.0 && inertia.determinant() > 1e-9 * trace * trace * trace)
+        .then(|| (centre, inertia.inverse() * dl))
 }

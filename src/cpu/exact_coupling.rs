@@ -380,26 +380,38 @@ pub fn slave_weights(beta: &[f32], offsets: &[Vec3]) -> Option<Vec<f32>> {
     )
 }
 
-/// The largest Σ|s_q| a slaved vertex's fit may have: the factor by which the fit can magnify
-/// its particles' motion off an affine field. Fits over a vertex's whole set of hosted
-/// particles reach 4.03 on hm1 (a vertex at the edge of its particles' cloud is extrapolated);
-/// under the tool, a thin set at the edge of the dynamic region gave 25 and blew the run up
-/// within a step (2026-11-25). A vertex whose fit exceeds it stays free.
-pub const MAX_FIT_GAIN: f32 = 6.0;
+/// The least share of its full lumped mass (what all its hosted particles give it) a free vertex
+/// with no core mass may keep. Its tets keep their full stiffness, so a free vertex's step bound
+/// scales with √(its mass): at a half it loses at most a factor √2. Below it, the vertex is
+/// slaved.
+pub const MIN_FREE_MASS_FRACTION: f64 = 0.5;
+
+/// The largest Σ s_q² · Σ_all w a slaved vertex's fit may have (Σ_all w: its weights over all
+/// the particles it hosts). Through the fit its tets' stiffness K lands on its particles as
+/// K s sᵀ, whose largest frequency is K Σ s² / m_p against K / (m_p Σ_all w) for the vertex
+/// free with all its mass, so this bounds how much the slaving raises that vertex's frequency²
+/// (a vertex in the middle of its particles, s ≈ w/Σw, gives Σ w²/Σ w ≤ 1). A fit over too thin
+/// a set of dynamic particles exceeds it; then every unpinned particle the vertex hosts is made
+/// dynamic and it is fitted over all of them. (Thin fits put a vertex's stiffness on a few
+/// particles: on hm1 fits with Σ|s| of 25 blew the run up within a step, 2026-11-25.)
+pub const MAX_FIT_STIFFENING: f64 = 4.0;
 
 /// The vertices slaved to the dynamic particles under design 8, and the lumped masses that go
-/// with them. A vertex is slaved when it is not fixed, carries no core mass (it touches only
-/// particle-holding zone tets) and hosts a dynamic particle: its tets keep their full
-/// stiffness, and with only its followers' small shares of mass it would need a far smaller
-/// step, so its place is the affine fit of its dynamic particles, x_V = Σ s_q x_q
-/// ([`slave_weights`], β = w_Vq m_p), and its force goes to them as s_q f_V (Σ s = 1 and
-/// x_V = Σ s_q x_q keep Σ f and Σ x × f). Its followers' mass goes to their other corners,
-/// in proportion to their weights. A vertex whose dynamic particles' offsets do not span three
-/// dimensions, or whose fit's gain exceeds [`MAX_FIT_GAIN`] (a few at the edge of the dynamic
-/// region), is not placed by them: it stays free, with its followers' mass.
+/// with them. A vertex that is not fixed and carries no core mass (it touches only
+/// particle-holding zone tets) keeps as mass only its followers' shares, while its tets keep
+/// their full stiffness. When those shares fall below [`MIN_FREE_MASS_FRACTION`] of what all
+/// its particles would give it, the vertex is slaved: its place is the affine fit of its
+/// dynamic particles, x_V = Σ s_q x_q ([`slave_weights`], β = w_Vq m_p), and its force goes to
+/// them as s_q f_V (Σ s = 1 and x_V = Σ s_q x_q keep Σ f and Σ x × f). Where that fit is too
+/// thin ([`MAX_FIT_STIFFENING`], or offsets that do not span three dimensions), every unpinned
+/// particle the vertex hosts is made dynamic first; so is a follower whose four corners all
+/// ask to be slaved; repeated until none asks for more.
+/// Its followers' mass goes to their other corners, in proportion to their weights. A vertex
+/// whose particles' offsets do not span three dimensions even then stays free, with its
+/// followers' mass.
 #[derive(Clone, Debug)]
 pub struct Slaving {
-    /// The dynamic set, closed: the given one plus the followers whose corners are all slaved.
+    /// The dynamic set, widened: the given one plus the particles of the vertices it slaves.
     pub dynamic: Vec<bool>,
     /// Per vertex, whether it is slaved.
     pub slaved: Vec<bool>,
@@ -435,9 +447,8 @@ impl std::fmt::Display for SlavingError {
 }
 
 impl Slaving {
-    /// The slaving of `dynamic` in `model` (`particles` = the model's). Followers whose four
-    /// corners are all slaved become dynamic (their place would be fixed by the particles
-    /// anyway, and their mass would have no vertex to go to), until no more do.
+    /// The slaving of `dynamic` in `model` (`particles` = the model's): the dynamic set is
+    /// first widened as the type's doc says; the result's `dynamic` is the widened set.
     pub fn new(
         model: &Model,
         particles: &Particles,
@@ -445,23 +456,39 @@ impl Slaving {
     ) -> Result<Slaving, SlavingError> {
         let nv = model.n_vertices();
         let mut dynamic = dynamic.to_vec();
-        let (slaved, fit) = loop {
-            let (slaved, fit) = Self::fits(model, particles, &dynamic);
-            let enclosed: Vec<usize> = (0..particles.len())
-                .filter(|&q| {
-                    !dynamic[q]
-                        && model.tets[particles.host[q] as usize]
-                            .iter()
-                            .all(|&v| slaved[v as usize])
-                })
+        // More dynamic particles only lower the followers' shares: the widening grows to the
+        // least set that asks for no more, whatever the order of the vertices.
+        loop {
+            let mut woke = false;
+            for v in 0..nv {
+                if !Self::wants_slaving(model, particles, &dynamic, v)
+                    || Self::fit_of(model, particles, &dynamic, v).is_some()
+                {
+                    continue;
+                }
+                for q in Self::hosted(particles, v).map(|(q, _)| q) {
+                    if !dynamic[q] && !particles.pinned[q] {
+                        dynamic[q] = true;
+                        woke = true;
+                    }
+                }
+            }
+            // A follower whose four corners all want slaving would leave its mass nowhere.
+            let wants: Vec<bool> = (0..nv)
+                .map(|v| Self::wants_slaving(model, particles, &dynamic, v))
                 .collect();
-            if enclosed.is_empty() {
-                break (slaved, fit);
+            for q in 0..particles.len() {
+                let t = model.tets[particles.host[q] as usize];
+                if !dynamic[q] && !particles.pinned[q] && t.iter().all(|&v| wants[v as usize]) {
+                    dynamic[q] = true;
+                    woke = true;
+                }
             }
-            for q in enclosed {
-                dynamic[q] = true;
+            if !woke {
+                break;
             }
-        };
+        }
+        let (slaved, fit) = Self::fits(model, particles, &dynamic);
         let mut mass: Vec<f64> = particles.core_mass.iter().map(|&m| m as f64).collect();
         for q in (0..particles.len()).filter(|&q| !dynamic[q]) {
             let t = model.tets[particles.host[q] as usize];
@@ -489,42 +516,91 @@ impl Slaving {
         })
     }
 
-    /// Which vertices `dynamic` slaves (no core mass, not fixed, a dynamic particle hosted and
-    /// offsets that span three dimensions) and their fits.
+    /// Vertex v's hosted particles and their weights on it.
+    fn hosted(particles: &Particles, v: usize) -> impl Iterator<Item = (usize, f32)> + '_ {
+        let slots = &particles.slots
+            [particles.slot_offsets[v] as usize..particles.slot_offsets[v + 1] as usize];
+        slots
+            .iter()
+            .map(|&slot| (slot as usize / 4, particles.weights[slot as usize]))
+    }
+
+    /// Whether vertex v, under `dynamic`, is not fixed, has no core mass, hosts a dynamic
+    /// particle and keeps less than [`MIN_FREE_MASS_FRACTION`] of its hosted weight on
+    /// followers.
+    fn wants_slaving(model: &Model, particles: &Particles, dynamic: &[bool], v: usize) -> bool {
+        if model.inv_mass[v] == 0.0 || particles.core_mass[v] != 0.0 {
+            return false;
+        }
+        let (mut all, mut followers) = (0.0f64, 0.0f64);
+        for (q, w) in Self::hosted(particles, v) {
+            all += w as f64;
+            if !dynamic[q] {
+                followers += w as f64;
+            }
+        }
+        followers < all && followers < MIN_FREE_MASS_FRACTION * all
+    }
+
+    /// Vertex v's affine fit over its dynamic particles, (q, s_q); None when their offsets do
+    /// not span three dimensions or the fit exceeds [`MAX_FIT_STIFFENING`].
+    fn fit_of(
+        model: &Model,
+        particles: &Particles,
+        dynamic: &[bool],
+        v: usize,
+    ) -> Option<Vec<(u32, f32)>> {
+        let all: f64 = Self::hosted(particles, v).map(|(_, w)| w as f64).sum();
+        let f = Self::full_fit(model, particles, dynamic, v)?;
+        let stiffening = all * f.iter().map(|&(_, s)| (s as f64).powi(2)).sum::<f64>();
+        (stiffening <= MAX_FIT_STIFFENING).then_some(f)
+    }
+
+    /// Vertex v's affine fit over its dynamic particles, however thin (None when their
+    /// offsets do not span three dimensions).
+    fn full_fit(
+        model: &Model,
+        particles: &Particles,
+        dynamic: &[bool],
+        v: usize,
+    ) -> Option<Vec<(u32, f32)>> {
+        let hosted: Vec<(usize, f32)> = Self::hosted(particles, v)
+            .filter(|&(q, _)| dynamic[q])
+            .collect();
+        let x_v = load3(&model.rest, v);
+        let beta: Vec<f32> = hosted.iter().map(|&(_, w)| w * particles.mass).collect();
+        let offsets: Vec<Vec3> = hosted
+            .iter()
+            .map(|&(q, _)| (particles.rest_position(q) - x_v) / particles.settings.spacing as f32)
+            .collect();
+        let s = slave_weights(&beta, &offsets)?;
+        Some(
+            hosted
+                .iter()
+                .zip(s)
+                .map(|(&(q, _), s)| (q as u32, s))
+                .collect(),
+        )
+    }
+
+    /// Which vertices `dynamic` (already widened) slaves ([`Self::wants_slaving`], offsets that
+    /// span three dimensions) and their fits over their dynamic particles.
     fn fits(
         model: &Model,
         particles: &Particles,
         dynamic: &[bool],
     ) -> (Vec<bool>, Vec<Vec<(u32, f32)>>) {
         let nv = model.n_vertices();
-        let mut hosted: Vec<Vec<(u32, f32)>> = vec![Vec::new(); nv];
-        for q in (0..particles.len()).filter(|&q| dynamic[q]) {
-            let t = model.tets[particles.host[q] as usize];
-            for (c, &v) in t.iter().enumerate() {
-                hosted[v as usize].push((q as u32, particles.weights[4 * q + c]));
-            }
-        }
         let mut slaved = vec![false; nv];
         let mut fit = vec![Vec::new(); nv];
-        for v in 0..nv {
-            if model.inv_mass[v] == 0.0 || particles.core_mass[v] != 0.0 || hosted[v].is_empty() {
-                continue;
-            }
-            let x_v = load3(&model.rest, v);
-            let beta: Vec<f32> = hosted[v].iter().map(|&(_, w)| w * particles.mass).collect();
-            let offsets: Vec<Vec3> = hosted[v]
-                .iter()
-                .map(|&(q, _)| {
-                    (particles.rest_position(q as usize) - x_v) / particles.settings.spacing as f32
-                })
-                .collect();
-            // Too few dynamic particles to place it, or too thin a set to place it well: it
-            // keeps its place and its followers' mass.
-            if let Some(s) = slave_weights(&beta, &offsets)
-                .filter(|s| s.iter().map(|x| x.abs()).sum::<f32>() <= MAX_FIT_GAIN)
+        for v in (0..nv).filter(|&v| Self::wants_slaving(model, particles, dynamic, v)) {
+            // Too few particles to place it even all awake: it keeps its place and its
+            // followers' mass.
+            if let Some(f) = Self::fit_of(model, particles, dynamic, v)
+                .or_else(|| Self::full_fit(model, particles, dynamic, v))
             {
                 slaved[v] = true;
-                fit[v] = hosted[v].iter().zip(s).map(|(&(q, _), s)| (q, s)).collect();
+                fit[v] = f;
             }
         }
         (slaved, fit)
