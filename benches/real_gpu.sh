@@ -9,13 +9,17 @@
 # tool's README) and .devbin carried:
 #   bash benches/real_gpu.sh tests       # the machine, the GPU tests, hybrid_step
 #   bash benches/real_gpu.sh benches     # fem_step, lv at 1M tets, haptic lv_touch, hm1 stages
-# (two calls of about five minutes each; each writes $OUT/log.txt).
+#   bash benches/real_gpu.sh ab          # the GPU tests, then the ratio tables and hm1's GPU
+#                                        # stages of a change against .devbin/old.tgz (the
+#                                        # hybrid_step, fem_step and profile_stages binaries of
+#                                        # the build before it), in the same call
+# (calls of about five minutes each; each writes $OUT/log.txt).
 set -u
 BINS="gpu_vs_cpu particles contact cardiac_gpu cardiac_wiring lv_mesh step_plan cli hybrid_step fem_step"
 
 if [ "${1:-}" = "pack" ]; then
   set -e
-  rm -rf .devbin && mkdir -p .devbin/bin
+  rm -rf .devbin/bin .devbin/bins.tgz && mkdir -p .devbin/bin
   for n in $BINS; do
     f=$(ls -t target/release/deps/"$n"-* | grep -v '\.d$' | head -1)
     cp "$f" .devbin/bin/"$n"
@@ -55,6 +59,34 @@ if ! "$B/palpate" info 2>&1 | grep -qi nvidia; then
 fi
 if ! "$B/palpate" info 2>&1 | grep -qi nvidia; then echo "no NVIDIA adapter: stop" | tee -a "$log"; exit 3; fi
 export PALPATE_ADAPTER=NVIDIA
+
+if [ "${1:-}" = "ab" ]; then
+  mkdir -p .devbin/old && tar xzf .devbin/old.tgz -C .devbin/old
+  O=$PWD/.devbin/old
+  {
+    section "GPU tests (PALPATE_ADAPTER=NVIDIA)"
+    for n in particles gpu_vs_cpu contact cardiac_gpu cardiac_wiring lv_mesh step_plan cli; do
+      echo "--- $n"
+      timeout 100 "$B/$n" --test-threads 8 --nocapture 2>&1 | grep -E "rel err|test result|panicked|FAILED|differ|step [0-9]+:" | grep -v " ok$" | tail -40
+      echo "rc ${PIPESTATUS[0]}"
+    done
+    for round in 1 2; do
+      for v in old new; do
+        d=$B; [ $v = old ] && d=$O
+        section "round $round, $v: hybrid_step ratio table"
+        timeout 120 "$d/hybrid_step" --bench no_criterion_group_matches 2>&1 | grep "|"
+        if [ $round = 1 ]; then
+          section "round $round, $v: fem_step ratio table"
+          timeout 120 "$d/fem_step" --bench no_criterion_group_matches 2>&1 | grep "|"
+        fi
+        section "round $round, $v: hm1 GPU stages"
+        timeout 60 "$d/profile_stages" hm1 3.5 100 gpu 2>&1 | tail -16
+      done
+    done
+    section "done"
+  } 2>&1 | tee -a "$log"
+  exit 0
+fi
 
 if [ "${1:-}" = "tests" ]; then
 {

@@ -1,5 +1,10 @@
 // Stage: per vertex, f = m g + f_ext + sum of incident corner forces over the CSR incidence list
 // (vertex -> tet*4 + corner). No float atomics: deterministic. CPU twin: src/cpu/gather.rs.
+// Each vertex has LANES threads: lane j sums the list entries j, j + LANES, … and lane 0 adds
+// the lanes' sums in lane order (a fixed order; the twin sums in list order, so the two agree
+// to rounding). One thread walking a vertex's ~20–100 entries is a chain of dependent loads
+// whose latency, not bandwidth, bounds a small mesh's step on a real GPU (measured on an
+// NVIDIA H200, 2026-11-27: BENCHMARKS.md).
 // `gather` is the plain FEM sum; `gather_coupled` (scenes with a tool or particles) adds the
 // tool's contact force on a surface vertex (CONTACT) and the forces on the embedded particles
 // the vertex hosts, w_i f_p, over the CSR vertex -> particle slots (PARTICLES): over the short
@@ -35,14 +40,35 @@
 override CONTACT: bool = false;
 override PARTICLES: bool = false;
 
-const WORKGROUP: u32 = 64u;
+const LANES: u32 = 4u;
+const ITEMS_PER_WORKGROUP: u32 = 64u;
 
-fn sum_corners(i: u32) -> vec3<f32> {
-    var f = params.gravity * mass[i]
-        + vec3<f32>(external_forces[3u * i], external_forces[3u * i + 1u], external_forces[3u * i + 2u]);
-    for (var k = incidence_offsets[i]; k < incidence_offsets[i + 1u]; k++) {
+var<workgroup> lane_sums: array<vec3<f32>, 256>;
+
+// This lane's share of vertex i's incident corner forces.
+fn sum_corners(i: u32, lane: u32) -> vec3<f32> {
+    var f = vec3<f32>(0.0);
+    for (var k = incidence_offsets[i] + lane; k < incidence_offsets[i + 1u]; k += LANES) {
         let c = incidence[k];
         f += vec3<f32>(corner_forces[3u * c], corner_forces[3u * c + 1u], corner_forces[3u * c + 2u]);
+    }
+    return f;
+}
+
+// The body load on vertex i: m g + f_ext.
+fn body_force(i: u32) -> vec3<f32> {
+    return params.gravity * mass[i]
+        + vec3<f32>(external_forces[3u * i], external_forces[3u * i + 1u], external_forces[3u * i + 2u]);
+}
+
+// The item's lanes' sums added in lane order (call in uniform control flow: it has a barrier).
+fn add_lanes(local: u32, mine: vec3<f32>) -> vec3<f32> {
+    lane_sums[local] = mine;
+    workgroupBarrier();
+    let slot = local % ITEMS_PER_WORKGROUP;
+    var f = lane_sums[slot];
+    for (var j = 1u; j < LANES; j++) {
+        f += lane_sums[slot + j * ITEMS_PER_WORKGROUP];
     }
     return f;
 }
@@ -53,46 +79,62 @@ fn store(i: u32, f: vec3<f32>) {
     forces[3u * i + 2u] = f.z;
 }
 
-@compute @workgroup_size(64)
-fn gather(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
-    let i = linear_index(gid, nwg, WORKGROUP);
-    if i >= params.n_vertices {
-        return;
+@compute @workgroup_size(256)
+fn gather(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>, @builtin(local_invocation_index) local: u32) {
+    let i = workgroup_index(wid, nwg) * ITEMS_PER_WORKGROUP + local % ITEMS_PER_WORKGROUP;
+    let lane = local / ITEMS_PER_WORKGROUP;
+    let live = i < params.n_vertices;
+    var mine = vec3<f32>(0.0);
+    if live {
+        mine = sum_corners(i, lane);
     }
-    store(i, sum_corners(i));
+    let f = add_lanes(local, mine);
+    if live && lane == 0u {
+        store(i, body_force(i) + f);
+    }
 }
 
-@compute @workgroup_size(64)
-fn gather_coupled(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
-    let i = linear_index(gid, nwg, WORKGROUP);
-    if i >= params.n_vertices {
+@compute @workgroup_size(256)
+fn gather_coupled(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>, @builtin(local_invocation_index) local: u32) {
+    let i = workgroup_index(wid, nwg) * ITEMS_PER_WORKGROUP + local % ITEMS_PER_WORKGROUP;
+    let lane = local / ITEMS_PER_WORKGROUP;
+    let live = i < params.n_vertices;
+    var mine = vec3<f32>(0.0);
+    if live {
+        mine = sum_corners(i, lane);
+        if PARTICLES && (node_flags[i] & NODE_COUPLED) != 0u {
+            let first = particle_slot_offsets[i];
+            let short = coupled_valid[0] != 0u;
+            var last = particle_slot_offsets[i + 1u];
+            if short {
+                last = first + coupled_count[i];
+            }
+            // Over the short list a lane takes every LANES-th slot that passes the filter, as
+            // the twin does; over every slot (before the first activation, when no slot
+            // passes) every LANES-th slot.
+            for (var k = first + lane; k < last; k += LANES) {
+                var slot = particle_slots[k];
+                if short {
+                    slot = coupled_slots[k];
+                }
+                let p = slot / 4u;
+                let mode = particle_mode[p];
+                if (mode & MODE_IN_F) != 0u && (mode & MODE_DYNAMIC) == 0u {
+                    let fp = vec3<f32>(particle_force_sum[3u * p], particle_force_sum[3u * p + 1u], particle_force_sum[3u * p + 2u]);
+                    mine += fp * particle_weights[slot];
+                }
+            }
+        }
+    }
+    let sum = add_lanes(local, mine);
+    if !live || lane != 0u {
         return;
     }
-    var f = sum_corners(i);
+    var f = body_force(i) + sum;
     if CONTACT {
         let s = surface_index[i];
         if s != NOT_ON_SURFACE {
             f += vec3<f32>(contact_forces[3u * s], contact_forces[3u * s + 1u], contact_forces[3u * s + 2u]);
-        }
-    }
-    if PARTICLES && (node_flags[i] & NODE_COUPLED) != 0u {
-        let first = particle_slot_offsets[i];
-        let short = coupled_valid[0] != 0u;
-        var last = particle_slot_offsets[i + 1u];
-        if short {
-            last = first + coupled_count[i];
-        }
-        for (var k = first; k < last; k++) {
-            var slot = particle_slots[k];
-            if short {
-                slot = coupled_slots[k];
-            }
-            let p = slot / 4u;
-            let mode = particle_mode[p];
-            if (mode & MODE_IN_F) != 0u && (mode & MODE_DYNAMIC) == 0u {
-                let fp = vec3<f32>(particle_force_sum[3u * p], particle_force_sum[3u * p + 1u], particle_force_sum[3u * p + 2u]);
-                f += fp * particle_weights[slot];
-            }
         }
     }
     store(i, f);

@@ -15,7 +15,12 @@
 // compare with the twin; the tool's report is recomputed by tool_force). particle_force_sum collects f/substeps
 // over the sub-steps of a core step (ACCUMULATE is false on the first): embedded particles
 // pass it to their host vertices in gather_coupled, so the vertices receive the impulse
-// the particles received. CPU twin: src/cpu/sph_forces.rs.
+// the particles received. CPU twin: src/cpu/sph_forces.rs. Each particle has LANES threads:
+// lane j sums the pair terms of neighbours j, j + LANES, … and lane 0 adds the lanes' sums in
+// lane order, then gravity and contact (the twin sums in list order: the two agree to
+// rounding). One thread walking ~26 neighbours is a chain of dependent loads whose latency
+// bounds the stage when F holds a few hundred particles (NVIDIA H200, 2026-11-27:
+// BENCHMARKS.md).
 #import params
 #import index
 #import tool
@@ -47,7 +52,10 @@
 override ACCUMULATE: bool = false;
 override TOOL: bool = false;
 
-const WORKGROUP: u32 = 64u;
+const LANES: u32 = 4u;
+const ITEMS_PER_WORKGROUP: u32 = 64u;
+
+var<workgroup> lane_sums: array<vec3<f32>, 256>;
 
 fn rest(p: u32) -> vec3<f32> {
     return vec3<f32>(particle_rest[3u * p], particle_rest[3u * p + 1u], particle_rest[3u * p + 2u]);
@@ -96,14 +104,35 @@ fn store3(p: u32, which: u32, v: vec3<f32>) {
     }
 }
 
-@compute @workgroup_size(64)
-fn sph_forces(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
-    let k = linear_index(gid, nwg, WORKGROUP);
-    if k >= particle_counts[2] {
+@compute @workgroup_size(256)
+fn sph_forces(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>, @builtin(local_invocation_index) local: u32) {
+    let slot = local % ITEMS_PER_WORKGROUP;
+    let lane = local / ITEMS_PER_WORKGROUP;
+    let k = workgroup_index(wid, nwg) * ITEMS_PER_WORKGROUP + slot;
+    let live = k < particle_counts[2];
+    var c = 0u;
+    if live {
+        c = force_list[k];
+    }
+    lane_sums[local] = pair_forces(c, lane, live);
+    workgroupBarrier();
+    if !live || lane != 0u {
         return;
     }
+    var f = lane_sums[slot];
+    for (var j = 1u; j < LANES; j++) {
+        f += lane_sums[slot + j * ITEMS_PER_WORKGROUP];
+    }
+    finish(c, f);
+}
+
+// This lane's share of the pair forces on particle c (zero when not `live`).
+fn pair_forces(c: u32, lane: u32, live: bool) -> vec3<f32> {
+    var f = vec3<f32>(0.0);
+    if !live {
+        return f;
+    }
     let pp = particle_params;
-    let c = force_list[k];
     let mode_c = particle_mode[c];
     let in_s_c = (mode_c & MODE_IN_S) != 0u;
     let x0c = rest(c);
@@ -116,8 +145,7 @@ fn sph_forces(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgr
     }
     let v2 = pp.volume * pp.volume;
     let hg = 0.5 * pp.hourglass * pp.youngs * v2;
-    var f = vec3<f32>(0.0);
-    for (var n = neighbour_offsets[c]; n < neighbour_offsets[c + 1u]; n++) {
+    for (var n = neighbour_offsets[c] + lane; n < neighbour_offsets[c + 1u]; n += LANES) {
         let b = neighbours[n];
         let mode_b = particle_mode[b];
         let in_s_b = (mode_b & MODE_IN_S) != 0u;
@@ -156,6 +184,21 @@ fn sph_forces(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgr
             }
         }
     }
+    return f;
+}
+
+// Particle c's force from its pair forces `pairs`: gravity and contact on a dynamic particle,
+// then the stores.
+fn finish(c: u32, pairs: vec3<f32>) {
+    let pp = particle_params;
+    let mode_c = particle_mode[c];
+    let x0c = rest(c);
+    let uc = disp(c);
+    var f_c = identity3();
+    if (mode_c & MODE_IN_S) != 0u {
+        f_c = identity3() + mat(c, 1u);
+    }
+    var f = pairs;
     var contact = vec3<f32>(0.0);
     if (mode_c & MODE_DYNAMIC) != 0u {
         f += params.gravity * pp.mass;

@@ -5,7 +5,11 @@
 //   paper: the paper's eq. (1)-(2) stress with strain eps = F^T F - I (no 1/2), which is
 //          S = lambda tr(E) I + 2 mu E for E = eps/2 doubled; Psi = mu E:E + lambda/2 tr(E)^2.
 // Writes A_p = P G_p^T (so that P g_pb = A_p grad W_pb), H_p (for the hourglass penalty) and
-// V Psi. CPU twin: src/cpu/sph_stress.rs.
+// V Psi. CPU twin: src/cpu/sph_stress.rs. Each particle has LANES threads: lane j sums the
+// neighbours j, j + LANES, … and the lanes' sums are added in lane order (the twin sums in list
+// order: the two agree to rounding). One thread walking ~26 neighbours is a chain of dependent
+// loads whose latency bounds the stage when S holds a few hundred particles (NVIDIA H200,
+// 2026-11-27: BENCHMARKS.md).
 #import params
 #import index
 #import particles
@@ -27,7 +31,10 @@
 // Pipeline constant: the material law (as fem_forces' MATERIAL).
 override MATERIAL: u32 = 0u;
 
-const WORKGROUP: u32 = 64u;
+const LANES: u32 = 4u;
+const ITEMS_PER_WORKGROUP: u32 = 64u;
+
+var<workgroup> lane_sums: array<mat3x3<f32>, 256>;
 
 fn rest(p: u32) -> vec3<f32> {
     return vec3<f32>(particle_rest[3u * p], particle_rest[3u * p + 1u], particle_rest[3u * p + 2u]);
@@ -59,21 +66,33 @@ fn store9(a: u32, p: u32, m: mat3x3<f32>) {
     }
 }
 
-@compute @workgroup_size(64)
-fn sph_stress(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
-    let k = linear_index(gid, nwg, WORKGROUP);
-    if k >= particle_counts[1] {
+@compute @workgroup_size(256)
+fn sph_stress(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>, @builtin(local_invocation_index) local: u32) {
+    let slot = local % ITEMS_PER_WORKGROUP;
+    let lane = local / ITEMS_PER_WORKGROUP;
+    let k = workgroup_index(wid, nwg) * ITEMS_PER_WORKGROUP + slot;
+    let live = k < particle_counts[1];
+    var p = 0u;
+    var mine = mat3x3<f32>(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0));
+    if live {
+        p = stress_list[k];
+        let x = rest(p);
+        let up = disp(p);
+        for (var n = neighbour_offsets[p] + lane; n < neighbour_offsets[p + 1u]; n += LANES) {
+            let b = neighbours[n];
+            let w = kernel_gradient(rest(b) - x) * particle_params.volume;
+            let du = disp(b) - up;
+            mine += mat3x3<f32>(du * w.x, du * w.y, du * w.z);
+        }
+    }
+    lane_sums[local] = mine;
+    workgroupBarrier();
+    if !live || lane != 0u {
         return;
     }
-    let p = stress_list[k];
-    let x = rest(p);
-    let up = disp(p);
-    var s = mat3x3<f32>(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0));
-    for (var n = neighbour_offsets[p]; n < neighbour_offsets[p + 1u]; n++) {
-        let b = neighbours[n];
-        let w = kernel_gradient(rest(b) - x) * particle_params.volume;
-        let du = disp(b) - up;
-        s += mat3x3<f32>(du * w.x, du * w.y, du * w.z);
+    var s = lane_sums[slot];
+    for (var j = 1u; j < LANES; j++) {
+        s += lane_sums[slot + j * ITEMS_PER_WORKGROUP];
     }
     let c = 9u * p;
     let g = mat3x3<f32>(

@@ -154,8 +154,9 @@ fn cardiac_kernels_bind_what_their_twins_read_in_the_same_order() {
         ),
     ];
     for (kernel, names) in expected {
-        let (bindings, workgroup) = reflect(kernel_source(kernel).unwrap(), kernel)
+        let r = reflect(kernel_source(kernel).unwrap(), kernel)
             .unwrap_or_else(|e| panic!("{kernel}: {e}"));
+        let (bindings, workgroup) = (r.bindings, r.workgroup_size);
         let got: Vec<&str> = bindings.iter().map(|b| b.name.as_str()).collect();
         assert_eq!(got, names, "{kernel}");
         assert_eq!(workgroup, 64, "{kernel}");
@@ -178,7 +179,9 @@ fn cardiac_kernels_bind_what_their_twins_read_in_the_same_order() {
         }
     }
     // The original laws' kernel keeps its own bindings (plus the particles' tet weights).
-    let (bindings, _) = reflect(kernel_source("fem_forces").unwrap(), "fem_forces").unwrap();
+    let bindings = reflect(kernel_source("fem_forces").unwrap(), "fem_forces")
+        .unwrap()
+        .bindings;
     let names: Vec<&str> = bindings.iter().map(|b| b.name.as_str()).collect();
     assert_eq!(
         names,

@@ -1041,7 +1041,13 @@ fn a_haptic_session_reports_inversions_while_in_contact() {
             let particles = peak["particles"].as_u64().unwrap();
             let at = peak["at_seconds"].as_f64().unwrap();
             assert!(particles > 0, "{name}: {peak}");
-            assert!((0.3..1.3).contains(&at), "{name}: first at t = {at} s");
+            // While in contact: the tool reaches the wall 1 mm into its 3 mm press, at 1/6 s,
+            // and leaves it by 1.3 s. (The bound was 0.3 s; a run beside a loaded test suite
+            // gave 0.239 s, 2026-11-27: a session's physics paces itself to the wall clock.)
+            assert!(
+                (1.0 / 6.0..1.3).contains(&at),
+                "{name}: first at t = {at} s"
+            );
             assert_eq!(
                 sm["inverted_particles"].as_u64(),
                 Some(0),

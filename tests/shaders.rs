@@ -138,7 +138,11 @@ fn step_params_matches_wgsl_layout() {
 #[test]
 fn reflection_sees_bindings_in_shader_order() {
     let source = palpate::gpu::kernel_source("gather").unwrap();
-    let (bindings, wg) = palpate::gpu::kernel::reflect(source, "gather").unwrap();
+    let palpate::gpu::kernel::Reflected {
+        bindings,
+        workgroup_size,
+        items_per_workgroup,
+    } = palpate::gpu::kernel::reflect(source, "gather").unwrap();
     let names: Vec<&str> = bindings.iter().map(|b| b.name.as_str()).collect();
     let expected = [
         "params",
@@ -150,7 +154,8 @@ fn reflection_sees_bindings_in_shader_order() {
         "forces",
     ];
     assert_eq!(names, expected);
-    assert_eq!(wg, 64);
+    // Four lanes per vertex: 256 threads cover 64 vertices (gather.wgsl's ITEMS_PER_WORKGROUP).
+    assert_eq!((workgroup_size, items_per_workgroup), (256, 64));
     assert_eq!(bindings[0].ty, wgpu::BufferBindingType::Uniform);
     assert_eq!(
         bindings[5].ty,
@@ -159,5 +164,39 @@ fn reflection_sees_bindings_in_shader_order() {
     assert_eq!(
         bindings[6].ty,
         wgpu::BufferBindingType::Storage { read_only: false }
+    );
+}
+
+/// Kernels that give each item several lanes declare `ITEMS_PER_WORKGROUP`; reflection reads
+/// it (direct dispatches then cover items, and the compacted lists' indirect arguments, which
+/// count 64-item workgroups, stay valid), a kernel without it covers one item a thread, and a
+/// value that does not divide the workgroup is refused.
+#[test]
+fn reflection_reads_the_items_a_workgroup_covers() {
+    use palpate::gpu::kernel::reflect;
+    for (file, entry) in [
+        ("gather", "gather"),
+        ("gather", "gather_coupled"),
+        ("sph_stress", "sph_stress"),
+        ("sph_forces", "sph_forces"),
+    ] {
+        let r = reflect(palpate::gpu::kernel_source(file).unwrap(), entry).unwrap();
+        assert_eq!(
+            (r.workgroup_size, r.items_per_workgroup),
+            (256, 64),
+            "{entry}"
+        );
+    }
+    let r = reflect(
+        palpate::gpu::kernel_source("integrate").unwrap(),
+        "integrate",
+    )
+    .unwrap();
+    assert_eq!(r.items_per_workgroup, r.workgroup_size);
+    let bad = "const ITEMS_PER_WORKGROUP: u32 = 48u;\n@compute @workgroup_size(64) fn main() {}";
+    let e = reflect(bad, "main").unwrap_err().to_string();
+    assert!(
+        e.contains("ITEMS_PER_WORKGROUP = 48") && e.contains("64"),
+        "{e}"
     );
 }

@@ -1,13 +1,42 @@
-//! CPU twin of `kernels/gather.wgsl`: per vertex, f = m·g + f_ext + Σ incident corner forces,
-//! summed in CSR order (no atomics, deterministic); `gather_coupled` adds the tool's contact
-//! force and the embedded particles' forces.
+//! CPU twin of `kernels/gather.wgsl`: per vertex, f = m·g + f_ext + Σ incident corner forces
+//! (no atomics, deterministic); `gather_coupled` adds the tool's contact force and the
+//! embedded particles' forces. The kernel gives each vertex [`LANES`] threads; the twin sums
+//! in the same order: lane j takes the list entries j, j + LANES, … (for the particle slots,
+//! the j-th, (j + LANES)-th, … slot that passes the filter, which is the kernel's order over
+//! its short list), and the lanes are added in lane order.
 
 use super::{load3, store3};
 use crate::params::StepParams;
 use glam::Vec3;
 
-/// Per vertex i: `forces[i] = mass[i]·g + external_forces[i] + Σ_{k ∈ offsets[i]..offsets[i+1]} corner_forces[incidence[k]]`
-/// (twin of entry `gather`).
+/// Threads per vertex in `gather.wgsl` (its `LANES`).
+pub const LANES: usize = 4;
+
+/// Σ over `lanes` in lane order: ((s₀ + s₁) + s₂) + s₃, as the kernel's `add_lanes`.
+fn add_lanes(lanes: &[Vec3; LANES]) -> Vec3 {
+    lanes[1..].iter().fold(lanes[0], |f, &s| f + s)
+}
+
+/// Each lane's share of vertex i's incident corner forces.
+fn corner_lanes(
+    corner_forces: &[f32],
+    incidence_offsets: &[u32],
+    incidence: &[u32],
+    i: usize,
+) -> [Vec3; LANES] {
+    let mut lanes = [Vec3::ZERO; LANES];
+    let (first, last) = (
+        incidence_offsets[i] as usize,
+        incidence_offsets[i + 1] as usize,
+    );
+    for (k, &c) in incidence[first..last].iter().enumerate() {
+        lanes[k % LANES] += load3(corner_forces, c as usize);
+    }
+    lanes
+}
+
+/// Per vertex i: `forces[i] = (mass[i]·g + external_forces[i]) + Σ_{k ∈ offsets[i]..offsets[i+1]} corner_forces[incidence[k]]`,
+/// the sum taken in the kernel's lane order (twin of entry `gather`).
 pub fn gather(
     params: &StepParams,
     corner_forces: &[f32],
@@ -19,10 +48,8 @@ pub fn gather(
 ) {
     let g = Vec3::from_array(params.gravity);
     super::par::for_each_chunk::<3>(forces, params.n_vertices as usize, |i, out| {
-        let mut f = g * mass[i] + load3(external_forces, i);
-        for k in incidence_offsets[i]..incidence_offsets[i + 1] {
-            f += load3(corner_forces, incidence[k as usize] as usize);
-        }
+        let lanes = corner_lanes(corner_forces, incidence_offsets, incidence, i);
+        let f = g * mass[i] + load3(external_forces, i) + add_lanes(&lanes);
         store3(out, 0, f);
     });
 }
@@ -52,8 +79,9 @@ pub struct Coupling<'a> {
     pub particles: bool,
 }
 
-/// Twin of entry `gather_coupled`: [`gather`] plus the contact force of a surface vertex
-/// and Σ wᵢ f_p over the embedded particles of the force set it hosts.
+/// Twin of entry `gather_coupled`: [`gather`] plus Σ wᵢ f_p over the embedded particles of
+/// the force set it hosts (in the lanes, after the corners) and the contact force of a surface
+/// vertex (last).
 #[allow(clippy::too_many_arguments)]
 pub fn gather_coupled(
     params: &StepParams,
@@ -67,25 +95,25 @@ pub fn gather_coupled(
 ) {
     let g = Vec3::from_array(params.gravity);
     super::par::for_each_chunk::<3>(forces, params.n_vertices as usize, |i, out| {
-        let mut f = g * mass[i] + load3(external_forces, i);
-        for k in incidence_offsets[i]..incidence_offsets[i + 1] {
-            f += load3(corner_forces, incidence[k as usize] as usize);
-        }
-        if c.contact {
-            let s = c.surface_index[i];
-            if s != crate::contact::NOT_ON_SURFACE {
-                f += load3(c.contact_forces, s as usize);
-            }
-        }
+        let mut lanes = corner_lanes(corner_forces, incidence_offsets, incidence, i);
         if c.particles && c.node_flags[i] & crate::particles::params::NODE_COUPLED != 0 {
             use crate::particles::params::mode;
+            let mut passed = 0;
             for k in c.slot_offsets[i]..c.slot_offsets[i + 1] {
                 let slot = c.slots[k as usize] as usize;
                 let p = slot / 4;
                 let m = c.mode[p];
                 if m & mode::IN_F != 0 && m & mode::DYNAMIC == 0 {
-                    f += load3(c.force_sum, p) * c.weights[slot];
+                    lanes[passed % LANES] += load3(c.force_sum, p) * c.weights[slot];
+                    passed += 1;
                 }
+            }
+        }
+        let mut f = g * mass[i] + load3(external_forces, i) + add_lanes(&lanes);
+        if c.contact {
+            let s = c.surface_index[i];
+            if s != crate::contact::NOT_ON_SURFACE {
+                f += load3(c.contact_forces, s as usize);
             }
         }
         store3(out, 0, f);

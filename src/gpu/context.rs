@@ -38,11 +38,30 @@ pub fn backends_from_env() -> Result<wgpu::Backends> {
     }
 }
 
+/// The process's one wgpu instance for `backends`, made on first use and shared by every
+/// context after (an instance is a handle: clones share it). On an NVIDIA H200 (driver
+/// 580.159.04, 2026-11-27) a test binary whose 8 threads each made their own instance and
+/// device hung in 6 of 10 runs and in none of 8 on one thread; drivers are known to hang
+/// when instances are enumerated or torn down from several threads at once (the same
+/// pattern on NVIDIA GB10, paiml/aprender#2063), so one instance per process, and devices
+/// opened one at a time ([`DEVICE_OPEN`]).
 fn instance(backends: wgpu::Backends) -> wgpu::Instance {
+    static INSTANCES: Mutex<Vec<(wgpu::Backends, wgpu::Instance)>> = Mutex::new(Vec::new());
+    let mut made = INSTANCES
+        .lock()
+        .unwrap_or_else(|poisoned| poisoned.into_inner());
+    if let Some((_, i)) = made.iter().find(|(b, _)| *b == backends) {
+        return i.clone();
+    }
     let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
     desc.backends = backends;
-    wgpu::Instance::new(desc)
+    let i = wgpu::Instance::new(desc);
+    made.push((backends, i.clone()));
+    i
 }
+
+/// Held while a device is opened: one at a time in the process (see [`instance`]).
+static DEVICE_OPEN: Mutex<()> = Mutex::new(());
 
 /// Rank for adapter preference: lower is better.
 fn rank(info: &wgpu::AdapterInfo) -> (u8, u8) {
@@ -133,7 +152,10 @@ impl GpuContext {
     pub fn from_adapter(adapter: wgpu::Adapter) -> Result<GpuContext> {
         let info = adapter.get_info();
         let limits = adapter.limits();
-        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+        let opening = DEVICE_OPEN
+            .lock()
+            .unwrap_or_else(|poisoned| poisoned.into_inner());
+        let opened = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("palpate"),
             // Timestamp queries, where the adapter has them, for per-stage GPU timings.
             required_features: adapter.features() & wgpu::Features::TIMESTAMP_QUERY,
@@ -141,8 +163,11 @@ impl GpuContext {
             experimental_features: wgpu::ExperimentalFeatures::disabled(),
             memory_hints: wgpu::MemoryHints::Performance,
             trace: wgpu::Trace::Off,
-        }))
-        .map_err(|e| PalpateError::Gpu(format!("cannot open device on '{}': {e}", info.name)))?;
+        }));
+        drop(opening);
+        let (device, queue) = opened.map_err(|e| {
+            PalpateError::Gpu(format!("cannot open device on '{}': {e}", info.name))
+        })?;
         let errors = Arc::new(Mutex::new(Vec::new()));
         let sink = errors.clone();
         device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {

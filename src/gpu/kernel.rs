@@ -21,9 +21,36 @@ pub struct ReflectedBinding {
     pub min_bytes: u64,
 }
 
+/// What [`reflect`] reads off an entry point.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Reflected {
+    /// Group-0 bindings that the entry point uses, in binding order.
+    pub bindings: Vec<ReflectedBinding>,
+    /// Threads per workgroup (x).
+    pub workgroup_size: u32,
+    /// Items (list entries, vertices, …) one workgroup covers: the module's constant
+    /// `ITEMS_PER_WORKGROUP` where it declares one (a kernel that gives each item several
+    /// lanes, `workgroup_size / ITEMS_PER_WORKGROUP` of them), else `workgroup_size`.
+    pub items_per_workgroup: u32,
+}
+
+/// The module-scope `const ITEMS_PER_WORKGROUP: u32` of `module`, if it declares one.
+fn items_per_workgroup(module: &naga::Module) -> Option<u32> {
+    module.constants.iter().find_map(|(_, c)| {
+        if c.name.as_deref() != Some("ITEMS_PER_WORKGROUP") {
+            return None;
+        }
+        match module.global_expressions[c.init] {
+            naga::Expression::Literal(naga::Literal::U32(v)) => Some(v),
+            naga::Expression::Literal(naga::Literal::AbstractInt(v)) => u32::try_from(v).ok(),
+            _ => None,
+        }
+    })
+}
+
 /// Group-0 bindings that entry point `entry` of `source` uses (reads, writes or queries), in
-/// binding order, and its workgroup size (x).
-pub fn reflect(source: &str, entry: &str) -> Result<(Vec<ReflectedBinding>, u32)> {
+/// binding order, its workgroup size (x) and the items one workgroup covers.
+pub fn reflect(source: &str, entry: &str) -> Result<Reflected> {
     let module = naga::front::wgsl::parse_str(source)
         .map_err(|e| PalpateError::Gpu(format!("kernel parse: {}", e.message())))?;
     let info = naga::valid::Validator::new(
@@ -82,7 +109,18 @@ pub fn reflect(source: &str, entry: &str) -> Result<(Vec<ReflectedBinding>, u32)
         });
     }
     out.sort_by_key(|b| b.binding);
-    Ok((out, ep.workgroup_size[0]))
+    let workgroup_size = ep.workgroup_size[0];
+    let items = items_per_workgroup(&module).unwrap_or(workgroup_size);
+    if items == 0 || workgroup_size % items != 0 {
+        return Err(PalpateError::Gpu(format!(
+            "entry point '{entry}': ITEMS_PER_WORKGROUP = {items} does not divide its workgroup size {workgroup_size}"
+        )));
+    }
+    Ok(Reflected {
+        bindings: out,
+        workgroup_size,
+        items_per_workgroup: items,
+    })
 }
 
 /// A compute pipeline with its reflected layout.
@@ -97,13 +135,16 @@ pub struct ComputeKernel {
     pub bindings: Vec<ReflectedBinding>,
     /// Threads per workgroup (x).
     pub workgroup_size: u32,
+    /// Items one workgroup covers ([`Reflected::items_per_workgroup`]).
+    pub items_per_workgroup: u32,
 }
 
 /// How many workgroups one dispatch runs.
 #[derive(Clone, Copy, Debug)]
 pub enum Dispatch<'a> {
-    /// Enough workgroups to give each of `items` a thread (a 2-D grid past the per-dimension
-    /// limit; kernels linearise it with `linear_index`).
+    /// Enough workgroups to cover `items` (one thread each, or `LANES` threads each in a
+    /// kernel that declares `ITEMS_PER_WORKGROUP`; a 2-D grid past the per-dimension limit,
+    /// which kernels linearise with `linear_index` or `workgroup_index`).
     Items(u32),
     /// Exactly one workgroup.
     One,
@@ -124,7 +165,11 @@ impl ComputeKernel {
         let label = format!("{file}::{entry}");
         let source = crate::gpu::kernel_source(file)
             .ok_or_else(|| PalpateError::Gpu(format!("no kernel file '{file}'")))?;
-        let (bindings, workgroup_size) = reflect(source, entry)?;
+        let Reflected {
+            bindings,
+            workgroup_size,
+            items_per_workgroup,
+        } = reflect(source, entry)?;
         let max = ctx.limits.max_storage_buffers_per_shader_stage as usize;
         let storage = bindings
             .iter()
@@ -181,6 +226,7 @@ impl ComputeKernel {
             layout,
             bindings,
             workgroup_size,
+            items_per_workgroup,
         })
     }
 
@@ -241,7 +287,7 @@ impl ComputeKernel {
         pass.set_bind_group(0, bind_group, &[]);
         match dispatch {
             Dispatch::Items(items) => {
-                let (x, y) = grid_for(items, self.workgroup_size, max_dim);
+                let (x, y) = grid_for(items, self.items_per_workgroup, max_dim);
                 pass.dispatch_workgroups(x, y, 1);
             }
             Dispatch::One => pass.dispatch_workgroups(1, 1, 1),
@@ -250,9 +296,9 @@ impl ComputeKernel {
     }
 }
 
-/// Workgroup grid (x, y) with x ≤ `max_dim` covering `items` threads of `workgroup_size`.
-pub fn grid_for(items: u32, workgroup_size: u32, max_dim: u32) -> (u32, u32) {
-    let groups = items.div_ceil(workgroup_size).max(1);
+/// Workgroup grid (x, y) with x ≤ `max_dim` covering `items`, `per_workgroup` to a workgroup.
+pub fn grid_for(items: u32, per_workgroup: u32, max_dim: u32) -> (u32, u32) {
+    let groups = items.div_ceil(per_workgroup).max(1);
     if groups <= max_dim {
         (groups, 1)
     } else {
