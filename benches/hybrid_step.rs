@@ -6,7 +6,8 @@
 //! alone — inactive particles must cost next to nothing. After the criterion groups, a table
 //! of the ratios measured in the same run is printed.
 //!
-//! `PALPATE_BENCH_BACKENDS=cpu` (or `gpu`) limits the backends.
+//! A second table compares `hm1_exact` (the same press under `coupling = "exact"`, CPU only)
+//! with its own core alone. `PALPATE_BENCH_BACKENDS=cpu` (or `gpu`) limits the backends.
 
 mod common;
 
@@ -21,7 +22,13 @@ const STEPS: u32 = 10;
 
 /// The three variants of HM1: (label, scene).
 fn variants() -> Vec<(&'static str, Scene)> {
-    let text = Scene::builtin_text("hm1").expect("hm1");
+    variants_of("hm1")
+}
+
+/// The built-in `name` without its `[particles]` (the core alone), as shipped, and with every
+/// particle dynamic: (label, scene).
+fn variants_of(name: &str) -> Vec<(&'static str, Scene)> {
+    let text = Scene::builtin_text(name).expect("a built-in scene");
     let start = text.find("[particles]").expect("[particles]");
     let end = start
         + text[start..]
@@ -32,14 +39,22 @@ fn variants() -> Vec<(&'static str, Scene)> {
     vec![
         (
             "core_alone",
-            Scene::from_toml(&core, "hm1 core alone", "hm1", None).unwrap(),
+            Scene::from_toml(&core, "core alone", name, None).unwrap(),
         ),
-        ("hm1", Scene::load("hm1").unwrap()),
+        (name_label(name), Scene::load(name).unwrap()),
         (
             "all_active",
-            Scene::from_toml(&all, "hm1 all active", "hm1", None).unwrap(),
+            Scene::from_toml(&all, "all active", name, None).unwrap(),
         ),
     ]
+}
+
+fn name_label(name: &str) -> &'static str {
+    if name == "hm1_exact" {
+        "hm1_exact"
+    } else {
+        "hm1"
+    }
 }
 
 /// Where the tool is held: the deepest hold (t = 3.5 time units, 288 dynamic particles) and
@@ -92,15 +107,27 @@ fn ratio_table() {
     println!("| backend | hold (t) | core alone | hm1 (dynamic particles) | all 27,751 dynamic | hm1 / core | hm1 / core, paired | all / core |");
     println!("|---|---:|---:|---:|---:|---:|---:|---:|");
     for backend in backends() {
-        ratio_row(backend, DEEPEST, true);
-        ratio_row(backend, PRESSING, false);
+        ratio_row(&variants(), backend, DEEPEST, true);
+        ratio_row(&variants(), backend, PRESSING, false);
+    }
+    // Design 8 (`hm1_exact`: the same press under coupling = "exact", stable Neo-Hookean;
+    // CPU only) against its own core alone (the same tets, law and tool).
+    if backends().contains(&Backend::Cpu) {
+        println!(
+            "\nhm1_exact (coupling = \"exact\"), the same columns, against its own core alone:"
+        );
+        println!("| backend | hold (t) | core alone | hm1_exact (dynamic particles) | all dynamic | ratio | ratio, paired | all / core |");
+        println!("|---|---:|---:|---:|---:|---:|---:|---:|");
+        let exact = variants_of("hm1_exact");
+        ratio_row(&exact, Backend::Cpu, DEEPEST, false);
+        ratio_row(&exact, Backend::Cpu, PRESSING, false);
     }
 }
 
-/// One row of the ratio table: the tool held at `t`; `with_all`: time the all-dynamic variant
-/// too.
-fn ratio_row(backend: Backend, t: f64, with_all: bool) {
-    let mut sims: Vec<Simulation> = variants()
+/// One row of the ratio table over `variants` (core alone, shipped, all dynamic): the tool
+/// held at `t`; `with_all`: time the all-dynamic variant too.
+fn ratio_row(variants: &[(&str, Scene)], backend: Backend, t: f64, with_all: bool) {
+    let mut sims: Vec<Simulation> = variants
         .iter()
         .take(if with_all { 3 } else { 2 })
         .map(|(_, scene)| pressed(scene, backend, t))

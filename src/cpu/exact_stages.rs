@@ -46,6 +46,9 @@ pub(crate) struct ExactArrays {
     /// pair force when dynamic, its hourglass force when a follower (zero outside the force
     /// set).
     pub host_force: Vec<f32>,
+    /// Per vertex, the slots of the force set's particles ([`force_set_slots`]): CSR offsets
+    /// and slots, rebuilt at each activation (empty before the first: nothing is in F).
+    pub gather_slots: (Vec<u32>, Vec<u32>),
     /// Per slot p·4 + corner, the tangent term's force on that corner of p's host tet, packed
     /// xyz, N (zero outside S).
     pub tangent: Vec<f32>,
@@ -64,6 +67,7 @@ impl ExactArrays {
             slaving,
             delta: vec![0.0; 3 * n],
             host_force: vec![0.0; 3 * n],
+            gather_slots: (vec![0; model.n_vertices() + 1], Vec::new()),
             tangent: vec![0.0; 12 * n],
         })
     }
@@ -212,13 +216,39 @@ pub(crate) fn exact_forces(
     }
 }
 
+/// Per vertex, the slots (p·4 + corner, in CSR order) whose particle p is in the force set F
+/// (which holds S): the only slots whose host force or tangent force the exact stages write.
+/// Rebuilt at each activation into `offsets` (n_vertices + 1) and `slots`, so the gather walks
+/// a few thousand slots instead of every one, and a particle that has left F or S adds nothing
+/// (its last host or tangent force stays in the arrays, unread).
+pub(crate) fn force_set_slots(
+    pd: &Particles,
+    particle_mode: &[u32],
+    slots: &mut (Vec<u32>, Vec<u32>),
+) {
+    let (offsets, list) = slots;
+    offsets.clear();
+    list.clear();
+    offsets.push(0);
+    for v in 0..pd.slot_offsets.len() - 1 {
+        let range = pd.slot_offsets[v] as usize..pd.slot_offsets[v + 1] as usize;
+        list.extend(
+            pd.slots[range]
+                .iter()
+                .filter(|&&slot| particle_mode[slot as usize / 4] & mode::IN_F != 0),
+        );
+        offsets.push(list.len() as u32);
+    }
+}
+
 /// What [`exact_gather`] adds to the core's gather at vertex i.
 pub(crate) struct ExactGather<'a> {
     /// Per vertex, its surface index (tool scenes; empty otherwise).
     pub surface_index: &'a [u32],
     /// Contact force per surface vertex (read when `surface_index` is not empty).
     pub contact_forces: &'a [f32],
-    /// CSR vertex → particle slots, and the slots p·4 + corner.
+    /// CSR vertex → the slots p·4 + corner of the force set's particles
+    /// ([`force_set_slots`]).
     pub slots: (&'a [u32], &'a [u32]),
     /// Barycentric weights, 4 per particle.
     pub weights: &'a [f32],

@@ -7,14 +7,16 @@
 
 use super::{load3, store3};
 use crate::params::StepParams;
-use glam::Vec3;
+use glam::{Vec3, Vec3A};
 
 /// Threads per vertex in `gather.wgsl` (its `LANES`).
 pub const LANES: usize = 4;
+// `corner_lanes` spells the four lanes out.
+const _: () = assert!(LANES == 4);
 
 /// Σ over `lanes` in lane order: ((s₀ + s₁) + s₂) + s₃, as the kernel's `add_lanes`.
-fn add_lanes(lanes: &[Vec3; LANES]) -> Vec3 {
-    lanes[1..].iter().fold(lanes[0], |f, &s| f + s)
+fn add_lanes(lanes: &[Vec3A; LANES]) -> Vec3 {
+    Vec3::from(lanes[1..].iter().fold(lanes[0], |f, &s| f + s))
 }
 
 /// Each lane's share of vertex i's incident corner forces.
@@ -23,14 +25,23 @@ fn corner_lanes(
     incidence_offsets: &[u32],
     incidence: &[u32],
     i: usize,
-) -> [Vec3; LANES] {
-    let mut lanes = [Vec3::ZERO; LANES];
+) -> [Vec3A; LANES] {
+    let mut lanes = [Vec3A::ZERO; LANES];
     let (first, last) = (
         incidence_offsets[i] as usize,
         incidence_offsets[i + 1] as usize,
     );
-    for (k, &c) in incidence[first..last].iter().enumerate() {
-        lanes[k % LANES] += load3(corner_forces, c as usize);
+    let corner = |c: u32| Vec3A::from(load3(corner_forces, c as usize));
+    // Constant lane indices in the full chunks keep the four sums in registers.
+    let mut chunks = incidence[first..last].chunks_exact(LANES);
+    for ch in &mut chunks {
+        lanes[0] += corner(ch[0]);
+        lanes[1] += corner(ch[1]);
+        lanes[2] += corner(ch[2]);
+        lanes[3] += corner(ch[3]);
+    }
+    for (lane, &c) in lanes.iter_mut().zip(chunks.remainder()) {
+        *lane += corner(c);
     }
     lanes
 }
@@ -104,7 +115,7 @@ pub fn gather_coupled(
                 let p = slot / 4;
                 let m = c.mode[p];
                 if m & mode::IN_F != 0 && m & mode::DYNAMIC == 0 {
-                    lanes[passed % LANES] += load3(c.force_sum, p) * c.weights[slot];
+                    lanes[passed % LANES] += Vec3A::from(load3(c.force_sum, p) * c.weights[slot]);
                     passed += 1;
                 }
             }

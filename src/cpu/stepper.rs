@@ -1202,7 +1202,7 @@ impl CpuStepper {
                     &ex::ExactGather {
                         surface_index,
                         contact_forces: &self.tool.contact_forces,
-                        slots: (&pd.slot_offsets, &pd.slots),
+                        slots: (&x.gather_slots.0, &x.gather_slots.1),
                         weights: &pd.weights,
                         host_force: &x.host_force,
                         tangent: &x.tangent,
@@ -1322,6 +1322,7 @@ impl CpuStepper {
             &mut pa.act.dispatch,
         );
         x.delta.iter_mut().for_each(|d| *d = 0.0);
+        super::exact_stages::force_set_slots(pd, &pa.state.mode, &mut x.gather_slots);
         x.delta_list.clone_from(&pa.act.dynamic_list);
         x.delta_list.extend(
             pa.act
