@@ -673,6 +673,39 @@ fn the_engines_exact_stages_give_the_reference_forces() {
     }
 }
 
+/// The engine's forces under an affine stretch (F = the patch tests' stretch, plus a 1 mm
+/// translation) of the block of `scene` and `m` stepped by `s`: (largest residual at a
+/// `dynamic` particle, at a vertex off the boundary, each over the largest boundary force;
+/// that force, N).
+fn stretch_residuals(
+    s: &mut palpate::cpu::CpuStepper,
+    scene: &Scene,
+    m: &Model,
+    dynamic: &[bool],
+) -> (f64, f64, f64) {
+    let stretch = DMat3::from_cols(
+        DVec3::new(1.01, 0.0, 0.002),
+        DVec3::new(0.003, 0.995, 0.0),
+        DVec3::new(0.0, 0.004, 1.008),
+    );
+    let p = m.particles.as_ref().unwrap();
+    let vu = mapped(&m.rest, stretch, DVec3::new(1e-3, 0.0, 0.0));
+    let pu = mapped(&p.rest, stretch, DVec3::new(1e-3, 0.0, 0.0));
+    let (fv, fp) = engine_forces(s, &vu, &pu);
+    let boundary: std::collections::HashSet<usize> = scene
+        .mesh
+        .boundary_vertices()
+        .into_iter()
+        .map(|v| v as usize)
+        .collect();
+    let scale = largest(&fv, |i| boundary.contains(&i));
+    (
+        largest(&fp, |q| dynamic[q]) / scale,
+        largest(&fv, |i| !boundary.contains(&i)) / scale,
+        scale,
+    )
+}
+
 /// The patch test in the engine: an affine stretch of the layered cube (every unpinned
 /// particle dynamic, the zone-only vertices slaved) leaves no residual at any dynamic
 /// particle, however near the surface or the core, nor at any vertex off the boundary,
@@ -681,15 +714,9 @@ fn the_engines_exact_stages_give_the_reference_forces() {
 /// 2026-11-25: particles ≤ 4e-6, interior vertices ≤ 1.3e-5 of the largest boundary force.
 #[test]
 fn an_affine_stretch_leaves_no_residual_in_the_engine() {
-    let stretch = DMat3::from_cols(
-        DVec3::new(1.01, 0.0, 0.002),
-        DVec3::new(0.003, 0.995, 0.0),
-        DVec3::new(0.0, 0.004, 1.008),
-    );
     for cells in [3, 12] {
         let (scene, m) = block_of(&exact_cube_text(0.03, cells, "stvk"), 0.03);
         let m = std::sync::Arc::new(m);
-        let p = m.particles.as_ref().unwrap();
         let mut s = exact_stepper(&m);
         let dynamic: Vec<bool> = s
             .particle_modes()
@@ -697,16 +724,7 @@ fn an_affine_stretch_leaves_no_residual_in_the_engine() {
             .iter()
             .map(|&x| x & palpate::particles::params::mode::DYNAMIC != 0)
             .collect();
-        let vu = mapped(&m.rest, stretch, DVec3::new(1e-3, 0.0, 0.0));
-        let pu = mapped(&p.rest, stretch, DVec3::new(1e-3, 0.0, 0.0));
-        let (fv, fp) = engine_forces(&mut s, &vu, &pu);
-        let boundary: std::collections::HashSet<usize> = scene
-            .mesh
-            .boundary_vertices()
-            .into_iter()
-            .map(|v| v as usize)
-            .collect();
-        let scale = largest(&fv, |i| boundary.contains(&i));
+        let (particles, interior, scale) = stretch_residuals(&mut s, &scene, &m, &dynamic);
         let slaved = m
             .slaving
             .as_ref()
@@ -715,8 +733,6 @@ fn an_affine_stretch_leaves_no_residual_in_the_engine() {
             .iter()
             .filter(|&&x| x)
             .count();
-        let particles = largest(&fp, |q| dynamic[q]) / scale;
-        let interior = largest(&fv, |i| !boundary.contains(&i)) / scale;
         eprintln!(
             "engine, {cells}³ cells, {} dynamic, {slaved} slaved vertices: residual at the particles {particles:.1e}, at the interior vertices {interior:.1e} of the largest boundary force",
             dynamic.iter().filter(|&&d| d).count()
@@ -730,29 +746,14 @@ fn an_affine_stretch_leaves_no_residual_in_the_engine() {
     }
 }
 
-/// A free spin of the layered block stepped by the engine (3.7 rad/s, 0.65 rad, no damping):
-/// both momenta hold to 1e-6, and the dynamic particles stay on their embedded places (the
-/// layer does not slide on its tets: the energy blend slides 478 µm in the same spin,
-/// docs/hybrid_coupling.md). Measured 2026-11-25: see the printed line.
-#[test]
-fn a_free_spin_in_the_engine_keeps_both_momenta_and_the_layer_on_its_tets() {
-    use palpate::particles::params::mode;
+/// Start `s` (a stepper of `m`) at rest shape with every vertex and particle moving as the
+/// rigid spin v = ω × (X − centre).
+fn start_spinning(s: &mut palpate::cpu::CpuStepper, m: &Model, omega: DVec3, centre: DVec3) {
     use palpate::stepper::{State, Stepper};
-    let m = std::sync::Arc::new(two_layer_block(
-        "activation = \"all\"\nactivation_interval = 1\ncoupling = \"exact\"\n",
-    ));
     let p = m.particles.as_ref().unwrap();
-    let mut s = exact_stepper(&m);
-    let (omega, angle) = (3.7f64, 0.65f64);
-    let centre = DVec3::new(0.01, 0.005, 0.005);
     let spin = |rest: &[f32]| -> Vec<f32> {
         (0..rest.len() / 3)
-            .flat_map(|i| {
-                DVec3::new(omega, 0.0, 0.0)
-                    .cross(point(rest, i) - centre)
-                    .as_vec3()
-                    .to_array()
-            })
+            .flat_map(|i| omega.cross(point(rest, i) - centre).as_vec3().to_array())
             .collect()
     };
     s.write_state(&State {
@@ -764,23 +765,52 @@ fn a_free_spin_in_the_engine_keeps_both_momenta_and_the_layer_on_its_tets() {
         displacements: vec![0.0; p.rest.len()],
         velocities: spin(&p.rest),
     });
-    let momentum = |s: &mut palpate::cpu::CpuStepper| -> (DVec3, DVec3) {
-        let st = s.read_state().unwrap();
-        let ps = s.particle_state().unwrap();
-        let (mass, _) = s.vertex_masses();
-        let (mut lin, mut ang) = (DVec3::ZERO, DVec3::ZERO);
-        for (i, &mi) in mass.iter().enumerate() {
-            let mv = point(&st.velocities, i) * mi as f64;
-            lin += mv;
-            ang += (point(&m.rest, i) + point(&st.displacements, i)).cross(mv);
-        }
-        for q in (0..p.len()).filter(|&q| ps.modes[q] & mode::DYNAMIC != 0) {
-            let mv = point(&ps.velocities, q) * p.mass as f64;
-            lin += mv;
-            ang += (point(&p.rest, q) + point(&ps.displacements, q)).cross(mv);
-        }
-        (lin, ang)
-    };
+}
+
+/// Σ m v and Σ x × m v of `s` (a stepper of `m`): the vertices with their lumped masses, and
+/// the dynamic particles.
+fn momenta(s: &mut palpate::cpu::CpuStepper, m: &Model) -> (DVec3, DVec3) {
+    use palpate::particles::params::mode;
+    use palpate::stepper::Stepper;
+    let p = m.particles.as_ref().unwrap();
+    let st = s.read_state().unwrap();
+    let ps = s.particle_state().unwrap();
+    let (mass, _) = s.vertex_masses();
+    let (mut lin, mut ang) = (DVec3::ZERO, DVec3::ZERO);
+    for (i, &mi) in mass.iter().enumerate() {
+        let mv = point(&st.velocities, i) * mi as f64;
+        lin += mv;
+        ang += (point(&m.rest, i) + point(&st.displacements, i)).cross(mv);
+    }
+    for q in (0..p.len()).filter(|&q| ps.modes[q] & mode::DYNAMIC != 0) {
+        let mv = point(&ps.velocities, q) * p.mass as f64;
+        lin += mv;
+        ang += (point(&p.rest, q) + point(&ps.displacements, q)).cross(mv);
+    }
+    (lin, ang)
+}
+
+/// A free spin of the layered block stepped by the engine (3.7 rad/s, 0.65 rad, no damping):
+/// both momenta hold to 1e-6, and the dynamic particles stay on their embedded places (the
+/// layer does not slide on its tets: the energy blend slides 478 µm in the same spin,
+/// docs/hybrid_coupling.md). Measured 2026-11-25: see the printed line.
+#[test]
+fn a_free_spin_in_the_engine_keeps_both_momenta_and_the_layer_on_its_tets() {
+    use palpate::particles::params::mode;
+    use palpate::stepper::Stepper;
+    let m = std::sync::Arc::new(two_layer_block(
+        "activation = \"all\"\nactivation_interval = 1\ncoupling = \"exact\"\n",
+    ));
+    let p = m.particles.as_ref().unwrap();
+    let mut s = exact_stepper(&m);
+    let (omega, angle) = (3.7f64, 0.65f64);
+    start_spinning(
+        &mut s,
+        &m,
+        DVec3::new(omega, 0.0, 0.0),
+        DVec3::new(0.01, 0.005, 0.005),
+    );
+    let momentum = |s: &mut palpate::cpu::CpuStepper| momenta(s, &m);
     let (l0, a0) = momentum(&mut s);
     let steps = (angle / omega / s.dt() as f64).ceil() as u32;
     s.run(steps).unwrap();
@@ -955,11 +985,6 @@ fn hm1_exact_follows_the_tool_and_switches_without_pops() {
 fn an_affine_stretch_leaves_no_residual_with_the_tools_dynamic_set() {
     use palpate::particles::params::mode;
     use palpate::stepper::Stepper;
-    let stretch = DMat3::from_cols(
-        DVec3::new(1.01, 0.0, 0.002),
-        DVec3::new(0.003, 0.995, 0.0),
-        DVec3::new(0.0, 0.004, 1.008),
-    );
     let text = layered_cube_text(0.03, 6, "stvk")
         + "activation_interval = 1\ncoupling = \"exact\"\n"
         + &still_tool(0.005, [0.015, 0.015, 0.0355]);
@@ -987,18 +1012,7 @@ fn an_affine_stretch_leaves_no_residual_with_the_tools_dynamic_set() {
         .iter()
         .filter(|&&x| x)
         .count();
-    let vu = mapped(&m.rest, stretch, DVec3::new(1e-3, 0.0, 0.0));
-    let pu = mapped(&p.rest, stretch, DVec3::new(1e-3, 0.0, 0.0));
-    let (fv, fp) = engine_forces(&mut s, &vu, &pu);
-    let boundary: std::collections::HashSet<usize> = scene
-        .mesh
-        .boundary_vertices()
-        .into_iter()
-        .map(|v| v as usize)
-        .collect();
-    let scale = largest(&fv, |i| boundary.contains(&i));
-    let particles = largest(&fp, |q| dynamic[q]) / scale;
-    let interior = largest(&fv, |i| !boundary.contains(&i)) / scale;
+    let (particles, interior, _) = stretch_residuals(&mut s, &scene, &m, &dynamic);
     eprintln!(
         "tool-made set: {n_dynamic} of {} dynamic, {slaved} slaved vertices: residual at the particles {particles:.1e}, at the interior vertices {interior:.1e} of the largest boundary force",
         p.len()
@@ -1019,54 +1033,22 @@ fn an_affine_stretch_leaves_no_residual_with_the_tools_dynamic_set() {
 /// fading offsets' torque (c × f on a slaved vertex, a released particle's fading δ).
 #[test]
 fn a_spin_under_a_still_tool_keeps_momentum_while_the_dynamic_set_changes() {
-    use palpate::particles::params::mode;
-    use palpate::stepper::{State, Stepper};
+    use palpate::stepper::Stepper;
     // A 30 x 30 x 10 mm block on 2.5 mm tets, its top 5 mm particle zone on a 1 mm lattice,
     // spinning about its vertical axis under a sphere held 0.5 mm above it, 8 mm off the axis.
     let tool_at = [0.023, 0.015, 0.0135];
     let text = format!("[mesh]\ngenerator = \"beam\"\nsize = [0.03, 0.03, 0.01]\ncells = [12, 12, 4]\n\n[material]\nyoungs_modulus = 3.0e4\npoisson_ratio = 0.3\ndensity = 1000.0\n\n[particles]\nregion = 0\nspacing = 0.001\nactivation_radius = 0.002\nactivation_interval = 1\ndwell = 0.005\nblend = 0.01\ncoupling = \"exact\"\n{}", still_tool(0.003, tool_at));
     let m = std::sync::Arc::new(block_of(&text, 0.01).1);
-    let p = m.particles.as_ref().unwrap();
     let mut s =
         palpate::cpu::CpuStepper::new(m.clone(), m.step_params(0.5 * m.bounds.dt_bound, 0.0));
     let omega = 10.0f64;
-    let centre = DVec3::new(0.015, 0.015, 0.005);
-    let spin = |rest: &[f32]| -> Vec<f32> {
-        (0..rest.len() / 3)
-            .flat_map(|i| {
-                DVec3::new(0.0, 0.0, omega)
-                    .cross(point(rest, i) - centre)
-                    .as_vec3()
-                    .to_array()
-            })
-            .collect()
-    };
-    s.write_state(&State {
-        displacements: vec![0.0; m.rest.len()],
-        velocities: spin(&m.rest),
-    })
-    .unwrap();
-    s.set_particle_state(&State {
-        displacements: vec![0.0; p.rest.len()],
-        velocities: spin(&p.rest),
-    });
-    let momentum = |s: &mut palpate::cpu::CpuStepper| -> (DVec3, DVec3) {
-        let st = s.read_state().unwrap();
-        let ps = s.particle_state().unwrap();
-        let (mass, _) = s.vertex_masses();
-        let (mut lin, mut ang) = (DVec3::ZERO, DVec3::ZERO);
-        for (i, &mi) in mass.iter().enumerate() {
-            let mv = point(&st.velocities, i) * mi as f64;
-            lin += mv;
-            ang += (point(&m.rest, i) + point(&st.displacements, i)).cross(mv);
-        }
-        for q in (0..p.len()).filter(|&q| ps.modes[q] & mode::DYNAMIC != 0) {
-            let mv = point(&ps.velocities, q) * p.mass as f64;
-            lin += mv;
-            ang += (point(&p.rest, q) + point(&ps.displacements, q)).cross(mv);
-        }
-        (lin, ang)
-    };
+    start_spinning(
+        &mut s,
+        &m,
+        DVec3::new(0.0, 0.0, omega),
+        DVec3::new(0.015, 0.015, 0.005),
+    );
+    let momentum = |s: &mut palpate::cpu::CpuStepper| momenta(s, &m);
     let at = DVec3::from_array(tool_at);
     // The first activation wakes the particles under the sphere: measure from after it.
     s.submit(1, &palpate::stepper::BatchInput::moving(at, at))

@@ -576,6 +576,23 @@ impl ParticleArrays {
         );
     }
 
+    /// Mark the stress set S (the particles whose mode has a bit of `moving`, and their
+    /// neighbours) and the force set F (S and its neighbours) among the first `n` particles,
+    /// then compact the dynamic, stress and force lists and their dispatch arguments.
+    fn mark_sets_and_compact(&mut self, n: usize, moving: u32) {
+        let (noff, nbrs) = (&self.lists.neighbour_offsets, &self.lists.neighbours);
+        mark_set(n, moving, mode::IN_S, noff, nbrs, &mut self.state.mode);
+        mark_set(n, mode::IN_S, mode::IN_F, noff, nbrs, &mut self.state.mode);
+        super::compact::compact(
+            &self.state.mode,
+            &mut self.act.dynamic_list,
+            &mut self.act.stress_list,
+            &mut self.act.force_list,
+            &mut self.act.counts,
+            &mut self.act.dispatch,
+        );
+    }
+
     /// After an activation has set the lists: list the force-carrying pairs once (tlsph;
     /// the paper model's one-sided eq. 13 is not antisymmetric and keeps the twin's gather).
     fn rebuild_pair_plan(&mut self) {
@@ -1309,18 +1326,7 @@ impl CpuStepper {
                 1.0 / mass
             };
         }
-        let (noff, nbrs) = (&pa.lists.neighbour_offsets, &pa.lists.neighbours);
-        let moving = mode::DYNAMIC | mode::BLENDING;
-        mark_set(n, moving, mode::IN_S, noff, nbrs, &mut pa.state.mode);
-        mark_set(n, mode::IN_S, mode::IN_F, noff, nbrs, &mut pa.state.mode);
-        super::compact::compact(
-            &pa.state.mode,
-            &mut pa.act.dynamic_list,
-            &mut pa.act.stress_list,
-            &mut pa.act.force_list,
-            &mut pa.act.counts,
-            &mut pa.act.dispatch,
-        );
+        pa.mark_sets_and_compact(n, mode::DYNAMIC | mode::BLENDING);
         x.delta.iter_mut().for_each(|d| *d = 0.0);
         super::exact_stages::force_set_slots(pd, &pa.state.mode, &mut x.gather_slots);
         x.delta_list.clone_from(&pa.act.dynamic_list);
@@ -1354,20 +1360,10 @@ impl CpuStepper {
         };
         let pp = pa.params;
         let n = pd.len();
-        let (noff, nbrs) = (&pa.lists.neighbour_offsets, &pa.lists.neighbours);
         let inp = mode_inputs(m, &pp, &st, &self.tool, &self.state);
         pa.activations.full += 1;
         super::activate::activate(&inp, pa.state.mode_arrays());
-        mark_set(n, mode::DYNAMIC, mode::IN_S, noff, nbrs, &mut pa.state.mode);
-        mark_set(n, mode::IN_S, mode::IN_F, noff, nbrs, &mut pa.state.mode);
-        super::compact::compact(
-            &pa.state.mode,
-            &mut pa.act.dynamic_list,
-            &mut pa.act.stress_list,
-            &mut pa.act.force_list,
-            &mut pa.act.counts,
-            &mut pa.act.dispatch,
-        );
+        pa.mark_sets_and_compact(n, mode::DYNAMIC);
         super::activate::tet_weights(p, &pd.tet_offsets, &pa.state.mode, &mut pa.act.tet_weight);
         // The relump writes four of the arrays its inputs sit beside: lend them out (no copy).
         let mut mass = std::mem::take(&mut pa.state.mass);
