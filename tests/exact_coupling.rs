@@ -159,12 +159,7 @@ fn an_affine_stretch_leaves_no_residual_at_any_interior_vertex_or_particle() {
         let vu = mapped(&m.rest, stretch, DVec3::new(1e-3, 0.0, 0.0));
         let pu = mapped(&p.rest, stretch, DVec3::new(1e-3, 0.0, 0.0));
         let fem = c.forces(&m, &vec![false; p.len()], &vu, &pu);
-        let boundary: std::collections::HashSet<usize> = scene
-            .mesh
-            .boundary_vertices()
-            .into_iter()
-            .map(|v| v as usize)
-            .collect();
+        let boundary = boundary_of(&scene);
         let scale = largest(&fem.vertex_forces, |i| boundary.contains(&i));
         assert!(scale > 0.0);
         let interior_fem = largest(&fem.vertex_forces, |i| !boundary.contains(&i)) / scale;
@@ -673,6 +668,16 @@ fn the_engines_exact_stages_give_the_reference_forces() {
     }
 }
 
+/// The vertices on the boundary of `scene`'s mesh (where a patch test's load is applied).
+fn boundary_of(scene: &Scene) -> std::collections::HashSet<usize> {
+    scene
+        .mesh
+        .boundary_vertices()
+        .into_iter()
+        .map(|v| v as usize)
+        .collect()
+}
+
 /// The engine's forces under an affine stretch (F = the patch tests' stretch, plus a 1 mm
 /// translation) of the block of `scene` and `m` stepped by `s`: (largest residual at a
 /// `dynamic` particle, at a vertex off the boundary, each over the largest boundary force;
@@ -692,12 +697,7 @@ fn stretch_residuals(
     let vu = mapped(&m.rest, stretch, DVec3::new(1e-3, 0.0, 0.0));
     let pu = mapped(&p.rest, stretch, DVec3::new(1e-3, 0.0, 0.0));
     let (fv, fp) = engine_forces(s, &vu, &pu);
-    let boundary: std::collections::HashSet<usize> = scene
-        .mesh
-        .boundary_vertices()
-        .into_iter()
-        .map(|v| v as usize)
-        .collect();
+    let boundary = boundary_of(scene);
     let scale = largest(&fv, |i| boundary.contains(&i));
     (
         largest(&fp, |q| dynamic[q]) / scale,
