@@ -12,6 +12,9 @@
 // coupled_slots[offset_i ..] (coupled_count[i] of them, in CSR order) while coupled_valid[0] is
 // set, else (before the first activation) over every slot. A checkpoint saves the lists with
 // the modes they were built from.
+// `gather_exact` (design 8, `particles.coupling = "exact"`) adds to the core sum and the
+// contact, over every slot (p, a) of vertex i whose particle p is in the force set F,
+// w_ap exact_host_force_p + exact_tangent_(p,a) (exact_forces' and exact_stress' outputs).
 #import params
 #import index
 #import tool
@@ -35,6 +38,8 @@
 @group(0) @binding(15) var<storage, read> coupled_slots: array<u32>;
 @group(0) @binding(16) var<storage, read> coupled_count: array<u32>;
 @group(0) @binding(17) var<storage, read> coupled_valid: array<u32>;
+@group(0) @binding(18) var<storage, read> exact_host_force: array<f32>;
+@group(0) @binding(19) var<storage, read> exact_tangent: array<f32>;
 
 // Pipeline constants of gather_coupled: the scene has a tool / particles.
 override CONTACT: bool = false;
@@ -123,6 +128,38 @@ fn gather_coupled(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups
                     let fp = vec3<f32>(particle_force_sum[3u * p], particle_force_sum[3u * p + 1u], particle_force_sum[3u * p + 2u]);
                     mine += fp * particle_weights[slot];
                 }
+            }
+        }
+    }
+    let sum = add_lanes(local, mine);
+    if !live || lane != 0u {
+        return;
+    }
+    var f = body_force(i) + sum;
+    if CONTACT {
+        let s = surface_index[i];
+        if s != NOT_ON_SURFACE {
+            f += vec3<f32>(contact_forces[3u * s], contact_forces[3u * s + 1u], contact_forces[3u * s + 2u]);
+        }
+    }
+    store(i, f);
+}
+
+@compute @workgroup_size(256)
+fn gather_exact(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>, @builtin(local_invocation_index) local: u32) {
+    let i = workgroup_index(wid, nwg) * ITEMS_PER_WORKGROUP + local % ITEMS_PER_WORKGROUP;
+    let lane = local / ITEMS_PER_WORKGROUP;
+    let live = i < params.n_vertices;
+    var mine = vec3<f32>(0.0);
+    if live {
+        mine = sum_corners(i, lane);
+        for (var k = particle_slot_offsets[i] + lane; k < particle_slot_offsets[i + 1u]; k += LANES) {
+            let slot = particle_slots[k];
+            let p = slot / 4u;
+            if (particle_mode[p] & MODE_IN_F) != 0u {
+                let fp = vec3<f32>(exact_host_force[3u * p], exact_host_force[3u * p + 1u], exact_host_force[3u * p + 2u]);
+                let ft = vec3<f32>(exact_tangent[3u * slot], exact_tangent[3u * slot + 1u], exact_tangent[3u * slot + 2u]);
+                mine += fp * particle_weights[slot] + ft;
             }
         }
     }

@@ -53,6 +53,21 @@ pub enum Stage {
     Reduce,
     /// The particles' energies, max speed and residual (two-level tree reduction).
     ParticleReduce,
+    /// Design 8 (`particles.coupling = "exact"`): `Activate`, then the vertices' masses of
+    /// the slaving and the slaved vertices placed on their particles' fit (every K steps).
+    ActivateExact,
+    /// Design 8, per dynamic particle: its offset δ = u − Σ wₐ uₐ off its embedded place;
+    /// then per particle of S: the remainder's stress, energy and its host's tangent forces.
+    ExactStress,
+    /// Design 8, per particle of F: the pair force (dynamic) and hourglass penalty, and what
+    /// its host vertices take through its weights.
+    ExactForces,
+    /// Design 8, per vertex: `GatherCoupled`'s core sum plus, over its force-set slots, the
+    /// host forces and the tangent corner forces.
+    ExactGather,
+    /// Design 8: slaved vertices pass their force to their particles, vertices and dynamic
+    /// particles step, slaved vertices take their particles' fit.
+    ExactIntegrate,
 }
 
 /// The threads a kernel entry point is dispatched over.
@@ -129,6 +144,11 @@ impl Stage {
             Stage::Gather => "gather",
             Stage::Integrate => "integrate",
             Stage::Reduce => "reduce",
+            Stage::ActivateExact => "activate_exact",
+            Stage::ExactStress => "exact_stress",
+            Stage::ExactForces => "exact_forces",
+            Stage::ExactGather => "exact_gather",
+            Stage::ExactIntegrate => "exact_integrate",
         }
     }
 
@@ -142,6 +162,59 @@ impl Stage {
                 aliases: &[],
             }],
             Stage::Activate => ACTIVATE,
+            Stage::ActivateExact => ACTIVATE_EXACT,
+            Stage::ExactStress => &[
+                Entry {
+                    file: "exact_stress",
+                    entry: "exact_offsets",
+                    domain: Domain::Indirect("particle_dispatch", 0),
+                    aliases: &[],
+                },
+                Entry {
+                    file: "exact_stress",
+                    entry: "exact_stress",
+                    domain: Domain::Indirect("particle_dispatch", 12),
+                    aliases: &[],
+                },
+            ],
+            Stage::ExactForces => &[Entry {
+                file: "exact_forces",
+                entry: "exact_forces",
+                domain: Domain::Indirect("particle_dispatch", 24),
+                aliases: &[],
+            }],
+            Stage::ExactGather => &[Entry {
+                file: "gather",
+                entry: "gather_exact",
+                domain: Domain::Vertices,
+                aliases: &[],
+            }],
+            Stage::ExactIntegrate => &[
+                Entry {
+                    file: "exact_slaving",
+                    entry: "exact_transfer",
+                    domain: Domain::Indirect("particle_dispatch", 0),
+                    aliases: &[],
+                },
+                Entry {
+                    file: "integrate",
+                    entry: "integrate",
+                    domain: Domain::Vertices,
+                    aliases: &[],
+                },
+                Entry {
+                    file: "integrate_particles",
+                    entry: "integrate_particles",
+                    domain: Domain::Indirect("particle_dispatch", 0),
+                    aliases: &[],
+                },
+                Entry {
+                    file: "exact_slaving",
+                    entry: "exact_place",
+                    domain: Domain::Vertices,
+                    aliases: &[],
+                },
+            ],
             Stage::Follow => &[Entry {
                 file: "follow",
                 entry: "follow",
@@ -343,6 +416,24 @@ const ACTIVATE: &[Entry] = {
     ]
 };
 
+/// Design 8's activation (`particles.coupling = "exact"`, activation = "all" on the GPU):
+/// [`ACTIVATE`], then the slaving's vertex masses and the slaved vertices placed on their fit.
+const ACTIVATE_EXACT: &[Entry] = &{
+    let mut all = [ACTIVATE[0]; ACTIVATE.len() + 1];
+    let mut k = 0;
+    while k < ACTIVATE.len() {
+        all[k] = ACTIVATE[k];
+        k += 1;
+    }
+    all[ACTIVATE.len()] = Entry {
+        file: "exact_slaving",
+        entry: "exact_relump",
+        domain: Domain::Vertices,
+        aliases: &[],
+    };
+    all
+};
+
 /// When a planned stage runs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
@@ -409,20 +500,32 @@ impl StepPlan {
         if tool {
             stages.push(every(Stage::ToolMotion));
         }
+        // Design 8 runs particles and vertices at one rate, with its own stages.
+        let exact = particles.is_some() && model.slaving.is_some();
         if let Some(p) = particles {
             stages.push(PlannedStage {
-                stage: Stage::Activate,
+                stage: if exact {
+                    Stage::ActivateExact
+                } else {
+                    Stage::Activate
+                },
                 when: When::EveryKSteps(p.settings.activation_interval),
             });
-            for k in 0..substeps.max(1) {
+            if exact {
                 stages.push(every(Stage::Follow));
-                stages.push(every(Stage::SphStress));
-                stages.push(every(if k == 0 {
-                    Stage::SphForces
-                } else {
-                    Stage::SphForcesAccumulate
-                }));
-                stages.push(every(Stage::IntegrateParticles));
+                stages.push(every(Stage::ExactStress));
+                stages.push(every(Stage::ExactForces));
+            } else {
+                for k in 0..substeps.max(1) {
+                    stages.push(every(Stage::Follow));
+                    stages.push(every(Stage::SphStress));
+                    stages.push(every(if k == 0 {
+                        Stage::SphForces
+                    } else {
+                        Stage::SphForcesAccumulate
+                    }));
+                    stages.push(every(Stage::IntegrateParticles));
+                }
             }
         }
         if model.follower.is_some() {
@@ -440,12 +543,18 @@ impl StepPlan {
         if tool {
             stages.push(every(Stage::Contact));
         }
-        stages.push(every(if tool || particles.is_some() {
+        stages.push(every(if exact {
+            Stage::ExactGather
+        } else if tool || particles.is_some() {
             Stage::GatherCoupled
         } else {
             Stage::Gather
         }));
-        stages.push(every(Stage::Integrate));
+        stages.push(every(if exact {
+            Stage::ExactIntegrate
+        } else {
+            Stage::Integrate
+        }));
         if tool {
             stages.push(last(Stage::ToolForce));
         }

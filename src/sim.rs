@@ -242,7 +242,7 @@ impl Simulation {
             )));
         }
         let params = model.step_params(dt, damping);
-        if backend == Backend::Gpu && model.slaving.is_some() {
+        if backend == Backend::Gpu && crate::gpu::stepper::exact_needs_cpu(&model) {
             return Err(PalpateError::Usage(
                 crate::gpu::stepper::EXACT_COUPLING_CPU_ONLY.into(),
             ));
@@ -254,7 +254,7 @@ impl Simulation {
             ));
         }
         let (backend, backend_reason, adapter) = match backend {
-            Backend::Auto if model.slaving.is_some() => (
+            Backend::Auto if crate::gpu::stepper::exact_needs_cpu(&model) => (
                 Backend::Cpu,
                 format!("auto: {}", crate::gpu::stepper::EXACT_COUPLING_CPU_ONLY),
                 None,

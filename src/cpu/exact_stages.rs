@@ -1,8 +1,10 @@
 //! The CPU stages of design 8 (`particles.coupling = "exact"`; the energy and its forces are
 //! in [`super::exact_coupling`], which is these stages' reference): what the stepper runs in
 //! place of the energy blend's `sph_stress`, `sph_forces`, `gather_coupled` and
-//! `integrate_particles`; an activation under it is `cpu/exact_activation.rs`. No GPU kernel
-//! runs them yet.
+//! `integrate_particles` (the plan's `ExactStress`, `ExactForces`, `ExactGather`,
+//! `ExactIntegrate`); an activation under it is `cpu/exact_activation.rs`. Their kernels:
+//! `exact_stress.wgsl`, `exact_forces.wgsl`, `gather.wgsl::gather_exact`,
+//! `exact_slaving.wgsl` (the GPU runs design 8 under `activation = "all"` only).
 //!
 //! One step: δ_q = u_q − Σ wₐ_q uₐ per dynamic particle; per particle p of S, A_p =
 //! [P(F̄_p + D_p) − P(F̄_p)] G_pᵀ, F_p = I + H̄_p + D_p, the remainder energy and the tangent

@@ -886,9 +886,6 @@ impl CpuStepper {
 
     /// Run one stage's twin on the current arrays.
     pub fn run_stage(&mut self, stage: Stage) {
-        if self.exact.is_some() && self.run_exact_stage(stage) {
-            return;
-        }
         let m = &*self.model;
         let p = &self.params;
         let t = &mut self.tool;
@@ -1121,25 +1118,21 @@ impl CpuStepper {
             | Stage::SphForcesAccumulate
             | Stage::IntegrateParticles
             | Stage::ParticleReduce => self.run_particle_stage(stage),
+            Stage::ActivateExact
+            | Stage::ExactStress
+            | Stage::ExactForces
+            | Stage::ExactGather
+            | Stage::ExactIntegrate => self.run_exact_stage(stage),
         }
     }
 
-    /// The stages design 8 runs its own way (`particles.coupling = "exact"`, see
-    /// `cpu/exact_stages.rs`); false for the others, which run as for the energy blend.
-    fn run_exact_stage(&mut self, stage: Stage) -> bool {
+    /// Design 8's stages (`particles.coupling = "exact"`, see `cpu/exact_stages.rs`); the
+    /// others do nothing here, as does any of them on a model without the exact coupling.
+    fn run_exact_stage(&mut self, stage: Stage) {
         use super::exact_stages as ex;
-        match stage {
-            Stage::Activate => {
-                self.activate_exact();
-                return true;
-            }
-            Stage::SphStress
-            | Stage::SphForces
-            | Stage::SphForcesAccumulate
-            | Stage::IntegrateParticles
-            | Stage::GatherCoupled
-            | Stage::Integrate => {}
-            _ => return false,
+        if stage == Stage::ActivateExact {
+            self.activate_exact();
+            return;
         }
         let m = &*self.model;
         let p = &self.params;
@@ -1148,11 +1141,11 @@ impl CpuStepper {
             m.particles.as_ref(),
             self.exact.as_mut(),
         ) else {
-            return false;
+            return;
         };
         let pp = pa.params;
         match stage {
-            Stage::SphStress => {
+            Stage::ExactStress => {
                 ex::embedded_offsets(
                     m,
                     pd,
@@ -1180,7 +1173,7 @@ impl CpuStepper {
                     &mut x.tangent,
                 );
             }
-            Stage::SphForces | Stage::SphForcesAccumulate => {
+            Stage::ExactForces => {
                 let t = &self.tool;
                 let inp = super::sph_forces::ForceInputs {
                     params: p,
@@ -1206,9 +1199,7 @@ impl CpuStepper {
                     &mut x.host_force,
                 );
             }
-            // The particles step with the vertices, after their gather (see `Integrate`).
-            Stage::IntegrateParticles => {}
-            Stage::GatherCoupled => {
+            Stage::ExactGather => {
                 let surface_index = m.tool.as_ref().map_or(&[][..], |s| &s.surface_index);
                 ex::exact_gather(
                     p,
@@ -1227,7 +1218,7 @@ impl CpuStepper {
                     &mut self.forces,
                 );
             }
-            Stage::Integrate => {
+            Stage::ExactIntegrate => {
                 x.slaving.transfer_forces(&mut self.forces, &mut pa.forces);
                 integrate(
                     p,
@@ -1257,7 +1248,6 @@ impl CpuStepper {
             }
             _ => {}
         }
-        true
     }
 
     /// An activation under design 8 (`cpu/exact_activation.rs`): the mode machine over every
@@ -1684,6 +1674,36 @@ impl CpuStepper {
             Some(pa) => (&pa.state.mass, &pa.state.inv_mass),
             None => (&self.model.mass, &self.model.inv_mass),
         }
+    }
+
+    /// An array by the name of its GPU buffer (`GpuStepper::read_f32` reads the same one
+    /// there), for stage-by-stage comparisons: the vertices' `displacements`, `velocities`,
+    /// `forces`, `mass`, `inv_mass`, `corner_forces`; the particles' `particle_displacements`,
+    /// `particle_velocities`, `particle_stress`, `particle_gradient`, `particle_energy`,
+    /// `particle_forces`, `particle_contact`; design 8's `exact_delta`, `exact_host_force`,
+    /// `exact_tangent`. None for another name or an array the model does not have.
+    pub fn array(&self, name: &str) -> Option<&[f32]> {
+        let pa = self.particles.as_ref();
+        let x = self.exact.as_ref();
+        Some(match name {
+            "displacements" => &self.state.displacements,
+            "velocities" => &self.state.velocities,
+            "forces" => &self.forces,
+            "corner_forces" => &self.corner_forces,
+            "mass" => self.vertex_masses().0,
+            "inv_mass" => self.vertex_masses().1,
+            "particle_displacements" => &pa?.state.displacements,
+            "particle_velocities" => &pa?.state.velocities,
+            "particle_stress" => &pa?.stress,
+            "particle_gradient" => &pa?.gradient,
+            "particle_energy" => &pa?.energy,
+            "particle_forces" => &pa?.forces,
+            "particle_contact" => &pa?.contact,
+            "exact_delta" => &x?.delta,
+            "exact_host_force" => &x?.host_force,
+            "exact_tangent" => &x?.tangent,
+            _ => return None,
+        })
     }
 
     /// The last SPH forces on the particles (None without particles).

@@ -277,6 +277,111 @@ pub fn particle_stubs() -> BufferGroup<'static> {
     }
 }
 
+/// Design 8's slaving as the GPU runs it (`particles.coupling = "exact"` under
+/// `activation = "all"`: the model's slaving, fixed for the run): the vertex masses, and the
+/// fits as two CSRs, vertex → (particle, s) and particle → (vertex, s) with vertices
+/// ascending (the order `Slaving::transfer_forces` adds them in).
+pub struct ExactTables {
+    /// Per vertex, its lumped mass, kg (0 on slaved vertices).
+    pub mass: Vec<f32>,
+    /// Per vertex, 0 fixed, −1 slaved, else 1 / mass.
+    pub inv_mass: Vec<f32>,
+    /// CSR offsets (n_vertices + 1) of the vertices' fits.
+    pub fit_offsets: Vec<u32>,
+    /// The fits' particles.
+    pub fit_particles: Vec<u32>,
+    /// The fits' weights s.
+    pub fit_weights: Vec<f32>,
+    /// CSR offsets (n_particles + 1) of the particles' slaved vertices.
+    pub slave_offsets: Vec<u32>,
+    /// The slaved vertices each particle takes force from.
+    pub slave_vertices: Vec<u32>,
+    /// Their weights s.
+    pub slave_weights: Vec<f32>,
+}
+
+impl ExactTables {
+    /// The tables of `model` (None without the exact coupling).
+    pub fn new(model: &Model) -> Option<ExactTables> {
+        let sl = model.slaving.as_ref()?;
+        let n = model.particles.as_ref()?.len();
+        let inv_mass = (0..model.n_vertices())
+            .map(|v| {
+                if model.inv_mass[v] == 0.0 {
+                    0.0
+                } else if sl.slaved[v] {
+                    -1.0
+                } else {
+                    1.0 / sl.vertex_mass[v]
+                }
+            })
+            .collect();
+        let mut fit_offsets = vec![0u32];
+        let (mut fit_particles, mut fit_weights) = (Vec::new(), Vec::new());
+        let mut per_particle: Vec<Vec<(u32, f32)>> = vec![Vec::new(); n];
+        for (v, fit) in sl.fit.iter().enumerate() {
+            if sl.slaved[v] {
+                for &(q, s) in fit {
+                    fit_particles.push(q);
+                    fit_weights.push(s);
+                    per_particle[q as usize].push((v as u32, s));
+                }
+            }
+            fit_offsets.push(fit_particles.len() as u32);
+        }
+        let mut slave_offsets = vec![0u32];
+        let (mut slave_vertices, mut slave_weights) = (Vec::new(), Vec::new());
+        for list in per_particle {
+            for (v, s) in list {
+                slave_vertices.push(v);
+                slave_weights.push(s);
+            }
+            slave_offsets.push(slave_vertices.len() as u32);
+        }
+        Some(ExactTables {
+            mass: sl.vertex_mass.clone(),
+            inv_mass,
+            fit_offsets,
+            fit_particles,
+            fit_weights,
+            slave_offsets,
+            slave_vertices,
+            slave_weights,
+        })
+    }
+}
+
+/// Design 8's buffers: its per-step arrays (δ, the hosts' forces, the tangent corner forces)
+/// and the slaving ([`ExactTables`]).
+pub fn exact<'a>(t: &'a ExactTables, n_particles: u32) -> BufferGroup<'a> {
+    let n = n_particles as u64;
+    // An empty list still binds 4 bytes.
+    let data_u32 = |name, v: &'a [u32]| match v.is_empty() {
+        true => BufferSpec::zeroed(name, Usage::Storage, 4),
+        false => BufferSpec::data(name, Usage::Storage, v),
+    };
+    let data_f32 = |name, v: &'a [f32]| match v.is_empty() {
+        true => BufferSpec::zeroed(name, Usage::Storage, 4),
+        false => BufferSpec::data(name, Usage::Storage, v),
+    };
+    BufferGroup {
+        name: "exact coupling",
+        specs: vec![
+            BufferSpec::zeroed("exact_delta", Usage::Storage, 12 * n),
+            BufferSpec::zeroed("exact_host_force", Usage::Storage, 12 * n),
+            BufferSpec::zeroed("exact_tangent", Usage::Storage, 48 * n),
+            BufferSpec::data("exact_mass", Usage::Storage, &t.mass),
+            BufferSpec::data("exact_inv_mass", Usage::Storage, &t.inv_mass),
+            BufferSpec::data("exact_fit_offsets", Usage::Storage, &t.fit_offsets),
+            data_u32("exact_fit_particles", &t.fit_particles),
+            data_f32("exact_fit_weights", &t.fit_weights),
+            BufferSpec::data("exact_slave_offsets", Usage::Storage, &t.slave_offsets),
+            data_u32("exact_slave_vertices", &t.slave_vertices),
+            data_f32("exact_slave_weights", &t.slave_weights),
+        ],
+    }
+}
+
 /// Per-run data of the cardiac stages (split laws, nodal pressure, follower pressure), owned
 /// by the stepper while the tables borrow it.
 pub struct CardiacTables {
@@ -394,6 +499,7 @@ pub fn for_model<'a>(
     tool_params: &'a ToolParams,
     particles: Option<&'a ParticleTables>,
     cardiac: Option<&'a CardiacTables>,
+    exact: Option<&'a ExactTables>,
     max_dim: u32,
 ) -> Vec<BufferGroup<'a>> {
     let mut groups = vec![fem(model, params, max_dim), tool(model, tool_params)];
@@ -404,6 +510,9 @@ pub fn for_model<'a>(
         (Some(t), Some(p)) => {
             groups.push(self::particles(p, &t.grid, &t.setup_scans));
             groups.push(particle_step(model, t));
+            if let Some(x) = exact {
+                groups.push(self::exact(x, t.params.n_particles));
+            }
         }
         _ => groups.push(particle_stubs()),
     }

@@ -18,17 +18,29 @@ use std::sync::Arc;
 
 pub use crate::plan::Stage;
 
-/// Why a model with `particles.coupling = "exact"` does not run here.
-pub const EXACT_COUPLING_CPU_ONLY: &str = "particles.coupling = \"exact\" runs on the CPU backend only (--backend cpu): its GPU kernels are not built yet";
+/// Why a model with `particles.coupling = "exact"` under the tool does not run here.
+pub const EXACT_COUPLING_CPU_ONLY: &str = "particles.coupling = \"exact\" with a dynamic set that follows the tool runs on the CPU backend only (--backend cpu): its activation re-slaves on the CPU; on the GPU set particles.activation = \"all\"";
+
+/// True when `model` has the exact coupling with a set the tool moves, which only the CPU
+/// backend runs (the GPU runs design 8 under `activation = "all"`, whose slaving is fixed).
+pub fn exact_needs_cpu(model: &Model) -> bool {
+    model.slaving.is_some()
+        && model
+            .particles
+            .as_ref()
+            .is_some_and(|p| !p.settings.all_active)
+}
 /// The pipeline-overridable constants a stage's kernels are built with for `model`.
 pub fn stage_constants(stage: Stage, model: &Model) -> Vec<(&'static str, f64)> {
     match stage {
         Stage::FemForces => {
             let v = model.fem_variant();
+            // Design 8's tets keep their full energy: no energy weights.
+            let weighted = model.particles.is_some() && model.slaving.is_none();
             vec![
                 ("MATERIAL", v.model as u32 as f64),
                 ("VISCOUS", flag(v.viscous)),
-                ("PARTICLES", flag(model.particles.is_some())),
+                ("PARTICLES", flag(weighted)),
             ]
         }
         Stage::FemForcesSplit => {
@@ -64,8 +76,12 @@ fn stage_flags(stage: Stage, model: &Model) -> Vec<(&'static str, f64)> {
         Stage::Reduce => vec![("CONTACT", tool)],
         Stage::GatherCoupled => vec![("CONTACT", tool), ("PARTICLES", particles)],
         Stage::Contact | Stage::ToolForce => vec![("PARTICLES", particles)],
-        Stage::Activate => vec![("TOOL", tool)],
-        Stage::SphStress => vec![("MATERIAL", model.fem_variant().model as u32 as f64)],
+        Stage::Activate | Stage::ActivateExact => vec![("TOOL", tool)],
+        Stage::SphStress | Stage::ExactStress => {
+            vec![("MATERIAL", model.fem_variant().model as u32 as f64)]
+        }
+        Stage::ExactForces => vec![("TOOL", tool)],
+        Stage::ExactGather => vec![("CONTACT", tool)],
         Stage::SphForces => vec![("ACCUMULATE", 0.0), ("TOOL", tool)],
         Stage::SphForcesAccumulate => vec![("ACCUMULATE", 1.0), ("TOOL", tool)],
         _ => Vec::new(),
@@ -194,7 +210,7 @@ pub struct GpuStepper {
 impl GpuStepper {
     /// Upload `model`, build its plan's pipelines and bind groups and the readback ring.
     pub fn new(ctx: Arc<GpuContext>, model: &Model, params: StepParams) -> Result<GpuStepper> {
-        if model.slaving.is_some() {
+        if exact_needs_cpu(model) {
             return Err(PalpateError::Usage(EXACT_COUPLING_CPU_ONLY.into()));
         }
         let n = model.n_vertices() as u64;
@@ -208,12 +224,14 @@ impl GpuStepper {
         let tool_params = model.tool_params();
         let tables = crate::gpu::groups::ParticleTables::new(model, &params);
         let cardiac = crate::gpu::groups::CardiacTables::new(model);
+        let exact = crate::gpu::groups::ExactTables::new(model);
         let groups = crate::gpu::groups::for_model(
             model,
             &params,
             &tool_params,
             tables.as_ref(),
             cardiac.as_ref(),
+            exact.as_ref(),
             max_dim,
         );
         let mut buffers = GpuBuffers::new(&ctx, &groups)?;

@@ -37,7 +37,7 @@ pub struct ParticleSpec {
     /// `"blend"` (default: the partition-of-unity energy blend of eq. 9–11) or `"exact"`
     /// (design 8 of `docs/hybrid_coupling.md`: full-energy tets plus each particle's
     /// Bregman remainder, zone-only vertices slaved to their particles; exact patch test).
-    /// `"exact"` needs `model = "tlsph"` and runs on the CPU backend.
+    /// `"exact"` needs `model = "tlsph"`; the GPU backend runs it with `activation = "all"`.
     pub coupling: Option<String>,
 }
 
