@@ -996,6 +996,83 @@ fn hm1_exact_follows_the_tool_and_switches_without_pops() {
     );
 }
 
+/// An activation under design 8 that finds the same set as the last one keeps what that one
+/// made (`activation_counts().unchanged`); the reference path (`set_full_activation(true)`)
+/// re-slaves and rebuilds every time. On hm1_exact through the press, the hold and the
+/// withdrawal, with a checkpoint restored on the way, the two leave every vertex and particle
+/// (state, modes, timers, offsets), the masses and the activation's outputs bit-equal after
+/// every batch.
+#[test]
+fn an_unchanged_exact_activation_equals_the_full_one() {
+    use palpate::stepper::Stepper;
+    let scene = Scene::load("hm1_exact").unwrap();
+    let m = std::sync::Arc::new(Model::from_scene(&scene));
+    let dt = scene.solver.dt.unwrap();
+    let params = m.step_params(dt, scene.solver.damping);
+    let mut quick = palpate::cpu::CpuStepper::with_threads(m.clone(), params, 2).unwrap();
+    let mut full = palpate::cpu::CpuStepper::with_threads(m.clone(), params, 2).unwrap();
+    full.set_full_activation(true);
+    let tool = scene.tool.clone().unwrap();
+    let interval = scene.particles.as_ref().unwrap().activation_interval;
+    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
+    let (mut t, mut batch) = (0.0, 0u32);
+    let (mut most, mut replayed) = (0u32, false);
+    while t < 7.0 {
+        let replay = batch == 42 && !replayed;
+        let input = palpate::stepper::BatchInput::moving(
+            tool.position_at(t),
+            tool.position_at(t + interval as f64 * dt),
+        );
+        for s in [&mut quick, &mut full] {
+            if batch == 40 && !replayed {
+                s.checkpoint().unwrap();
+            }
+            s.submit(interval, &input).unwrap();
+            most = most.max(s.wait().unwrap().particles.unwrap().dynamic);
+            if replay {
+                // Back to batch 40's start, and on from there once.
+                s.restore().unwrap();
+            }
+        }
+        if replay {
+            t -= 2.0 * interval as f64 * dt;
+            (batch, replayed) = (40, true);
+            continue;
+        }
+        batch += 1;
+        t += interval as f64 * dt;
+        let (a, b) = (quick.particle_state().unwrap(), full.particle_state().unwrap());
+        let (sa, sb) = (quick.read_state().unwrap(), full.read_state().unwrap());
+        let (ma, mb) = (quick.vertex_masses(), full.vertex_masses());
+        let (oa, ob) = (
+            quick.activation_outputs().unwrap(),
+            full.activation_outputs().unwrap(),
+        );
+        assert!(
+            a.modes == b.modes
+                && bits(&a.displacements) == bits(&b.displacements)
+                && bits(&a.velocities) == bits(&b.velocities)
+                && bits(&a.timers) == bits(&b.timers)
+                && bits(&a.offsets) == bits(&b.offsets)
+                && bits(&sa.displacements) == bits(&sb.displacements)
+                && bits(&sa.velocities) == bits(&sb.velocities)
+                && bits(ma.0) == bits(mb.0)
+                && bits(ma.1) == bits(mb.1)
+                && bits(oa.0) == bits(ob.0)
+                && oa.1 == ob.1
+                && bits(oa.2) == bits(ob.2),
+            "batch {batch} (t = {t:.3}): the unchanged activation differs from the full one"
+        );
+    }
+    let (cq, cf) = (
+        quick.activation_counts().unwrap(),
+        full.activation_counts().unwrap(),
+    );
+    eprintln!("hm1_exact to t = 7: at most {most} dynamic; activations {cq:?} against the reference's {cf:?}");
+    assert!(most >= 50, "{most} dynamic");
+    assert!(cq.unchanged > 0 && cq.full > 0 && cf.unchanged == 0, "{cq:?} / {cf:?}");
+}
+
 /// The patch test with a dynamic set the tool made (a ball under a sphere held just above the
 /// top face, closed and slaved by the activation): an affine stretch leaves no residual at any
 /// dynamic particle nor at any vertex off the boundary.

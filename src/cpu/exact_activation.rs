@@ -151,26 +151,39 @@ impl ReslaveCounts {
 
 /// After the mode machine: close the dynamic set, slave the vertices it covers, re-lump the
 /// masses keeping Σ m v, and set the fading offsets of the slaved vertices whose fit is new
-/// (the module's doc, items 1–3). `old` is the slaving of the last activation; the vertex
-/// velocities are updated in place and the slaved vertices are placed. Returns the new slaving.
+/// (the module's doc, items 1–3). `old` is the slaving of the last activation, made from the
+/// dynamic set `asked_before` (the mode machine's, before the closure; empty when unknown,
+/// and replaced by this one's); the vertex velocities are updated in place and the slaved
+/// vertices are placed. Returns the new slaving, or None when the mode machine asked for the
+/// same set as last time: the slaving, the masses and the fits are then `old`'s (a slaving is
+/// a function of the set asked for), and only the closure's particles and the slaved
+/// vertices' places are set, as the full path would.
 #[allow(clippy::too_many_arguments)]
 pub fn reslave(
     model: &Model,
     pd: &Particles,
     pp: &ParticleParams,
-    old: &Slaving,
+    (old, asked_before): (&Slaving, &mut Vec<bool>),
     particles: ExactParticleState,
     vertex_u: &mut [f32],
     vertex_v: &mut [f32],
     offsets: &mut SlaveOffsets,
-) -> Result<(Slaving, ReslaveCounts), SlavingError> {
+) -> Result<(Option<Slaving>, ReslaveCounts), SlavingError> {
     let (n, blend) = (pd.len(), pp.blend);
     let asked: Vec<bool> = particles
         .mode
         .iter()
         .map(|&m| m & mode::DYNAMIC != 0)
         .collect();
-    let new = Slaving::new(model, pd, &asked)?;
+    let same_set = *asked_before == asked;
+    let fresh = if same_set {
+        None
+    } else {
+        Some(Slaving::new(model, pd, &asked)?)
+    };
+    *asked_before = asked;
+    let asked = &asked_before[..];
+    let new = fresh.as_ref().unwrap_or(old);
     let mut counts = ReslaveCounts::default();
     // The particles the closure adds.
     for q in (0..n).filter(|&q| new.dynamic[q] && !asked[q]) {
@@ -195,6 +208,17 @@ pub fn reslave(
         };
         particles.mode[q] = (m & !(mode::BLENDING | mode::RELEASED)) | mode::DYNAMIC;
         store3(particles.offset, q, Vec3::ZERO);
+    }
+    if same_set {
+        // Nothing changed hands: no mass moved, no fit is new.
+        place_slaved(
+            old,
+            offsets,
+            blend,
+            (vertex_u, vertex_v),
+            (particles.displacements, particles.velocities),
+        );
+        return Ok((None, counts));
     }
     // What the re-lump touches, and its angular momentum before.
     let nv = model.n_vertices();
@@ -237,7 +261,7 @@ pub fn reslave(
             load3(particles.velocities, q)
         };
         if is_follower {
-            for (a, w) in shares(model, pd, &new, q) {
+            for (a, w) in shares(model, pd, new, q) {
                 let a = a as usize;
                 joined[a] += (carried - load3(vertex_v, a)) * (w * pd.mass);
             }
@@ -259,7 +283,7 @@ pub fn reslave(
     let after = point_masses(
         model,
         pd,
-        &new,
+        new,
         (&touched, &switched),
         (vertex_u, vertex_v),
         (particles.displacements, particles.velocities),
@@ -277,7 +301,7 @@ pub fn reslave(
             wider.extend(point_masses(
                 model,
                 pd,
-                &new,
+                new,
                 (&[], &dynamic),
                 (vertex_u, vertex_v),
                 (particles.displacements, particles.velocities),
@@ -318,13 +342,13 @@ pub fn reslave(
     }
     counts.freed = (0..nv).filter(|&v| old.slaved[v] && !new.slaved[v]).count() as u32;
     place_slaved(
-        &new,
+        new,
         offsets,
         blend,
         (vertex_u, vertex_v),
         (particles.displacements, particles.velocities),
     );
-    Ok((new, counts))
+    Ok((fresh, counts))
 }
 
 /// Whose mass a [`PointMass`] is.

@@ -40,6 +40,12 @@ pub(crate) struct ExactArrays {
     pub delta_list: Vec<u32>,
     /// What the activations so far changed.
     pub counts: ReslaveCounts,
+    /// The dynamic set the mode machine asked for at the last activation (before the
+    /// closure; empty before the first): the slaving's source.
+    pub asked: Vec<bool>,
+    /// Per particle, its DYNAMIC and BLENDING bits after the last activation (empty before
+    /// the first): when they and the slaving are unchanged, so are the sets and lists.
+    pub moving: Vec<u8>,
     /// Why an activation could not slave its dynamic set (the run stops with it).
     pub failure: Option<String>,
     /// δ per particle (zero unless dynamic), packed xyz, m.
@@ -65,6 +71,8 @@ impl ExactArrays {
             offsets: SlaveOffsets::new(model.n_vertices()),
             delta_list: Vec::new(),
             counts: ReslaveCounts::default(),
+            asked: Vec::new(),
+            moving: Vec::new(),
             failure: None,
             slaving,
             delta: vec![0.0; 3 * n],

@@ -1258,7 +1258,9 @@ impl CpuStepper {
     /// neighbours), the force set from it; the lists; and the blend's tet weights, which design
     /// 8 uses only for the vertices' contact weights (the dynamic particles take the tool's
     /// contact where they cover a vertex's tets). The tets keep full energy: `FemForces` does not
-    /// weigh them.
+    /// weigh them. An activation whose mode machine asks for the same dynamic set as the last
+    /// one, and leaves the same particles dynamic and blending, keeps the slaving, masses,
+    /// lists, weights and slots (counted in `activation_counts().unchanged`).
     fn activate_exact(&mut self) {
         let m = &*self.model;
         let p = &self.params;
@@ -1278,12 +1280,16 @@ impl CpuStepper {
             let inp = mode_inputs(m, &pp, &st, &self.tool, &self.state);
             super::activate::activate(&inp, pa.state.mode_arrays());
         }
-        pa.activations.full += 1;
+        if pa.full_activation {
+            // The reference path: every activation re-slaves and rebuilds everything.
+            x.asked.clear();
+            x.moving.clear();
+        }
         let reslaved = super::exact_activation::reslave(
             m,
             pd,
             &pp,
-            &x.slaving,
+            (&x.slaving, &mut x.asked),
             super::exact_activation::ExactParticleState {
                 mode: &mut pa.state.mode,
                 displacements: &mut pa.state.displacements,
@@ -1295,15 +1301,39 @@ impl CpuStepper {
             &mut self.state.velocities,
             &mut x.offsets,
         );
-        match reslaved {
+        let same_slaving = match reslaved {
             Ok((slaving, counts)) => {
-                x.slaving = slaving;
                 x.counts.add(counts);
+                slaving.map(|s| x.slaving = s).is_none()
             }
             // The model checked the whole zone dynamic and at rest; keep the last slaving
             // and stop the run at the end of the batch with this message.
-            Err(e) => x.failure = Some(e.to_string()),
+            Err(e) => {
+                x.failure = Some(e.to_string());
+                false
+            }
+        };
+        // The same slaving and the same dynamic and blending particles: the same sets, lists,
+        // masses, weights and force-set slots as the last activation left. The mode machine
+        // cleared the set bits; they go back on the same particles.
+        let moving: Vec<u8> = pa
+            .state
+            .mode
+            .iter()
+            .map(|&q| (q & (mode::DYNAMIC | mode::BLENDING)) as u8)
+            .collect();
+        if same_slaving && moving == x.moving {
+            for &q in &pa.act.stress_list {
+                pa.state.mode[q as usize] |= mode::IN_S;
+            }
+            for &q in &pa.act.force_list {
+                pa.state.mode[q as usize] |= mode::IN_F;
+            }
+            pa.activations.unchanged += 1;
+            return;
         }
+        pa.activations.full += 1;
+        x.moving = moving;
         let sl = &x.slaving;
         for v in 0..sl.vertex_mass.len() {
             let mass = sl.vertex_mass[v];
