@@ -2253,4 +2253,36 @@ fn the_paired_sph_force_stage_equals_the_kernel_twin() {
         scale > 0.0 && total.length() <= 1e-6 * scale,
         "the paired forces do not sum to zero"
     );
+    // Design 8's paired stage (the pairs' stress and hourglass parts apart) against its twin,
+    // which visits each pair from both ends: the particles' forces, contacts and what their
+    // hosts take.
+    let zeros = || vec![0.0f32; 3 * n];
+    let (mut tf, mut tc, mut th) = (zeros(), zeros(), zeros());
+    cpu::exact_stages::exact_forces(&inp, &fl, &mut tf, &mut tc, &mut th);
+    let mut plan = PairPlan::default();
+    plan.rebuild(
+        &sl,
+        &fl,
+        &snap.modes,
+        (noff, nbrs, &transpose),
+        &mut PlanScratch::default(),
+    );
+    let (mut pf, mut pc, mut ph) = (zeros(), zeros(), zeros());
+    plan.exact_forces(
+        &inp,
+        (&sl, &fl, &pairs),
+        &mut PairScratch::<cpu::sph_pairs::Split>::default(),
+        &mut pf,
+        &mut pc,
+        &mut ph,
+    );
+    for (name, twin, paired) in [
+        ("forces", &tf, &pf),
+        ("contact", &tc, &pc),
+        ("host force", &th, &ph),
+    ] {
+        let e = rel(&on_fl(paired), &on_fl(twin));
+        eprintln!("paired exact_forces: {name} rel err {e:.2e}");
+        assert!(e <= 1e-5, "paired exact_forces: {name} rel err {e:.2e}");
+    }
 }

@@ -132,6 +132,28 @@ fn hybrid_results_are_bit_identical_for_any_thread_count() {
     eprintln!("hm1: 300 steps, {dynamic} dynamic particles, identical on 1, 2 and 3 threads");
 }
 
+/// Design 8 (`hm1_exact`): its chain (follow, the remainder's stress, the pair forces) runs
+/// beside the element forces on more than one thread, and its paired force stage splits the
+/// pairs over the threads; 1, 2 and 3 threads give the same bits.
+#[test]
+fn design_8_results_are_bit_identical_for_any_thread_count() {
+    let scene = palpate::Scene::load("hm1_exact").unwrap();
+    let (one, particles_one, dynamic) = run_hybrid(&scene, 1, 3);
+    assert!(
+        dynamic >= 50,
+        "hm1_exact after 300 steps: only {dynamic} dynamic particles"
+    );
+    for threads in [2, 3] {
+        let (many, particles_many, _) = run_hybrid(&scene, threads, 3);
+        let what = format!("for hm1_exact between 1 and {threads} threads");
+        assert_same_bits(&one, &many, &what);
+        assert!(
+            particles_one == particles_many,
+            "particle state differs {what}"
+        );
+    }
+}
+
 /// lv_touch (the default haptic scene) with its blood pressure as a follower load: the
 /// pressure stands between the particle chain and the element forces, and on two threads
 /// runs beside the chain too.

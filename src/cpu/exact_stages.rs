@@ -188,7 +188,7 @@ pub(crate) fn exact_stress(
 /// tool's contact (`forces`, `contact`), and its hosts −(pair force) (`host_force`); a follower
 /// gets no pair force (its δ is 0 whatever its hosts do) and passes its hourglass share to its
 /// hosts.
-pub(crate) fn exact_forces(
+pub fn exact_forces(
     inp: &ForceInputs,
     force_list: &[u32],
     forces: &mut [f32],

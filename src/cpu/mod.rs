@@ -12,7 +12,7 @@ pub mod contact;
 pub mod dispatch_probe;
 pub mod exact_activation;
 pub mod exact_coupling;
-pub(crate) mod exact_stages;
+pub mod exact_stages;
 pub mod fem_forces;
 pub mod fem_forces_split;
 pub mod follow;

@@ -289,7 +289,6 @@ impl PairPlan {
         particle_force_sum: &mut [f32],
         particle_contact: &mut [f32],
     ) {
-        use rayon::prelude::*;
         let (0, Some(table)) = (inp.pp.model, inp.pairs) else {
             super::sph_forces::sph_forces(
                 inp,
@@ -301,55 +300,13 @@ impl PairPlan {
             );
             return;
         };
-        let PairScratch {
-            owned_sum,
-            terms,
-            sides,
-            records,
-            records_build,
-            results,
-        } = scratch;
-        if *records_build != self.build {
-            self.write_records(stress_list, inp.rest, inp.neighbours, table, records);
-            *records_build = self.build;
-        }
-        let records = &records[..];
-        PairSide::pack(inp, force_list, sides);
-        let sides = &sides[..];
-        owned_sum.resize(stress_list.len(), Vec3A::ZERO);
-        terms.resize(self.slots.len(), Vec3A::ZERO);
-        // Each owner's pairs are a contiguous run: hand each owner its run and its sum.
-        self.owner_runs(stress_list, terms)
-            .into_par_iter()
-            .zip(owned_sum.par_iter_mut())
-            .zip(self.owner_place.par_iter())
-            .map(|(((_, first, run), sum), &place)| (first, run, sum, place))
-            .with_min_len(16)
-            .for_each(|(first, run, sum, place)| {
-                let c = &sides[place as usize];
-                let mut fa = Vec3A::ZERO;
-                for (out, r) in run.iter_mut().zip(&records[first..]) {
-                    *out = pair_term(c, &sides[r.other as usize], r);
-                    fa += *out;
-                }
-                *sum = fa;
-            });
-        let (terms, owned_sum) = (&terms[..], &owned_sum[..]);
-        force_list
-            .par_iter()
-            .enumerate()
-            .with_min_len(16)
-            .map(|(i, &c)| {
-                let c = c as usize;
-                let mut fa = match self.owner_of[i] {
-                    u32::MAX => Vec3A::ZERO,
-                    o => owned_sum[o as usize],
-                };
-                let range =
-                    self.incoming_offsets[i] as usize..self.incoming_offsets[i + 1] as usize;
-                for &e in &self.incoming[range] {
-                    fa -= terms[e as usize];
-                }
+        let mut results = std::mem::take(&mut scratch.results);
+        self.pair_sums(
+            inp,
+            (stress_list, force_list, table),
+            scratch,
+            &mut results,
+            |c, side, fa: Vec3A| {
                 let mut f = Vec3::from(fa);
                 let contact = if inp.mode[c] & mode::DYNAMIC != 0 {
                     // A dynamic particle is in S (the activation marks S from them), so its
@@ -358,13 +315,15 @@ impl PairPlan {
                         inp.mode[c] & mode::IN_S != 0,
                         "dynamic particle {c} not in S"
                     );
-                    add_external(inp, c, (sides[i].u, sides[i].f), &mut f)
+                    add_external(inp, c, (side.u, side.f), &mut f)
                 } else {
                     Vec3::ZERO
                 };
                 (f, contact)
-            })
-            .collect_into_vec(results);
+            },
+        );
+        scratch.results = results;
+        let results = &scratch.results;
         store_forces(
             inp,
             force_list,
@@ -377,22 +336,188 @@ impl PairPlan {
     }
 }
 
+impl PairPlan {
+    /// Per particle c of `force_list` (its place i), `finish(c, its packed side, the sum of
+    /// its pairs' terms)` into `out` (force-list order): the sum is Σ of its owned pairs'
+    /// terms (slot order) − Σ of the terms of the pairs it is the other end of (slot order),
+    /// each term [`PairSum::of`] the pair's stress and hourglass parts ([`PairPlan::sph_forces`]
+    /// says which).
+    fn pair_sums<T: PairSum, R: Send>(
+        &self,
+        inp: &ForceInputs,
+        (stress_list, force_list, table): (&[u32], &[u32], &PairTable),
+        scratch: &mut PairScratch<T>,
+        out: &mut Vec<R>,
+        finish: impl Fn(usize, &PairSide, T) -> R + Sync + Send,
+    ) {
+        use rayon::prelude::*;
+        let PairScratch {
+            owned_sum,
+            terms,
+            sides,
+            records,
+            records_build,
+            ..
+        } = scratch;
+        if *records_build != self.build {
+            self.write_records(stress_list, inp.rest, inp.neighbours, table, records);
+            *records_build = self.build;
+        }
+        let records = &records[..];
+        PairSide::pack(inp, force_list, sides);
+        let sides = &sides[..];
+        owned_sum.resize(stress_list.len(), T::default());
+        terms.resize(self.slots.len(), T::default());
+        // Each owner's pairs are a contiguous run: hand each owner its run and its sum.
+        self.owner_runs(stress_list, terms)
+            .into_par_iter()
+            .zip(owned_sum.par_iter_mut())
+            .zip(self.owner_place.par_iter())
+            .map(|(((_, first, run), sum), &place)| (first, run, sum, place))
+            .with_min_len(16)
+            .for_each(|(first, run, sum, place)| {
+                let c = &sides[place as usize];
+                let mut fa = T::default();
+                for (out, r) in run.iter_mut().zip(&records[first..]) {
+                    *out = pair_term(c, &sides[r.other as usize], r);
+                    fa += *out;
+                }
+                *sum = fa;
+            });
+        let (terms, owned_sum) = (&terms[..], &owned_sum[..]);
+        force_list
+            .par_iter()
+            .enumerate()
+            .with_min_len(16)
+            .map(|(i, &c)| {
+                let mut fa = match self.owner_of[i] {
+                    u32::MAX => T::default(),
+                    o => owned_sum[o as usize],
+                };
+                let range =
+                    self.incoming_offsets[i] as usize..self.incoming_offsets[i + 1] as usize;
+                for &e in &self.incoming[range] {
+                    fa -= terms[e as usize];
+                }
+                finish(c as usize, &sides[i], fa)
+            })
+            .collect_into_vec(out);
+    }
+
+    /// Design 8's force stage with each pair once (the twin it equals to rounding:
+    /// [`super::exact_stages::exact_forces`]): per particle c of `force_list` (the plan's),
+    /// its pair part P_c (the pairs' V²(A_c + A_b)∇W) and hourglass part H_c apart; a dynamic
+    /// particle gets P_c + H_c, gravity and the tool's contact (`forces`, `contact`) and its
+    /// hosts −P_c (`host_force`); a follower gets H_c, no contact, and its hosts H_c. tlsph with
+    /// a pair table only (the caller gathers otherwise).
+    pub fn exact_forces(
+        &self,
+        inp: &ForceInputs,
+        (stress_list, force_list, table): (&[u32], &[u32], &PairTable),
+        scratch: &mut PairScratch<Split>,
+        forces: &mut [f32],
+        contact: &mut [f32],
+        host_force: &mut [f32],
+    ) {
+        let mut results = Vec::new();
+        self.pair_sums(
+            inp,
+            (stress_list, force_list, table),
+            scratch,
+            &mut results,
+            |c, side, s: Split| {
+                if inp.mode[c] & mode::DYNAMIC != 0 {
+                    let mut f = Vec3::from(s.pair + s.hourglass);
+                    let touch = add_external(inp, c, (side.u, side.f), &mut f);
+                    (f, touch, -Vec3::from(s.pair))
+                } else {
+                    let h = Vec3::from(s.hourglass);
+                    (h, Vec3::ZERO, h)
+                }
+            },
+        );
+        for (&c, (f, touch, host)) in force_list.iter().zip(results) {
+            let c = c as usize;
+            super::store3(forces, c, f);
+            super::store3(contact, c, touch);
+            super::store3(host_force, c, host);
+        }
+    }
+}
+
+/// What a pair's term adds to its owner's sum (the other end subtracts it): the energy
+/// blend's whole term ([`Vec3A`]), or design 8's two parts apart ([`Split`]).
+pub trait PairSum:
+    Copy + Default + Send + Sync + std::ops::AddAssign + std::ops::SubAssign
+{
+    /// The term of a pair from its stress part and its hourglass part (absent: zero).
+    fn of(stress: Vec3A, hourglass: Option<Vec3A>) -> Self;
+}
+
+impl PairSum for Vec3A {
+    /// stress + hourglass.
+    #[inline]
+    fn of(stress: Vec3A, hourglass: Option<Vec3A>) -> Self {
+        match hourglass {
+            Some(h) => stress + h,
+            None => stress,
+        }
+    }
+}
+
+/// A pair's stress part (`pair`) and hourglass part apart (design 8 passes only minus the
+/// first to a dynamic particle's hosts).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Split {
+    /// V²(A_c + A_b)∇W(X_b − X_c).
+    pub pair: Vec3A,
+    /// The hourglass term (zero where it does not apply).
+    pub hourglass: Vec3A,
+}
+
+impl std::ops::AddAssign for Split {
+    fn add_assign(&mut self, o: Split) {
+        self.pair += o.pair;
+        self.hourglass += o.hourglass;
+    }
+}
+
+impl std::ops::SubAssign for Split {
+    fn sub_assign(&mut self, o: Split) {
+        self.pair -= o.pair;
+        self.hourglass -= o.hourglass;
+    }
+}
+
+impl PairSum for Split {
+    #[inline]
+    fn of(stress: Vec3A, hourglass: Option<Vec3A>) -> Self {
+        Split {
+            pair: stress,
+            hourglass: hourglass.unwrap_or(Vec3A::ZERO),
+        }
+    }
+}
+
 /// The force on owner c from its pair with b (record `r`): see [`PairPlan::sph_forces`].
 /// The hourglass term only where it applies (c or b dynamic; |x_cb| > 0, which the kernel
 /// also asks; its other test, r0 > 0, is in the record: the weight is 0 where r0 = 0).
 #[inline]
-fn pair_term(c: &PairSide, b: &PairSide, r: &PairRecord) -> Vec3A {
+fn pair_term<T: PairSum>(c: &PairSide, b: &PairSide, r: &PairRecord) -> T {
     let stress = (c.a + b.a) * r.gradient;
     if c.dynamic + b.dynamic == 0.0 {
-        return stress;
+        return T::of(stress, None);
     }
     let xcb = r.x0cb + c.u - b.u;
     let r2 = xcb.length_squared();
     if r2 > 0.0 {
         let g = (c.f + b.f) * r.x0cb;
-        stress + xcb * (r.hourglass * (g.dot(xcb) / r2 - (c.in_s + b.in_s)))
+        T::of(
+            stress,
+            Some(xcb * (r.hourglass * (g.dot(xcb) / r2 - (c.in_s + b.in_s)))),
+        )
     } else {
-        stress
+        T::of(stress, None)
     }
 }
 
@@ -462,13 +587,14 @@ pub struct PlanScratch {
     row_pairs: Vec<u32>,
 }
 
-/// Per-step scratch of [`PairPlan::sph_forces`] (not part of a checkpoint).
+/// Per-step scratch of [`PairPlan::sph_forces`] (`T` = [`Vec3A`]) and
+/// [`PairPlan::exact_forces`] (`T` = [`Split`]); not part of a checkpoint.
 #[derive(Default)]
-pub struct PairScratch {
+pub struct PairScratch<T = Vec3A> {
     /// Per owner (stress-list order), the sum of its owned pairs' terms.
-    owned_sum: Vec<Vec3A>,
+    owned_sum: Vec<T>,
     /// Per pair, the force on its owner.
-    terms: Vec<Vec3A>,
+    terms: Vec<T>,
     /// Per particle of the force list, its packed quantities this step.
     sides: Vec<PairSide>,
     /// Per particle of the force list, its force and contact force this step.

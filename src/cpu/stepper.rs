@@ -251,7 +251,95 @@ fn is_chain_stage(stage: Stage) -> bool {
             | Stage::SphForcesAccumulate
             | Stage::IntegrateParticles
             | Stage::ParticleReduce
+            | Stage::ExactStress
+            | Stage::ExactForces
     )
+}
+
+/// Design 8's chain stages (`ExactStress`, `ExactForces`: see [`is_chain_stage`]), which
+/// write only particle arrays and design 8's per-step arrays; other stages do nothing here.
+fn run_exact_chain_stage(
+    stage: Stage,
+    c: &ChainInputs,
+    pa: &mut ParticleArrays,
+    x: &mut super::exact_stages::ExactArrays,
+) {
+    use super::exact_stages as ex;
+    let (m, p) = (c.model, c.params);
+    let Some(pd) = m.particles.as_ref() else {
+        return;
+    };
+    let pp = pa.params;
+    match stage {
+        Stage::ExactStress => {
+            ex::embedded_offsets(
+                m,
+                pd,
+                &x.delta_list,
+                c.vertex_displacements,
+                &pa.state.displacements,
+                &mut x.delta,
+            );
+            ex::exact_stress(
+                &ex::StressInputs {
+                    model: m,
+                    pd,
+                    pp: &pp,
+                    material: (c.material, p.lambda, p.mu),
+                    lists: (&pa.lists.neighbour_offsets, &pa.lists.neighbours),
+                    pairs: &pa.pairs,
+                    correction: &pa.correction,
+                    delta: &x.delta,
+                    vertex_u: c.vertex_displacements,
+                },
+                &pa.act.stress_list,
+                &mut pa.stress,
+                &mut pa.gradient,
+                &mut pa.energy,
+                &mut x.tangent,
+            );
+        }
+        Stage::ExactForces => {
+            let t = c.tool;
+            let inp = super::sph_forces::ForceInputs {
+                params: p,
+                pp: &pp,
+                tool: m.tool.as_ref().map(|_| (&t.params, &t.input, &t.state)),
+                mode: &pa.state.mode,
+                rest: &pd.rest,
+                displacements: &pa.state.displacements,
+                velocities: &pa.state.velocities,
+                neighbour_offsets: &pa.lists.neighbour_offsets,
+                neighbours: &pa.lists.neighbours,
+                stress: &pa.stress,
+                gradient: &pa.gradient,
+                area: &pd.contact_area,
+                contact_offset: &pd.contact_offset,
+                pairs: Some(&pa.pairs),
+            };
+            // Each pair once where the activation could list them (tlsph; the
+            // per-particle gather is the kernel's twin and the reference).
+            if pa.act.pair_plan.valid && pp.model == 0 {
+                pa.act.pair_plan.exact_forces(
+                    &inp,
+                    (&pa.act.stress_list, &pa.act.force_list, &pa.pairs),
+                    &mut pa.exact_pair_scratch,
+                    &mut pa.forces,
+                    &mut pa.contact,
+                    &mut x.host_force,
+                );
+            } else {
+                ex::exact_forces(
+                    &inp,
+                    &pa.act.force_list,
+                    &mut pa.forces,
+                    &mut pa.contact,
+                    &mut x.host_force,
+                );
+            }
+        }
+        _ => {}
+    }
 }
 
 /// The twin of a chain stage (see [`is_chain_stage`]; other stages do nothing here).
@@ -543,6 +631,8 @@ struct ParticleArrays {
     plan_scratch: super::sph_pairs::PlanScratch,
     /// Scratch of the paired force stage.
     pair_scratch: super::sph_pairs::PairScratch,
+    /// Scratch of design 8's paired force stage.
+    exact_pair_scratch: super::sph_pairs::PairScratch<super::sph_pairs::Split>,
 }
 
 impl ParticleArrays {
@@ -660,6 +750,7 @@ impl ParticleArrays {
             transpose,
             plan_scratch: Default::default(),
             pair_scratch: Default::default(),
+            exact_pair_scratch: Default::default(),
         })
     }
 }
@@ -843,9 +934,7 @@ impl CpuStepper {
             tool,
             particles,
             counts: plan.stages.iter().map(|p| (p.stage, 0)).collect(),
-            // Design 8 integrates the particles after the vertices' gather: no chain beside
-            // the element forces.
-            chain: chain_before_core_forces(&plan).filter(|_| exact.is_none()),
+            chain: chain_before_core_forces(&plan),
             exact,
             plan,
             variant: model.fem_variant(),
@@ -1145,60 +1234,18 @@ impl CpuStepper {
         };
         let pp = pa.params;
         match stage {
-            Stage::ExactStress => {
-                ex::embedded_offsets(
-                    m,
-                    pd,
-                    &x.delta_list,
-                    &self.state.displacements,
-                    &pa.state.displacements,
-                    &mut x.delta,
-                );
-                ex::exact_stress(
-                    &ex::StressInputs {
-                        model: m,
-                        pd,
-                        pp: &pp,
-                        material: (self.variant.model, p.lambda, p.mu),
-                        lists: (&pa.lists.neighbour_offsets, &pa.lists.neighbours),
-                        pairs: &pa.pairs,
-                        correction: &pa.correction,
-                        delta: &x.delta,
-                        vertex_u: &self.state.displacements,
-                    },
-                    &pa.act.stress_list,
-                    &mut pa.stress,
-                    &mut pa.gradient,
-                    &mut pa.energy,
-                    &mut x.tangent,
-                );
-            }
-            Stage::ExactForces => {
-                let t = &self.tool;
-                let inp = super::sph_forces::ForceInputs {
+            Stage::ExactStress | Stage::ExactForces => run_exact_chain_stage(
+                stage,
+                &ChainInputs {
+                    model: m,
                     params: p,
-                    pp: &pp,
-                    tool: m.tool.as_ref().map(|_| (&t.params, &t.input, &t.state)),
-                    mode: &pa.state.mode,
-                    rest: &pd.rest,
-                    displacements: &pa.state.displacements,
-                    velocities: &pa.state.velocities,
-                    neighbour_offsets: &pa.lists.neighbour_offsets,
-                    neighbours: &pa.lists.neighbours,
-                    stress: &pa.stress,
-                    gradient: &pa.gradient,
-                    area: &pd.contact_area,
-                    contact_offset: &pd.contact_offset,
-                    pairs: Some(&pa.pairs),
-                };
-                ex::exact_forces(
-                    &inp,
-                    &pa.act.force_list,
-                    &mut pa.forces,
-                    &mut pa.contact,
-                    &mut x.host_force,
-                );
-            }
+                    material: self.variant.model,
+                    tool: &self.tool,
+                    vertex_displacements: &self.state.displacements,
+                },
+                pa,
+                x,
+            ),
             Stage::ExactGather => {
                 let surface_index = m.tool.as_ref().map_or(&[][..], |s| &s.surface_index);
                 ex::exact_gather(
@@ -1650,21 +1697,30 @@ impl CpuStepper {
             core_element_forces(m, params, state, corner_forces, tet_energy, variant);
         };
         let status = &mut self.status;
+        let mut exact = self.exact.as_mut();
         if let Some(pa) = self.particles.as_mut() {
             // The core's stages on the calling thread (they start at once), the chain on a
             // worker (it steals it; its own loops' tasks stay on that worker while the
             // caller's deque has element forces left, and the caller joins in when done).
             rayon::join(core, || {
                 for planned in stages.iter().filter(|s| is_chain_stage(s.stage)) {
-                    run_chain_stage(planned.stage, &inputs, pa, status);
+                    match exact.as_deref_mut() {
+                        Some(x)
+                            if matches!(planned.stage, Stage::ExactStress | Stage::ExactForces) =>
+                        {
+                            run_exact_chain_stage(planned.stage, &inputs, pa, x)
+                        }
+                        _ => run_chain_stage(planned.stage, &inputs, pa, status),
+                    }
                 }
             });
         } else {
             core();
         }
+        // Design 8: every tet keeps its full energy.
         weigh_element_forces(
             m,
-            self.particles.as_ref(),
+            self.particles.as_ref().filter(|_| self.exact.is_none()),
             &mut self.corner_forces,
             &mut self.tet_energy,
         );
