@@ -493,11 +493,15 @@ impl Slaving {
             let wants: Vec<bool> = (0..nv)
                 .map(|v| hosts_dynamic[v] && Self::wants_slaving(model, particles, &dynamic, v))
                 .collect();
-            for q in 0..particles.len() {
-                let t = model.tets[particles.host[q] as usize];
-                if !dynamic[q] && !particles.pinned[q] && t.iter().all(|&v| wants[v as usize]) {
-                    wake(q, &mut dynamic, &mut hosts_dynamic);
-                    woke = true;
+            // (Such a follower is hosted by a vertex that wants slaving: only those vertices'
+            // particles are candidates. Waking one changes no other's test.)
+            for v in (0..nv).filter(|&v| wants[v]) {
+                for q in Self::hosted(particles, v).map(|(q, _)| q) {
+                    let t = model.tets[particles.host[q] as usize];
+                    if !dynamic[q] && !particles.pinned[q] && t.iter().all(|&c| wants[c as usize]) {
+                        wake(q, &mut dynamic, &mut hosts_dynamic);
+                        woke = true;
+                    }
                 }
             }
             if !woke {

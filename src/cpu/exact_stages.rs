@@ -230,23 +230,34 @@ pub fn exact_forces(
 /// (which holds S): the only slots whose host force or tangent force the exact stages write.
 /// Rebuilt at each activation into `offsets` (n_vertices + 1) and `slots`, so the gather walks
 /// a few thousand slots instead of every one, and a particle that has left F or S adds nothing
-/// (its last host or tangent force stays in the arrays, unread).
+/// (its last host or tangent force stays in the arrays, unread). Only the corners of the
+/// force list's host tets can hold such a slot: the others' lists are not walked.
 pub(crate) fn force_set_slots(
+    model: &Model,
     pd: &Particles,
-    particle_mode: &[u32],
+    (force_list, particle_mode): (&[u32], &[u32]),
     slots: &mut (Vec<u32>, Vec<u32>),
 ) {
+    let nv = pd.slot_offsets.len() - 1;
+    let mut hosts = vec![false; nv];
+    for &p in force_list {
+        for &v in &model.tets[pd.host[p as usize] as usize] {
+            hosts[v as usize] = true;
+        }
+    }
     let (offsets, list) = slots;
     offsets.clear();
     list.clear();
     offsets.push(0);
-    for v in 0..pd.slot_offsets.len() - 1 {
-        let range = pd.slot_offsets[v] as usize..pd.slot_offsets[v + 1] as usize;
-        list.extend(
-            pd.slots[range]
-                .iter()
-                .filter(|&&slot| particle_mode[slot as usize / 4] & mode::IN_F != 0),
-        );
+    for (v, &host) in hosts.iter().enumerate() {
+        if host {
+            let range = pd.slot_offsets[v] as usize..pd.slot_offsets[v + 1] as usize;
+            list.extend(
+                pd.slots[range]
+                    .iter()
+                    .filter(|&&slot| particle_mode[slot as usize / 4] & mode::IN_F != 0),
+            );
+        }
         offsets.push(list.len() as u32);
     }
 }

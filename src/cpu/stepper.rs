@@ -1395,7 +1395,12 @@ impl CpuStepper {
         }
         pa.mark_sets_and_compact(n, mode::DYNAMIC | mode::BLENDING);
         x.delta.iter_mut().for_each(|d| *d = 0.0);
-        super::exact_stages::force_set_slots(pd, &pa.state.mode, &mut x.gather_slots);
+        super::exact_stages::force_set_slots(
+            m,
+            pd,
+            (&pa.act.force_list, &pa.state.mode),
+            &mut x.gather_slots,
+        );
         x.delta_list.clone_from(&pa.act.dynamic_list);
         x.delta_list.extend(
             pa.act
