@@ -920,7 +920,8 @@ fn still_tool(radius: f64, centre: [f64; 3]) -> String {
 /// adds to what the tool asks for), the run stays finite for its 10 s, every particle is back
 /// on its host after the tool has gone, and nothing pops at an activation: a particle that
 /// switches and a vertex that is slaved, refitted or freed stay where they were (the offsets
-/// fade instead), measured across an activation with no time step in between.
+/// fade instead), measured across an activation with no time step in between; and a particle
+/// that is in the force set but not in the stress set carries no tangent force.
 #[test]
 fn hm1_exact_follows_the_tool_and_switches_without_pops() {
     use palpate::particles::params::mode;
@@ -947,6 +948,18 @@ fn hm1_exact_follows_the_tool_and_switches_without_pops() {
         assert!(r.stats.non_finite_vertex.is_none(), "diverged at t = {t}");
         t += interval as f64 * dt;
         most = most.max(r.particles.unwrap().dynamic);
+        // A particle of F outside S carries no tangent force (one that has left S must not
+        // keep the last one it had there: the gather adds every force-set slot's).
+        let tangent = s.array("exact_tangent").unwrap();
+        for (q, &m) in s.particle_modes().unwrap().iter().enumerate() {
+            if m & mode::IN_F != 0 && m & mode::IN_S == 0 {
+                let t = &tangent[12 * q..12 * q + 12];
+                assert!(
+                    t.iter().all(|&x| x == 0.0),
+                    "particle {q} (in F, not in S): tangent {t:?}"
+                );
+            }
+        }
         let nodes = s.read_state().unwrap();
         let snap = s.particle_state().unwrap();
         let before = palpate::output::particles::particle_displacements(&m, &nodes, &snap);
@@ -1077,6 +1090,69 @@ fn an_unchanged_exact_activation_equals_the_full_one() {
     assert!(
         cq.unchanged > 0 && cq.full > 0 && cf.unchanged == 0,
         "{cq:?} / {cf:?}"
+    );
+}
+
+/// A restore under design 8 with the tool moving goes back to the checkpoint exactly: hm1_exact
+/// pressed to t = 2.1, checkpointed, run 5 activation intervals (its sets change), restored
+/// and run again with the same inputs gives the same bits (vertices and particles). The
+/// checkpoint keeps no per-step array (δ, host and tangent forces): a restore zeroes them and
+/// the next step writes what it reads.
+#[test]
+fn a_restore_under_the_tool_repeats_design_8s_run_exactly() {
+    use palpate::stepper::Stepper;
+    let scene = Scene::load("hm1_exact").unwrap();
+    let m = std::sync::Arc::new(Model::from_scene(&scene));
+    let dt = scene.solver.dt.unwrap();
+    let mut s = palpate::cpu::CpuStepper::with_threads(
+        m.clone(),
+        m.step_params(dt, scene.solver.damping),
+        2,
+    )
+    .unwrap();
+    let tool = scene.tool.clone().unwrap();
+    let interval = scene.particles.as_ref().unwrap().activation_interval;
+    let step = |s: &mut palpate::cpu::CpuStepper, t: f64| {
+        let input = palpate::stepper::BatchInput::moving(
+            tool.position_at(t),
+            tool.position_at(t + interval as f64 * dt),
+        );
+        s.submit(interval, &input).unwrap();
+        s.wait().unwrap();
+    };
+    let mut t = 0.0;
+    while t < 2.1 {
+        step(&mut s, t);
+        t += interval as f64 * dt;
+    }
+    s.checkpoint().unwrap();
+    let full_before = s.activation_counts().unwrap().full;
+    let run = |s: &mut palpate::cpu::CpuStepper| {
+        for k in 0..5 {
+            step(s, t + (k * interval) as f64 * dt);
+        }
+        let p = s.particle_state().unwrap();
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
+        let u = s.read_state().unwrap();
+        (
+            bits(&u.displacements),
+            bits(&u.velocities),
+            bits(&p.displacements),
+            bits(&p.velocities),
+            p.modes,
+        )
+    };
+    let first = run(&mut s);
+    let changed = s.activation_counts().unwrap().full - full_before;
+    s.restore().unwrap();
+    let again = run(&mut s);
+    assert!(
+        changed > 0,
+        "no activation changed a set after the checkpoint"
+    );
+    assert!(
+        first == again,
+        "a restored run differs from the run that was saved"
     );
 }
 

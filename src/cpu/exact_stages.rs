@@ -63,6 +63,51 @@ pub(crate) struct ExactArrays {
 }
 
 impl ExactArrays {
+    /// Save into `into` what a checkpoint keeps: everything but the per-step arrays (δ, the
+    /// hosts' forces, the tangent forces), which `into` holds empty. Reuses `into`'s buffers.
+    pub fn save_into(&self, into: &mut ExactArrays) {
+        let (s, d) = (&self.slaving, &mut into.slaving);
+        d.dynamic.clone_from(&s.dynamic);
+        d.slaved.clone_from(&s.slaved);
+        d.fit.clone_from(&s.fit);
+        d.vertex_mass.clone_from(&s.vertex_mass);
+        into.offsets.offset.clone_from(&self.offsets.offset);
+        into.offsets.timer.clone_from(&self.offsets.timer);
+        into.delta_list.clone_from(&self.delta_list);
+        into.counts = self.counts;
+        into.failure.clone_from(&self.failure);
+        into.asked.clone_from(&self.asked);
+        into.moving.clone_from(&self.moving);
+        into.gather_slots.0.clone_from(&self.gather_slots.0);
+        into.gather_slots.1.clone_from(&self.gather_slots.1);
+        for a in [&mut into.delta, &mut into.host_force, &mut into.tangent] {
+            a.clear();
+        }
+    }
+
+    /// Take back what [`Self::save_into`] kept; the per-step arrays become zero, which is
+    /// what they hold where they are read before a step writes them: δ outside the δ list,
+    /// and the tangent forces of the force set's particles outside S (an activation zeroes
+    /// those). The next step writes the rest before reading it.
+    pub fn restore_from(&mut self, saved: &ExactArrays) {
+        let (n_delta, n_tangent) = (self.delta.len(), self.tangent.len());
+        let (mut delta, mut host, mut tangent) = (
+            std::mem::take(&mut self.delta),
+            std::mem::take(&mut self.host_force),
+            std::mem::take(&mut self.tangent),
+        );
+        saved.save_into(self);
+        for (a, len) in [
+            (&mut delta, n_delta),
+            (&mut host, n_delta),
+            (&mut tangent, n_tangent),
+        ] {
+            a.clear();
+            a.resize(len, 0.0);
+        }
+        (self.delta, self.host_force, self.tangent) = (delta, host, tangent);
+    }
+
     /// The arrays of `model` (None unless it has the exact coupling).
     pub fn new(model: &Model) -> Option<ExactArrays> {
         let slaving = Slaving::clone(model.slaving.as_ref()?);

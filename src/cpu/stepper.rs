@@ -1395,6 +1395,13 @@ impl CpuStepper {
         }
         pa.mark_sets_and_compact(n, mode::DYNAMIC | mode::BLENDING);
         x.delta.iter_mut().for_each(|d| *d = 0.0);
+        // The gather adds every force-set slot's tangent force; only S's are written each
+        // step: a particle that has left S keeps none.
+        for &q in &pa.act.force_list {
+            if pa.state.mode[q as usize] & mode::IN_S == 0 {
+                x.tangent[12 * q as usize..12 * q as usize + 12].fill(0.0);
+            }
+        }
         super::exact_stages::force_set_slots(
             m,
             pd,
@@ -1927,7 +1934,7 @@ impl Stepper for CpuStepper {
             act.clone_from(&pa.act);
         }
         if let (Some(saved), Some(x)) = (&mut cp.exact, &self.exact) {
-            saved.clone_from(x);
+            x.save_into(saved);
         }
         cp.steps_done = self.steps_done;
         cp.tool_at = self.tool.at;
@@ -1946,7 +1953,7 @@ impl Stepper for CpuStepper {
             pa.act.clone_from(act);
         }
         if let (Some(saved), Some(x)) = (&cp.exact, &mut self.exact) {
-            x.clone_from(saved);
+            x.restore_from(saved);
         }
         self.steps_done = cp.steps_done;
         self.tool.at = cp.tool_at;
