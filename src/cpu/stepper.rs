@@ -1305,9 +1305,11 @@ impl CpuStepper {
     /// neighbours), the force set from it; the lists; and the blend's tet weights, which design
     /// 8 uses only for the vertices' contact weights (the dynamic particles take the tool's
     /// contact where they cover a vertex's tets). The tets keep full energy: `FemForces` does not
-    /// weigh them. An activation whose mode machine asks for the same dynamic set as the last
-    /// one, and leaves the same particles dynamic and blending, keeps the slaving, masses,
-    /// lists, weights and slots (counted in `activation_counts().unchanged`).
+    /// weigh them. After one full pass the mode machine visits the region the tool can change
+    /// (`cpu/active_region.rs`). An activation whose mode machine asks for the same dynamic
+    /// set as the last one, and leaves the same particles dynamic and blending, keeps the
+    /// slaving, masses, lists, weights and slots (`activation_counts().unchanged`; `region`
+    /// counts the others after the first).
     fn activate_exact(&mut self) {
         let m = &*self.model;
         let p = &self.params;
@@ -1323,10 +1325,19 @@ impl CpuStepper {
         };
         let pp = pa.params;
         let n = pd.len();
-        {
+        // The mode machine over the region the tool can change (the blend's, see
+        // cpu/active_region.rs), or over everything.
+        let over_region = {
             let inp = mode_inputs(m, &pp, &st, &self.tool, &self.state);
-            super::activate::activate(&inp, pa.state.mode_arrays());
-        }
+            let region = pa.region.primed() && !pa.full_activation && inp.tool_active;
+            if region {
+                let candidates = pa.region.candidates(&inp, &pd.tet_offsets);
+                ActiveRegion::update(&inp, &candidates, pa.state.mode_arrays());
+            } else {
+                super::activate::activate(&inp, pa.state.mode_arrays());
+            }
+            region
+        };
         if pa.full_activation {
             // The reference path: every activation re-slaves and rebuilds everything.
             x.asked.clear();
@@ -1377,9 +1388,15 @@ impl CpuStepper {
                 pa.state.mode[q as usize] |= mode::IN_F;
             }
             pa.activations.unchanged += 1;
+            let blending = &x.delta_list[pa.act.dynamic_list.len()..];
+            pa.region.settle(&pa.act.force_list, blending);
             return;
         }
-        pa.activations.full += 1;
+        if over_region {
+            pa.activations.region += 1;
+        } else {
+            pa.activations.full += 1;
+        }
         x.moving = moving;
         let sl = &x.slaving;
         for v in 0..sl.vertex_mass.len() {
@@ -1421,7 +1438,10 @@ impl CpuStepper {
                 .map(|k| pa.act.tet_weight[m.incidence[k as usize] as usize / 4])
                 .fold(1.0f32, f32::min);
         }
-        pa.region.forget();
+        // The live particles for the next activation's region: the force set (which holds
+        // every dynamic one) and the blending ones (all in S: the end of the δ list).
+        let blending = &x.delta_list[pa.act.dynamic_list.len()..];
+        pa.region.settle(&pa.act.force_list, blending);
         pa.after_activation(0..m.n_tets() as u32, pd);
         pa.rebuild_pair_plan();
     }
