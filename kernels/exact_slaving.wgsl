@@ -4,11 +4,11 @@
 // On the GPU the slaving is the model's (activation = "all": every unpinned particle dynamic,
 // fixed for the run), uploaded as two CSRs: vertex -> (particle, s) (exact_fit_*) and
 // particle -> (vertex, s) (exact_slave_*, vertices ascending). Entry points:
-//   exact_transfer  per dynamic particle (indirect over the dynamic list): f_q += sum s f_V
+//   exact_slaving_transfer  per dynamic particle (indirect over the dynamic list): f_q += sum s f_V
 //                   over the slaved vertices that fit it (before the step);
-//   exact_place     per vertex, after the step: a slaved vertex takes u_V = sum s_q u_q,
+//   exact_slaving_place     per vertex, after the step: a slaved vertex takes u_V = sum s_q u_q,
 //                   v_V = sum s_q v_q and its force is zeroed (it went to its particles);
-//   exact_relump    per vertex, closing an activation: the slaving's lumped masses and
+//   exact_slaving_relump    per vertex, closing an activation: the slaving's lumped masses and
 //                   inverse masses (-1 on slaved vertices: integrate moves them kinematically
 //                   until they are placed), and the slaved vertices placed on their fit.
 // CPU twins: Slaving::transfer_forces and Slaving::place (src/cpu/exact_coupling.rs) as the
@@ -69,7 +69,7 @@ fn place(i: u32) {
 }
 
 @compute @workgroup_size(64)
-fn exact_transfer(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+fn exact_slaving_transfer(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let k = linear_index(gid, nwg, WORKGROUP);
     if k >= particle_counts[0] {
         return;
@@ -86,7 +86,7 @@ fn exact_transfer(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_wo
 }
 
 @compute @workgroup_size(64)
-fn exact_place(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+fn exact_slaving_place(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear_index(gid, nwg, WORKGROUP);
     if i >= params.n_vertices || exact_fit_offsets[i + 1u] == exact_fit_offsets[i] {
         return;
@@ -96,7 +96,7 @@ fn exact_place(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workg
 }
 
 @compute @workgroup_size(64)
-fn exact_relump(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+fn exact_slaving_relump(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear_index(gid, nwg, WORKGROUP);
     if i >= params.n_vertices {
         return;

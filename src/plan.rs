@@ -192,7 +192,7 @@ impl Stage {
             Stage::ExactIntegrate => &[
                 Entry {
                     file: "exact_slaving",
-                    entry: "exact_transfer",
+                    entry: "exact_slaving_transfer",
                     domain: Domain::Indirect("particle_dispatch", 0),
                     aliases: &[],
                 },
@@ -210,7 +210,7 @@ impl Stage {
                 },
                 Entry {
                     file: "exact_slaving",
-                    entry: "exact_place",
+                    entry: "exact_slaving_place",
                     domain: Domain::Vertices,
                     aliases: &[],
                 },
@@ -427,7 +427,7 @@ const ACTIVATE_EXACT: &[Entry] = &{
     }
     all[ACTIVATE.len()] = Entry {
         file: "exact_slaving",
-        entry: "exact_relump",
+        entry: "exact_slaving_relump",
         domain: Domain::Vertices,
         aliases: &[],
     };
