@@ -78,6 +78,17 @@ fn add_lanes(local: u32, mine: vec3<f32>) -> vec3<f32> {
     return f;
 }
 
+// f plus the tool's contact force on vertex i when it is on the surface (CONTACT).
+fn with_contact(i: u32, f: vec3<f32>) -> vec3<f32> {
+    if CONTACT {
+        let s = surface_index[i];
+        if s != NOT_ON_SURFACE {
+            return f + vec3<f32>(contact_forces[3u * s], contact_forces[3u * s + 1u], contact_forces[3u * s + 2u]);
+        }
+    }
+    return f;
+}
+
 fn store(i: u32, f: vec3<f32>) {
     forces[3u * i] = f.x;
     forces[3u * i + 1u] = f.y;
@@ -132,17 +143,9 @@ fn gather_coupled(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups
         }
     }
     let sum = add_lanes(local, mine);
-    if !live || lane != 0u {
-        return;
+    if live && lane == 0u {
+        store(i, with_contact(i, body_force(i) + sum));
     }
-    var f = body_force(i) + sum;
-    if CONTACT {
-        let s = surface_index[i];
-        if s != NOT_ON_SURFACE {
-            f += vec3<f32>(contact_forces[3u * s], contact_forces[3u * s + 1u], contact_forces[3u * s + 2u]);
-        }
-    }
-    store(i, f);
 }
 
 @compute @workgroup_size(256)
@@ -164,15 +167,7 @@ fn gather_exact(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) 
         }
     }
     let sum = add_lanes(local, mine);
-    if !live || lane != 0u {
-        return;
+    if live && lane == 0u {
+        store(i, with_contact(i, body_force(i) + sum));
     }
-    var f = body_force(i) + sum;
-    if CONTACT {
-        let s = surface_index[i];
-        if s != NOT_ON_SURFACE {
-            f += vec3<f32>(contact_forces[3u * s], contact_forces[3u * s + 1u], contact_forces[3u * s + 2u]);
-        }
-    }
-    store(i, f);
 }
