@@ -4,13 +4,16 @@
 // On the GPU the slaving is the model's (activation = "all": every unpinned particle dynamic,
 // fixed for the run), uploaded as two CSRs: vertex -> (particle, s) (exact_fit_*) and
 // particle -> (vertex, s) (exact_slave_*, vertices ascending). Entry points:
-//   exact_slaving_transfer  per dynamic particle (indirect over the dynamic list): f_q += sum s f_V
-//                   over the slaved vertices that fit it (before the step);
-//   exact_slaving_place     per vertex, after the step: a slaved vertex takes u_V = sum s_q u_q,
-//                   v_V = sum s_q v_q and its force is zeroed (it went to its particles);
-//   exact_slaving_relump    per vertex, closing an activation: the slaving's lumped masses and
-//                   inverse masses (-1 on slaved vertices: integrate moves them kinematically
-//                   until they are placed), and the slaved vertices placed on their fit.
+//   exact_slaving_transfer  per dynamic particle (indirect over the dynamic list):
+//                           f_q += sum s f_V over the slaved vertices that fit it (before
+//                           the step);
+//   exact_slaving_place     per vertex, after the step: a slaved vertex takes
+//                           u_V = sum s_q u_q, v_V = sum s_q v_q and its force is zeroed (it
+//                           went to its particles);
+//   exact_slaving_relump    per vertex, closing an activation: the slaving's lumped masses
+//                           and inverse masses (-1 on slaved vertices: integrate moves them
+//                           kinematically until they are placed), and the slaved vertices
+//                           placed on their fit.
 // CPU twins: Slaving::transfer_forces and Slaving::place (src/cpu/exact_coupling.rs) as the
 // CPU stepper's ExactIntegrate and ActivateExact call them.
 #import params

@@ -419,7 +419,7 @@ impl PairPlan {
         contact: &mut [f32],
         host_force: &mut [f32],
     ) {
-        let mut results = Vec::new();
+        let mut results = std::mem::take(&mut scratch.split_results);
         self.pair_sums(
             inp,
             (stress_list, force_list, table),
@@ -436,12 +436,13 @@ impl PairPlan {
                 }
             },
         );
-        for (&c, (f, touch, host)) in force_list.iter().zip(results) {
+        for (&c, &(f, touch, host)) in force_list.iter().zip(&results) {
             let c = c as usize;
             super::store3(forces, c, f);
             super::store3(contact, c, touch);
             super::store3(host_force, c, host);
         }
+        scratch.split_results = results;
     }
 }
 
@@ -599,6 +600,8 @@ pub struct PairScratch<T = Vec3A> {
     sides: Vec<PairSide>,
     /// Per particle of the force list, its force and contact force this step.
     results: Vec<(Vec3, Vec3)>,
+    /// Design 8's per force-list particle: its force, contact force and its hosts' force.
+    split_results: Vec<(Vec3, Vec3, Vec3)>,
     /// Per pair, its rest quantities (read in order instead of through the slots).
     records: Vec<PairRecord>,
     /// The plan build `records` belong to (0: none).
