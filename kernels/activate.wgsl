@@ -1,16 +1,34 @@
 // Stage (every `activation_interval` steps): which particles are dynamic, which carry SPH
 // stress (set S) and which receive SPH force (set F), the tets' energy weights and the
 // vertices' lumped masses. Entry points, in order:
-//   activate                  per particle: the mode state machine (below)
-//   activate_stress_set       per dynamic particle: marks itself and its neighbours IN_S
-//   activate_force_set        per particle in S: marks itself and its neighbours IN_F
-//   activate_tet_weights      per tet: 1 - phi_e, phi_e = (its particles in S)/(its particles)
+//   activate                  per particle: the mode state machine (below); raises
+//                             activation_gate[0] when a particle became or stopped being
+//                             dynamic (the sets' marks of the last update stay until then)
+//   activate_gate             one thread: the gated passes' indirect arguments, each pass's
+//                             full grid (activation_full_args) when the gate is raised, else no
+//                             workgroup; lowers the gate, keeps its verdict in
+//                             activation_gate[1] for the relump and counts full / skipped
+//   activate_clear_sets       (gated) per particle: clears IN_S and IN_F
+//   activate_stress_set       (gated) per dynamic particle: marks itself and its neighbours IN_S
+//   activate_force_set        (gated) per particle in S: marks itself and its neighbours IN_F
+//   [compact.wgsl and scan.wgsl: the lists, gated]
+//   activate_tet_weights      (gated) per tet: 1 - phi_e, phi_e = (its particles in S)/(its
+//                             particles)
 //   activate_relump           per vertex: mass = core + sum w_i m_p over non-dynamic hosted
 //                             particles; velocity keeps the momentum of released particles;
 //                             vertices with no mass left take their dynamic particles'
 //                             velocity field at their rest place (kinematic_velocity); the
 //                             short list of its force-set embedded particles' slots for
-//                             gather_coupled (coupled_slots from its CSR offset, coupled_count)
+//                             gather_coupled (coupled_slots from its CSR offset, coupled_count);
+//                             after a skipped update only the vertices with no mass
+//                             (NODE_MASSLESS) are relumped: every other product is a function
+//                             of which particles are dynamic, and a vertex with mass keeps its
+//                             velocity exactly when no particle was released (a fixed one is at
+//                             rest: integrate keeps it there)
+// Everything the gated passes write (the marks, lists, counts, dispatch arguments and tet
+// weights) depends only on which particles are dynamic, so skipping them when no particle
+// changed is the full update bit for bit. The host raises the gate after it writes any buffer
+// (restore, write_state, write_f32), and the gate starts raised.
 // Mode machine (a particle at distance d from the tool's surface; PINNED never moves):
 //   embedded or blending, d < activation radius -> DYNAMIC at its embedded position and
 //     velocity (its momentum leaves the host vertices exactly);
@@ -61,12 +79,21 @@
 @group(0) @binding(30) var<storage, read_write> coupled_count: array<u32>;
 @group(0) @binding(31) var<storage, read_write> coupled_valid: array<u32>;
 @group(0) @binding(32) var<storage, read> rest_positions: array<f32>;
+// [0] raised (1) by a change, [1] the last verdict, [2] full updates, [3] skipped ones.
+@group(0) @binding(33) var<storage, read_write> activation_gate: array<atomic<u32>>;
+// Per gated pass, its DispatchIndirectArgs over its whole domain (written once by the host).
+@group(0) @binding(34) var<storage, read> activation_full_args: array<u32>;
+// Per gated pass, the DispatchIndirectArgs it is launched with.
+@group(0) @binding(35) var<storage, read_write> activation_args: array<u32>;
 
 // Pipeline constant: the scene has a tool (else only activation = "all" runs particles).
 override TOOL: bool = false;
 
 const WORKGROUP: u32 = 64u;
-const PER_UPDATE: u32 = MODE_NEAR | MODE_IN_S | MODE_IN_F | MODE_ACTIVATED | MODE_RELEASED;
+// Cleared by the mode machine at every update (IN_S and IN_F by activate_clear_sets, when the
+// dynamic set changed).
+const PER_UPDATE: u32 = MODE_NEAR | MODE_ACTIVATED | MODE_RELEASED;
+const SETS: u32 = MODE_IN_S | MODE_IN_F;
 
 fn node_u(i: u32) -> vec3<f32> {
     return vec3<f32>(displacements[3u * i], displacements[3u * i + 1u], displacements[3u * i + 2u]);
@@ -148,6 +175,7 @@ fn activate(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
                 offset = u - ue;
                 mode = (mode & ~MODE_DYNAMIC) | MODE_BLENDING | MODE_RELEASED;
                 timer = 0.0;
+                atomicStore(&activation_gate[0], 1u);
             }
         }
     } else if qualifies {
@@ -160,6 +188,7 @@ fn activate(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
         particle_velocities[3u * p + 2u] = ve.z;
         mode = (mode & ~MODE_BLENDING) | MODE_DYNAMIC | MODE_ACTIVATED;
         timer = -1.0;
+        atomicStore(&activation_gate[0], 1u);
         offset = vec3<f32>(0.0);
     } else if (mode & MODE_BLENDING) != 0u {
         if !followed {
@@ -175,6 +204,39 @@ fn activate(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
     particle_offset[3u * p + 1u] = offset.y;
     particle_offset[3u * p + 2u] = offset.z;
     atomicStore(&particle_mode[p], mode);
+}
+
+@compute @workgroup_size(1)
+fn activate_gate() {
+    let raised = atomicLoad(&activation_gate[0]);
+    let n = arrayLength(&activation_full_args) / 3u;
+    for (var k = 0u; k < n; k++) {
+        if raised != 0u {
+            activation_args[3u * k] = activation_full_args[3u * k];
+            activation_args[3u * k + 1u] = activation_full_args[3u * k + 1u];
+            activation_args[3u * k + 2u] = activation_full_args[3u * k + 2u];
+        } else {
+            activation_args[3u * k] = 0u;
+            activation_args[3u * k + 1u] = 1u;
+            activation_args[3u * k + 2u] = 1u;
+        }
+    }
+    atomicStore(&activation_gate[0], 0u);
+    atomicStore(&activation_gate[1], raised);
+    if raised != 0u {
+        atomicAdd(&activation_gate[2], 1u);
+    } else {
+        atomicAdd(&activation_gate[3], 1u);
+    }
+}
+
+@compute @workgroup_size(64)
+fn activate_clear_sets(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let p = linear_index(gid, nwg, WORKGROUP);
+    if p >= particle_params.n_particles {
+        return;
+    }
+    atomicAnd(&particle_mode[p], ~SETS);
 }
 
 @compute @workgroup_size(64)
@@ -266,6 +328,10 @@ fn activate_relump(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_w
     if i >= params.n_vertices {
         return;
     }
+    // A skipped update: only a vertex with no mass has anything new (its particles' velocity).
+    if atomicLoad(&activation_gate[1]) == 0u && (node_flags[i] & NODE_MASSLESS) == 0u {
+        return;
+    }
     let mp = particle_params.mass;
     var m = particle_core_mass[i];
     var m_released = 0.0;
@@ -335,6 +401,9 @@ fn activate_relump(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_w
     var flags = 0u;
     if coupled {
         flags = NODE_COUPLED;
+    }
+    if w_inv < 0.0 {
+        flags |= NODE_MASSLESS;
     }
     node_flags[i] = flags;
     var cw = 1.0;

@@ -98,6 +98,10 @@ pub enum Domain {
     /// Workgroup counts read from an indirect-argument buffer written by an earlier kernel:
     /// (buffer name, byte offset of the `DispatchIndirectArgs`).
     Indirect(&'static str, u64),
+    /// The activation's gated passes: this domain's whole grid when the activation gate is
+    /// raised (a particle became or stopped being dynamic), else no workgroup; indirect,
+    /// from the arguments `activate_gate` writes (`activation_args`).
+    Gated(&'static Domain),
 }
 
 /// One kernel entry point of a stage.
@@ -355,8 +359,10 @@ impl Stage {
     }
 }
 
-/// The activation stage: the mode machine, the two set marks, the compaction (marks, one
-/// prefix sum per list, scatter, dispatch arguments), tet weights and vertex masses.
+/// The activation stage: the mode machine, the gate, the two set marks, the compaction
+/// (marks, one prefix sum per list, scatter, dispatch arguments), tet weights and vertex
+/// masses. The passes between the gate and the relump ([`Domain::Gated`]) run only when the
+/// dynamic set changed.
 const ACTIVATE: &[Entry] = {
     const fn e(file: &'static str, entry: &'static str, domain: Domain) -> Entry {
         Entry {
@@ -393,27 +399,50 @@ const ACTIVATE: &[Entry] = {
         ("scan_data", "force_scan"),
         ("scan_blocks", "force_scan_blocks"),
     ];
-    const P1: Domain = Domain::ParticlesPlusOne;
-    const RUNS: Domain = Domain::ParticleScanRuns;
+    // Gated: they run only when the dynamic set changed (activate_gate).
+    const PARTICLES: Domain = Domain::Gated(&Domain::Particles);
+    const P1: Domain = Domain::Gated(&Domain::ParticlesPlusOne);
+    const RUNS: Domain = Domain::Gated(&Domain::ParticleScanRuns);
+    const ONE: Domain = Domain::Gated(&Domain::OneWorkgroup);
     &[
         e("activate", "activate", Domain::Particles),
-        e("activate", "activate_stress_set", Domain::Particles),
-        e("activate", "activate_force_set", Domain::Particles),
+        e("activate", "activate_gate", Domain::OneWorkgroup),
+        e("activate", "activate_clear_sets", PARTICLES),
+        e("activate", "activate_stress_set", PARTICLES),
+        e("activate", "activate_force_set", PARTICLES),
         e("compact", "compact_mark", P1),
         scan("scan_local", RUNS, D),
-        scan("scan_totals", Domain::OneWorkgroup, D),
+        scan("scan_totals", ONE, D),
         scan("scan_apply", P1, D),
         scan("scan_local", RUNS, S),
-        scan("scan_totals", Domain::OneWorkgroup, S),
+        scan("scan_totals", ONE, S),
         scan("scan_apply", P1, S),
         scan("scan_local", RUNS, F),
-        scan("scan_totals", Domain::OneWorkgroup, F),
+        scan("scan_totals", ONE, F),
         scan("scan_apply", P1, F),
-        e("compact", "compact_scatter", Domain::Particles),
-        e("compact", "compact_args", Domain::OneWorkgroup),
-        e("activate", "activate_tet_weights", Domain::Tets),
+        e("compact", "compact_scatter", PARTICLES),
+        e("compact", "compact_args", ONE),
+        e(
+            "activate",
+            "activate_tet_weights",
+            Domain::Gated(&Domain::Tets),
+        ),
         e("activate", "activate_relump", Domain::Vertices),
     ]
+};
+
+/// How many passes of the activation stage are gated: one `DispatchIndirectArgs` each in
+/// `activation_args` and `activation_full_args`, in entry order.
+pub const ACTIVATE_GATED_PASSES: usize = {
+    let mut n = 0;
+    let mut k = 0;
+    while k < ACTIVATE.len() {
+        if matches!(ACTIVATE[k].domain, Domain::Gated(_)) {
+            n += 1;
+        }
+        k += 1;
+    }
+    n
 };
 
 /// Design 8's activation (`particles.coupling = "exact"`, activation = "all" on the GPU):

@@ -2286,3 +2286,118 @@ fn the_paired_sph_force_stage_equals_the_kernel_twin() {
         assert!(e <= 1e-5, "paired exact_forces: {name} rel err {e:.2e}");
     }
 }
+
+/// The GPU's activation skips its set marks, lists and tet weights, and relumps only the
+/// vertices without mass, when no particle became or stopped being dynamic (`activate_gate`).
+/// Over the pressed block's press, hold and withdrawal in batches of one activation interval,
+/// a stepper whose every activation is forced to be a full one must reach the same bits
+/// (vertices, particles, modes, lists, weights, masses). The gated one must have skipped
+/// updates and run full ones where the set changed, with released particles on the way; and
+/// with every particle dynamic (`activation = "all"`: the zone's vertices have no mass and
+/// take their particles' velocity at each update) it runs one full update, then skips.
+#[test]
+fn a_skipped_gpu_activation_equals_the_full_one() {
+    let tool_set = gated_against_full(&pressed_block(), 12);
+    eprintln!("tool's set: {tool_set:?}");
+    assert!(tool_set.full > 2 && tool_set.skipped > 2, "{tool_set:?}");
+    assert!(tool_set.released, "no particle was released");
+    let all = PRESSED_BLOCK.replace(
+        "activation_radius = 0.003\n",
+        "activation_radius = 0.003\nactivation = \"all\"\n",
+    );
+    assert!(all.contains("\"all\""));
+    let all = gated_against_full(&Scene::from_toml(&all, "all", "all", None).unwrap(), 3);
+    eprintln!("all dynamic: {all:?}");
+    assert_eq!((all.full, all.skipped), (1, all.intervals - 1));
+    assert!(all.massless, "no vertex lost its mass");
+}
+
+/// What [`gated_against_full`] saw of the gated stepper.
+#[derive(Debug)]
+struct GateRun {
+    intervals: u32,
+    full: u32,
+    skipped: u32,
+    massless: bool,
+    released: bool,
+}
+
+/// Run `scene` on two GPU steppers, one of them forced to a full activation at every update,
+/// through a press, hold, withdrawal and wait of `per_leg` batches of one activation interval
+/// each, asserting the same bits after each.
+fn gated_against_full(scene: &Scene, per_leg: u32) -> GateRun {
+    let m = Arc::new(Model::from_scene(scene));
+    let params = m.step_params(0.5 * m.bounds.dt_bound, 50.0);
+    let k = m.particles.as_ref().unwrap().settings.activation_interval;
+    let mut gated = GpuStepper::new(gpu(), &m, params).unwrap();
+    let mut full = GpuStepper::new(gpu(), &m, params).unwrap();
+    let (a, b) = press_segment();
+    // Press, hold, withdraw 1 cm and wait (12 intervals each take the pressed block past
+    // the release radius, the dwell and the blend).
+    let up = a + DVec3::new(0.0, 0.0, 0.01);
+    let legs = [(a, b), (b, b), (b, up), (up, up)].map(|(p, q)| (p, q, per_leg));
+    let (mut massless, mut released, mut intervals) = (false, false, 0);
+    for (from, to, n) in legs {
+        let at = |j: u32| from + (to - from) * (j as f64 / n as f64);
+        for j in 0..n {
+            let input = BatchInput::moving(at(j), at(j + 1));
+            full.raise_activation_gate().unwrap();
+            for s in [&mut gated, &mut full] {
+                s.submit(k, &input).unwrap();
+                s.wait().unwrap();
+            }
+            intervals += 1;
+            let counts = bits_u32(&gated, "particle_counts");
+            assert_eq!(
+                counts,
+                bits_u32(&full, "particle_counts"),
+                "interval {intervals}"
+            );
+            for (list, len) in [("dynamic_list", 0), ("stress_list", 1), ("force_list", 2)] {
+                let len = counts[len] as usize;
+                assert_eq!(
+                    bits_u32(&gated, list)[..len],
+                    bits_u32(&full, list)[..len],
+                    "{list} after interval {intervals}"
+                );
+            }
+            for name in [
+                "displacements",
+                "velocities",
+                "inv_mass",
+                "mass",
+                "node_flags",
+                "coupled_count",
+                "contact_weight",
+                "tet_weight",
+                "particle_dispatch",
+                "particle_displacements",
+                "particle_velocities",
+                "particle_mode",
+                "particle_timer",
+            ] {
+                assert_eq!(
+                    bits_u32(&gated, name),
+                    bits_u32(&full, name),
+                    "{name} after interval {intervals}"
+                );
+            }
+            massless |= bits_u32(&gated, "node_flags")
+                .iter()
+                .any(|f| f & palpate::particles::params::NODE_MASSLESS != 0);
+            released |= bits_u32(&gated, "particle_mode")
+                .iter()
+                .any(|m| m & mode::BLENDING != 0);
+        }
+    }
+    let (runs, skips) = gated.activation_counts().unwrap();
+    assert_eq!(runs + skips, intervals);
+    assert_eq!(full.activation_counts().unwrap(), (intervals, 0));
+    GateRun {
+        intervals,
+        full: runs,
+        skipped: skips,
+        massless,
+        released,
+    }
+}

@@ -49,6 +49,7 @@ const MODE_RELEASED: u32 = 128u;     // stopped being dynamic at this update
 
 // Bits of node_flags.
 const NODE_COUPLED: u32 = 1u;        // hosts an embedded particle that receives force
+const NODE_MASSLESS: u32 = 2u;       // no mass left: moves with its dynamic particles
 
 // Wendland C2 kernel in 3-D with support R = 2h (Wendland 1995; Dehnen & Aly 2012):
 // W(q) = 21/(16 pi h^3) (1 - q/2)^4 (2q + 1), q = r/h; its gradient with respect to the

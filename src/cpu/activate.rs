@@ -4,7 +4,7 @@
 use super::load3;
 use crate::contact::{ToolParams, ToolState};
 use crate::params::StepParams;
-use crate::particles::params::{mode, ParticleParams, NODE_COUPLED};
+use crate::particles::params::{mode, ParticleParams, NODE_COUPLED, NODE_MASSLESS};
 use glam::Vec3;
 
 const PER_UPDATE: u32 = mode::NEAR | mode::IN_S | mode::IN_F | mode::ACTIVATED | mode::RELEASED;
@@ -324,7 +324,7 @@ pub struct VertexLump {
     /// The velocity that keeps the momentum of released particles; for a vertex with no mass
     /// left, its dynamic particles' velocity field at its rest place ([`KinematicFit`]).
     pub velocity: Vec3,
-    /// `NODE_COUPLED` when it hosts a force-set particle.
+    /// `NODE_COUPLED` when it hosts a force-set particle, `NODE_MASSLESS` when it has no mass.
     pub flags: u32,
     /// The smallest energy weight of its tets.
     pub contact_weight: f32,
@@ -461,7 +461,7 @@ pub fn relump_vertex(inp: &RelumpInputs, i: usize, v: Vec3) -> VertexLump {
         mass: m,
         inv_mass: w_inv,
         velocity: v,
-        flags: if coupled { NODE_COUPLED } else { 0 },
+        flags: if coupled { NODE_COUPLED } else { 0 } | if w_inv < 0.0 { NODE_MASSLESS } else { 0 },
         contact_weight: cw,
     }
 }

@@ -160,6 +160,9 @@ pub struct ParticleTables {
     pub ones_vertices: Vec<f32>,
     /// Initial indirect arguments: no work.
     pub no_dispatch: [u32; 9],
+    /// The activation gate's first contents: raised, so that the first update is a full one
+    /// (`activate_gate`: raised, last verdict, full updates, skipped updates).
+    pub gate: [u32; 4],
     /// Core steps between activation updates (for `ParticleParams::at_core_dt`).
     pub activation_interval: u32,
 }
@@ -181,6 +184,7 @@ impl ParticleTables {
             ones_tets: vec![1.0; model.n_tets()],
             ones_vertices: vec![1.0; model.n_vertices()],
             no_dispatch: [0, 1, 1, 0, 1, 1, 0, 1, 1],
+            gate: [1, 0, 0, 0],
             activation_interval: p.settings.activation_interval,
         })
     }
@@ -194,6 +198,7 @@ pub fn particle_step<'a>(model: &'a Model, t: &'a ParticleTables) -> BufferGroup
     let blocks = |k: u64| ScanParams::blocks_bytes(k as u32);
     let partial_blocks = n.div_ceil(crate::cpu::particle_reduce::WORKGROUP as u64);
     let n_slots = model.particles.as_ref().map_or(0, |p| p.slots.len()) as u64;
+    let gated_args_bytes = 12 * crate::plan::ACTIVATE_GATED_PASSES as u64;
     BufferGroup {
         name: "particle step",
         specs: vec![
@@ -226,6 +231,10 @@ pub fn particle_step<'a>(model: &'a Model, t: &'a ParticleTables) -> BufferGroup
             BufferSpec::zeroed("force_list", Usage::Storage, 4 * n),
             BufferSpec::zeroed("particle_counts", Usage::Report, 16),
             BufferSpec::data("particle_dispatch", Usage::Indirect, &t.no_dispatch),
+            BufferSpec::data("activation_gate", Usage::Storage, &t.gate),
+            // Filled by the stepper from its pipelines' grids (`GpuStepper::new`).
+            BufferSpec::zeroed("activation_full_args", Usage::Storage, gated_args_bytes),
+            BufferSpec::zeroed("activation_args", Usage::Indirect, gated_args_bytes),
             BufferSpec::data("tet_weight", Usage::Storage, &t.ones_tets),
             BufferSpec::data("node_fixed", Usage::Storage, &t.node_fixed),
             BufferSpec::zeroed("node_flags", Usage::Storage, 4 * nv),

@@ -122,6 +122,9 @@ impl StagePipelines {
 struct BoundStage {
     pipelines: StagePipelines,
     bind_groups: Vec<wgpu::BindGroup>,
+    /// Per kernel, the byte offset of its arguments in `activation_args` when it is gated
+    /// ([`Domain::Gated`]).
+    gated: Vec<Option<u64>>,
 }
 
 /// Mean GPU time per stage of one step, from timestamp queries.
@@ -265,6 +268,7 @@ impl GpuStepper {
                 .collect::<Result<Vec<_>>>()?;
             plan_stage.push(stages.len());
             stages.push(BoundStage {
+                gated: vec![None; pipelines.kernels.len()],
                 pipelines,
                 bind_groups,
             });
@@ -319,9 +323,82 @@ impl GpuStepper {
             readback_state: None,
             ctx,
         };
+        stepper.fill_gated_args()?;
         // The state at rest is the first checkpoint.
         stepper.checkpoint()?;
         Ok(stepper)
+    }
+
+    /// Give each gated pass its slot in `activation_args` and write its whole grid into
+    /// `activation_full_args`, which `activate_gate` copies when the dynamic set changed.
+    fn fill_gated_args(&mut self) -> Result<()> {
+        let max_dim = self.ctx.limits.max_compute_workgroups_per_dimension;
+        let mut full: Vec<u32> = Vec::new();
+        let mut slots = Vec::new();
+        for (k, bound) in self.stages.iter().enumerate() {
+            for (j, (entry, kernel)) in bound.pipelines.kernels.iter().enumerate() {
+                let Domain::Gated(base) = entry.domain else {
+                    continue;
+                };
+                let (x, y) = match self.dispatch_for(*base)? {
+                    Dispatch::Items(n) => {
+                        crate::gpu::kernel::grid_for(n, kernel.items_per_workgroup, max_dim)
+                    }
+                    Dispatch::One => (1, 1),
+                    Dispatch::Indirect(..) => {
+                        return Err(PalpateError::Gpu(format!(
+                            "{}: a gated pass needs a direct domain",
+                            kernel.label
+                        )))
+                    }
+                };
+                slots.push((k, j, 4 * full.len() as u64));
+                full.extend([x, y, 1]);
+            }
+        }
+        if full.is_empty() {
+            return Ok(());
+        }
+        let buf = self.buffers.require("activation_full_args")?;
+        if 4 * full.len() as u64 > buf.size() {
+            return Err(PalpateError::Gpu(format!(
+                "{} gated passes do not fit 'activation_full_args'",
+                full.len() / 3
+            )));
+        }
+        self.ctx
+            .queue
+            .write_buffer(buf, 0, bytemuck::cast_slice(&full));
+        for (k, j, offset) in slots {
+            self.stages[k].gated[j] = Some(offset);
+        }
+        Ok(())
+    }
+
+    /// Make the next activation a full one: every pass runs, as if the dynamic set had
+    /// changed. The stepper does this after the host writes a buffer (the gated passes'
+    /// products may no longer match the modes); tests use it to compare against the full
+    /// update.
+    pub fn raise_activation_gate(&self) -> Result<()> {
+        if self.n_particles > 0 {
+            self.ctx.queue.write_buffer(
+                self.buffers.require("activation_gate")?,
+                0,
+                bytemuck::bytes_of(&1u32),
+            );
+        }
+        Ok(())
+    }
+
+    /// How many activations rebuilt the sets and lists (the dynamic set changed, or the host
+    /// wrote a buffer) and how many skipped that, since the stepper was made: (full,
+    /// skipped). (0, 0) without particles.
+    pub fn activation_counts(&self) -> Result<(u32, u32)> {
+        if self.n_particles == 0 {
+            return Ok((0, 0));
+        }
+        let gate = self.read_f32("activation_gate")?;
+        Ok((gate[2].to_bits(), gate[3].to_bits()))
     }
 
     /// The context this stepper runs on.
@@ -354,6 +431,11 @@ impl GpuStepper {
             Domain::Indirect(name, offset) => {
                 Dispatch::Indirect(self.buffers.require(name)?, offset)
             }
+            Domain::Gated(_) => {
+                return Err(PalpateError::Gpu(
+                    "a gated pass has no slot in 'activation_args'".into(),
+                ))
+            }
         })
     }
 
@@ -361,9 +443,20 @@ impl GpuStepper {
         let bound = &self.stages[k];
         let max_dim = self.ctx.limits.max_compute_workgroups_per_dimension;
         pass.push_debug_group(bound.pipelines.stage.name());
-        for ((entry, kernel), bind_group) in bound.pipelines.kernels.iter().zip(&bound.bind_groups)
+        for (((entry, kernel), bind_group), gated) in bound
+            .pipelines
+            .kernels
+            .iter()
+            .zip(&bound.bind_groups)
+            .zip(&bound.gated)
         {
-            kernel.record(pass, bind_group, self.dispatch_for(entry.domain)?, max_dim);
+            let dispatch = match gated {
+                Some(offset) => {
+                    Dispatch::Indirect(self.buffers.require("activation_args")?, *offset)
+                }
+                None => self.dispatch_for(entry.domain)?,
+            };
+            kernel.record(pass, bind_group, dispatch, max_dim);
         }
         pass.pop_debug_group();
         Ok(())
@@ -513,6 +606,9 @@ impl GpuStepper {
         self.ctx
             .queue
             .write_buffer(buf, 0, bytemuck::cast_slice(data));
+        if which != "activation_gate" {
+            self.raise_activation_gate()?;
+        }
         self.ctx.wait()
     }
 
@@ -809,6 +905,7 @@ impl Stepper for GpuStepper {
         enc.clear_buffer(self.buffers.require("stats")?, 0, None);
         self.ctx.queue.submit([enc.finish()]);
         (self.steps_done, self.tool_at) = self.checkpoint_steps;
+        self.raise_activation_gate()?;
         self.ctx.wait()
     }
 
@@ -862,6 +959,7 @@ impl Stepper for GpuStepper {
             0,
             bytemuck::cast_slice(&[0f32; stat::LEN]),
         );
+        self.raise_activation_gate()?;
         self.ctx.wait()
     }
 

@@ -99,6 +99,10 @@ pub mod mode {
 /// Bit of `node_flags`: the vertex hosts an embedded particle that receives force.
 pub const NODE_COUPLED: u32 = 1;
 
+/// Bit of `node_flags`: the vertex has no mass left and moves with its dynamic particles
+/// (its velocity is their fit, set at each activation).
+pub const NODE_MASSLESS: u32 = 2;
+
 /// Per-run particle constants (WGSL `ParticleParams`), 80 bytes.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
