@@ -420,6 +420,7 @@ fn a_free_spin_with_slaved_vertices_keeps_the_layer_on_the_core() {
     let p = m.particles.as_ref().unwrap();
     let dynamic: Vec<bool> = p.pinned.iter().map(|&pin| !pin).collect();
     let slaving = palpate::cpu::exact_coupling::Slaving::new(&m, p, &dynamic).unwrap();
+    same_masses_as_one_sum(&m, &slaving);
     let n_slaved = slaving.slaved.iter().filter(|&&s| s).count();
     assert!(n_slaved > 0);
     // Mass is carried once: vertices plus dynamic particles = the body's.
@@ -519,6 +520,27 @@ fn a_free_spin_with_slaved_vertices_keeps_the_layer_on_the_core() {
     }
 }
 
+/// A slaving sums the lumped masses only over the vertices its dynamic particles and slaved
+/// vertices reach and copies the others from the lumping with nothing dynamic: its masses must
+/// equal one sum over every particle bit for bit, and so must the empty set's.
+fn same_masses_as_one_sum(m: &Model, slaving: &palpate::cpu::exact_coupling::Slaving) {
+    use palpate::cpu::exact_coupling::Slaving;
+    let p = m.particles.as_ref().unwrap();
+    let bits = |x: &[f32]| x.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+    let one_sum = |s: &Slaving| -> Vec<f32> {
+        Slaving::lumped_over_every_particle(m, p, &s.dynamic, &s.slaved)
+            .into_iter()
+            .map(|x| x as f32)
+            .collect()
+    };
+    assert_eq!(bits(&slaving.vertex_mass), bits(&one_sum(slaving)));
+    let none = Slaving::new(m, p, &vec![false; p.len()]).unwrap();
+    assert!(none.slaved.iter().all(|&x| !x));
+    assert_eq!(bits(&none.vertex_mass), bits(&one_sum(&none)));
+    // The slaving's own vertices differ from the empty set's: the check covers summed ones.
+    assert_ne!(bits(&slaving.vertex_mass), bits(&none.vertex_mass));
+}
+
 /// HM1 pressed by its tool to t = 2 with the shipped coupling (208 dynamic particles): design
 /// 8 can slave its dynamic set. A vertex without core mass is slaved once its followers hold
 /// less than half its hosted weight (widening the set where its fit would be too thin); every
@@ -552,6 +574,7 @@ fn hm1s_pressed_dynamic_set_can_be_slaved() {
         .collect();
     let n_dynamic = dynamic.iter().filter(|&&d| d).count();
     let slaving = palpate::cpu::exact_coupling::Slaving::new(&m, p, &dynamic).unwrap();
+    same_masses_as_one_sum(&m, &slaving);
     let closed = slaving.dynamic.iter().filter(|&&d| d).count();
     let n_slaved = slaving.slaved.iter().filter(|&&x| x).count();
     let embedded = p.embedded_mass();

@@ -240,8 +240,17 @@ pub fn reslave(
         (particles.displacements, particles.velocities),
     ));
     // Mass shares: old leave at their vertices' velocities, new join at the particle's.
+    // Only a particle that switched or whose host has a corner slaved or freed can move
+    // mass: those, ascending (the order the vertices' sums take).
+    let mut candidates = switched.clone();
+    for a in (0..nv).filter(|&a| old.slaved[a] != new.slaved[a]) {
+        let slots = &pd.slots[pd.slot_offsets[a] as usize..pd.slot_offsets[a + 1] as usize];
+        candidates.extend(slots.iter().map(|&slot| slot as usize / 4));
+    }
+    candidates.sort_unstable();
+    candidates.dedup();
     let mut joined = vec![Vec3::ZERO; nv];
-    for q in 0..n {
+    for q in candidates {
         let was_follower = !old.dynamic[q];
         let is_follower = !new.dynamic[q];
         let corners_changed = model.tets[pd.host[q] as usize]

@@ -509,21 +509,7 @@ impl Slaving {
             }
         }
         let (slaved, fit) = Self::fits(model, particles, &dynamic, &hosts_dynamic);
-        let mut mass: Vec<f64> = particles.core_mass.iter().map(|&m| m as f64).collect();
-        for q in (0..particles.len()).filter(|&q| !dynamic[q]) {
-            let t = model.tets[particles.host[q] as usize];
-            let w = &particles.weights[4 * q..4 * q + 4];
-            let free: f64 = (0..4)
-                .filter(|&c| !slaved[t[c] as usize])
-                .map(|c| w[c] as f64)
-                .sum();
-            if free <= 0.0 {
-                return Err(SlavingError::AllCornersSlaved(q));
-            }
-            for c in (0..4).filter(|&c| !slaved[t[c] as usize]) {
-                mass[t[c] as usize] += w[c] as f64 / free * particles.mass as f64;
-            }
-        }
+        let mass = Self::lump(model, particles, &dynamic, &slaved, &hosts_dynamic)?;
         if let Some(v) = (0..nv).find(|&v| !slaved[v] && model.inv_mass[v] != 0.0 && mass[v] <= 0.0)
         {
             return Err(SlavingError::FlatFit(v));
@@ -534,6 +520,94 @@ impl Slaving {
             fit,
             vertex_mass: mass.into_iter().map(|m| m as f32).collect(),
         })
+    }
+
+    /// The lumped vertex masses, f64: each vertex's core mass plus, over the particles that are
+    /// not dynamic, in ascending order, its share of their mass, wₐ / Σ_free w · m over the
+    /// host corners that are not slaved ([`Self::share`]). Only the vertices a
+    /// dynamic particle's or a slaved vertex's particles reach are summed here (over their own
+    /// slots, ascending: the same terms in the same order as a sum over every particle); the
+    /// others take [`Particles::follower_lumping`], the sum with nothing dynamic or slaved.
+    fn lump(
+        model: &Model,
+        particles: &Particles,
+        dynamic: &[bool],
+        slaved: &[bool],
+        hosts_dynamic: &[bool],
+    ) -> Result<Vec<f64>, SlavingError> {
+        let base = particles
+            .follower_lumping
+            .get_or_init(|| Self::lumped_over_every_particle(model, particles, &[], &[]));
+        let mut mass = base.clone();
+        let mut reached = hosts_dynamic.to_vec();
+        for v in (0..slaved.len()).filter(|&v| slaved[v]) {
+            for (q, _) in Self::hosted(particles, v) {
+                for &a in &model.tets[particles.host[q] as usize] {
+                    reached[a as usize] = true;
+                }
+            }
+        }
+        let mut cornered = None::<usize>;
+        for v in (0..mass.len()).filter(|&v| reached[v]) {
+            mass[v] = particles.core_mass[v] as f64;
+            for slot in &particles.slots
+                [particles.slot_offsets[v] as usize..particles.slot_offsets[v + 1] as usize]
+            {
+                let (q, c) = (*slot as usize / 4, *slot as usize % 4);
+                if dynamic[q] {
+                    continue;
+                }
+                let free = Self::free_weight(model, particles, slaved, q);
+                if free <= 0.0 {
+                    cornered = Some(cornered.map_or(q, |k| k.min(q)));
+                } else if !slaved[v] {
+                    mass[v] += Self::share(particles, q, c, free);
+                }
+            }
+        }
+        match cornered {
+            Some(q) => Err(SlavingError::AllCornersSlaved(q)),
+            None => Ok(mass),
+        }
+    }
+
+    /// The lumped vertex masses as one sum over every particle that is not dynamic, in
+    /// ascending order (`dynamic` and `slaved` empty: none; a particle with no free corner
+    /// adds nothing): what a slaving's `vertex_mass` must equal (as f32), bit for bit.
+    pub fn lumped_over_every_particle(
+        model: &Model,
+        particles: &Particles,
+        dynamic: &[bool],
+        slaved: &[bool],
+    ) -> Vec<f64> {
+        let mut mass: Vec<f64> = particles.core_mass.iter().map(|&m| m as f64).collect();
+        for q in (0..particles.len()).filter(|&q| !dynamic.get(q).copied().unwrap_or(false)) {
+            let free = Self::free_weight(model, particles, slaved, q);
+            if free <= 0.0 {
+                continue;
+            }
+            for (c, &a) in model.tets[particles.host[q] as usize].iter().enumerate() {
+                if !slaved.get(a as usize).copied().unwrap_or(false) {
+                    mass[a as usize] += Self::share(particles, q, c, free);
+                }
+            }
+        }
+        mass
+    }
+
+    /// Σ_free w of particle q: its weights on the host corners that are not slaved (`slaved`
+    /// empty: none), in corner order.
+    fn free_weight(model: &Model, particles: &Particles, slaved: &[bool], q: usize) -> f64 {
+        let t = model.tets[particles.host[q] as usize];
+        (0..4)
+            .filter(|&k| !slaved.get(t[k] as usize).copied().unwrap_or(false))
+            .map(|k| particles.weights[4 * q + k] as f64)
+            .sum()
+    }
+
+    /// Follower q's mass share on its host's corner c: w_c / Σ_free w · m.
+    fn share(particles: &Particles, q: usize, c: usize, free: f64) -> f64 {
+        particles.weights[4 * q + c] as f64 / free * particles.mass as f64
     }
 
     /// Vertex v's hosted particles and their weights on it.

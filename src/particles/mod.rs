@@ -66,6 +66,11 @@ pub struct Particles {
     /// weight on vertices of core tets, outside the particle region, or fixed ones), so it
     /// always stays embedded and ties the particles to the rest of the body.
     pub pinned: Vec<bool>,
+    /// Design 8's lumped vertex masses with no particle dynamic and no vertex slaved, f64
+    /// (`cpu::exact_coupling::Slaving`'s lumping of every particle), made at its first use:
+    /// a slaving recomputes only the vertices its dynamic particles and slaved vertices
+    /// reach and copies the rest from here.
+    pub follower_lumping: std::sync::OnceLock<Vec<f64>>,
 }
 
 impl Particles {

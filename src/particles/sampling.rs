@@ -188,6 +188,7 @@ pub fn sample(
         support,
         pinned: vec![false; n],
         core_mass: core_mass.into_iter().map(|m| m as f32).collect(),
+        follower_lumping: std::sync::OnceLock::new(),
     })
 }
 
