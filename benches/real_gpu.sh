@@ -80,7 +80,7 @@ if [ "${1:-}" = "ab" ]; then
           timeout 120 "$d/fem_step" --bench no_criterion_group_matches 2>&1 | grep "|"
         fi
         section "round $round, $v: hm1 GPU stages"
-        timeout 60 "$d/profile_stages" hm1 3.5 100 gpu 2>&1 | tail -16
+        timeout 60 "$d/profile_stages" hm1 3.5 100 gpu 2>&1 | tail -17
       done
     done
     section "done"
@@ -123,6 +123,6 @@ fi
   done
 
   section "hm1 stage times on the GPU (timestamp queries), tool held at t = 3.5"
-  timeout 60 "$B/profile_stages" hm1 3.5 100 gpu 2>&1 | tail -40
+  timeout 60 "$B/profile_stages" hm1 3.5 100 gpu 2>&1 | tail -41
   section "done"
 } 2>&1 | tee -a "$log"

@@ -34,6 +34,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let ctx = Arc::new(palpate::gpu::GpuContext::new()?);
         let mut g = GpuStepper::new(ctx, &model, params)?;
         press(&mut g, &scene, sim.dt, hold_time)?;
+        let (full, skipped) = g.activation_counts()?;
+        println!("activations during the press: {full} full, {skipped} skipped by the gate (no particle became or stopped being dynamic)");
         let times = g
             .profile_stages(steps)?
             .ok_or("the adapter has no timestamp queries")?;
