@@ -55,9 +55,35 @@ fn instance(backends: wgpu::Backends) -> wgpu::Instance {
     }
     let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
     desc.backends = backends;
+    desc.flags = instance_flags(cfg!(windows));
     let i = wgpu::Instance::new(desc);
     made.push((backends, i.clone()));
     i
+}
+
+/// The instance's flags: wgpu's defaults for the build, without `VALIDATION_INDIRECT_CALL`
+/// unless `d3d12` (a target that may pick Direct3D 12, where `@builtin(num_workgroups)`
+/// reads 0 in an indirect dispatch without it), then the `WGPU_*` environment variables
+/// (`WGPU_VALIDATION_INDIRECT_CALL=1` turns it back on).
+///
+/// That validation, on by default in release builds, puts a one-workgroup compute pass and
+/// its barriers before every indirect dispatch, to clamp arguments a kernel wrote. Every
+/// particle stage is dispatched indirectly (several a step, and the activation's gated
+/// passes), and every argument they read is valid by construction: `compact_args` splits
+/// its grid at 65,535 workgroups (the smallest per-dimension limit an adapter may have),
+/// `activate_gate` copies grids made with the device's own limit
+/// (`kernel::grid_for`) or writes (0, 1, 1), and the buffers start at (0, 1, 1) or zero.
+pub fn instance_flags(d3d12: bool) -> wgpu::InstanceFlags {
+    without_indirect_validation(wgpu::InstanceFlags::default(), d3d12).with_env()
+}
+
+/// `flags` without `VALIDATION_INDIRECT_CALL` unless `d3d12` ([`instance_flags`]).
+fn without_indirect_validation(flags: wgpu::InstanceFlags, d3d12: bool) -> wgpu::InstanceFlags {
+    let mut flags = flags;
+    if !d3d12 {
+        flags.remove(wgpu::InstanceFlags::VALIDATION_INDIRECT_CALL);
+    }
+    flags
 }
 
 /// Held while a device is opened: one at a time in the process (see [`instance`]).
@@ -231,5 +257,24 @@ impl GpuContext {
             .to_vec();
         buffer.unmap();
         Ok(data)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::without_indirect_validation;
+    use wgpu::InstanceFlags as F;
+
+    /// The indirect-call validation goes, except where Direct3D 12 may be picked; the other
+    /// flags of the build stay.
+    #[test]
+    fn indirect_validation_stays_only_where_d3d12_needs_it() {
+        let all = F::debugging();
+        let off = without_indirect_validation(all, false);
+        assert!(!off.contains(F::VALIDATION_INDIRECT_CALL));
+        assert!(off.contains(F::DEBUG | F::VALIDATION));
+        assert_eq!(without_indirect_validation(all, true), all);
+        let release = F::VALIDATION_INDIRECT_CALL;
+        assert_eq!(without_indirect_validation(release, false), F::empty());
     }
 }
