@@ -1537,28 +1537,12 @@ fn design_8s_300_step_trajectory_matches_on_both_backends() {
         run(palpate::sim::Backend::Cpu),
         run(palpate::sim::Backend::Gpu),
     );
-    let largest = |x: &[f32]| x.iter().fold(0.0f64, |m, &v| m.max((v as f64).abs()));
-    let off = |a: &[f32], b: &[f32]| {
-        a.iter()
-            .zip(b)
-            .fold(0.0f64, |m, (&x, &y)| m.max((x as f64 - y as f64).abs()))
-    };
-    let scale_u = c
-        .iter()
-        .map(|s| largest(&s.0))
-        .fold(f64::MIN_POSITIVE, f64::max);
-    let scale_p = c
-        .iter()
-        .map(|s| largest(&s.1))
-        .fold(f64::MIN_POSITIVE, f64::max);
-    let scale_f = c.iter().map(|s| s.2.length()).fold(1e-30, f64::max);
+    fn points(r: &[(Vec<f32>, Vec<f32>, DVec3)]) -> Vec<common::RunPoint<'_>> {
+        r.iter().map(|s| (&s.0[..], &s.1[..], s.2)).collect()
+    }
+    let (offsets, scale_f) = common::run_offsets(&points(&c), &points(&g));
     assert!(scale_f > 1e-6, "the tool never touched: {scale_f:e} N");
-    for (k, (cc, gg)) in c.iter().zip(&g).enumerate() {
-        let (eu, ep, ef) = (
-            off(&gg.0, &cc.0) / scale_u,
-            off(&gg.1, &cc.1) / scale_p,
-            (gg.2 - cc.2).length() / scale_f,
-        );
+    for (k, (cc, [eu, ep, ef])) in c.iter().zip(offsets).enumerate() {
         eprintln!(
             "design 8, step {}: |F| {:.4e} N; GPU off the CPU by {eu:.2e} (vertices), {ep:.2e} (particles), {ef:.2e} (tool force)",
             100 * (k + 1),

@@ -814,25 +814,11 @@ fn hybrid_trajectory_300_steps_gpu_matches_cpu() {
 /// force's multiply-adds moves it by rounding, 1e-11 m on an NVIDIA H200, 2026-11-27).
 /// `label` prefixes the printed lines.
 fn backends_agree(label: &str, c: &[Snapshot], g: &[Snapshot]) {
-    let largest = |x: &[f32]| x.iter().fold(0.0f64, |m, &v| m.max((v as f64).abs()));
-    let scale_u = c
-        .iter()
-        .map(|s| largest(&s.0))
-        .fold(f64::MIN_POSITIVE, f64::max);
-    let scale_p = c
-        .iter()
-        .map(|s| largest(&s.1))
-        .fold(f64::MIN_POSITIVE, f64::max);
-    let scale_f = c.iter().map(|s| s.2.length()).fold(1e-30, f64::max);
-    let off = |a: &[f32], b: &[f32]| {
-        a.iter()
-            .zip(b)
-            .fold(0.0f64, |m, (&x, &y)| m.max((x as f64 - y as f64).abs()))
-    };
-    for (k, (cc, gg)) in c.iter().zip(g).enumerate() {
-        let eu = off(&gg.0, &cc.0) / scale_u;
-        let ep = off(&gg.1, &cc.1) / scale_p;
-        let ef = (gg.2 - cc.2).length() / scale_f;
+    fn points(r: &[Snapshot]) -> Vec<common::RunPoint<'_>> {
+        r.iter().map(|s| (&s.0[..], &s.1[..], s.2)).collect()
+    }
+    let (offsets, _) = common::run_offsets(&points(c), &points(g));
+    for (k, ((cc, gg), [eu, ep, ef])) in c.iter().zip(g).zip(offsets).enumerate() {
         eprintln!(
             "{label}step {}: {} dynamic particles, |F| {:.4e} N; rel err vertices {eu:.2e}, particles {ep:.2e}, tool force {ef:.2e}",
             100 * (k + 1),

@@ -70,6 +70,44 @@ pub fn rel_err(a: &[f32], b: &[f32]) -> f64 {
     num / den.max(f64::MIN_POSITIVE)
 }
 
+/// One batch's end of a coupled run: vertex displacements, particle displacements and the
+/// tool's force.
+pub type RunPoint<'a> = (&'a [f32], &'a [f32], DVec3);
+
+/// How far run `b` is from run `a`, batch by batch: (vertices, particles, tool force), each
+/// as the largest difference over the largest value `a` reaches over the whole run (floored
+/// at f64::MIN_POSITIVE, and 1e-30 N for the force, so a run at rest stays finite); and that
+/// force scale.
+pub fn run_offsets(a: &[RunPoint], b: &[RunPoint]) -> (Vec<[f64; 3]>, f64) {
+    let largest = |x: &[f32]| x.iter().fold(0.0f64, |m, &v| m.max((v as f64).abs()));
+    let off = |x: &[f32], y: &[f32]| {
+        x.iter()
+            .zip(y)
+            .fold(0.0f64, |m, (&p, &q)| m.max((p as f64 - q as f64).abs()))
+    };
+    let scale_u = a
+        .iter()
+        .map(|s| largest(s.0))
+        .fold(f64::MIN_POSITIVE, f64::max);
+    let scale_p = a
+        .iter()
+        .map(|s| largest(s.1))
+        .fold(f64::MIN_POSITIVE, f64::max);
+    let scale_f = a.iter().map(|s| s.2.length()).fold(1e-30, f64::max);
+    let offsets = a
+        .iter()
+        .zip(b)
+        .map(|(aa, bb)| {
+            [
+                off(bb.0, aa.0) / scale_u,
+                off(bb.1, aa.1) / scale_p,
+                (bb.2 - aa.2).length() / scale_f,
+            ]
+        })
+        .collect();
+    (offsets, scale_f)
+}
+
 /// A GPU context, or a failure that says how to get a software adapter.
 pub fn gpu() -> Arc<palpate::gpu::GpuContext> {
     match palpate::gpu::GpuContext::new() {
