@@ -1,7 +1,7 @@
 //! Where a step's time goes: run a built-in scene with its tool moved along its path to time
 //! `t`, hold it there, then time every stage of the plan and print µs per step: on the CPU
 //! stepper (`CpuStepper::profile_stages`), or with `gpu` for the threads argument on the GPU
-//! stepper (`GpuStepper::profile_stages`: timestamp queries, one compute pass per stage, at
+//! stepper (`GpuStepper::profile_stages`: timestamp queries, one compute pass per stage as a batch records them (a fused dispatch is one, shown as host+rider), at
 //! most 100 runs; every stage runs once per run, including those planned every k steps). On
 //! the CPU it then times one batch of whole steps as the stepper runs them (on more than one
 //! thread the particle stages run beside the element forces there).
@@ -78,9 +78,19 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         model.n_tets(),
     );
     for (stage, ns) in &times.per_stage {
-        println!("  {:<24} {:>9.1}", format!("{stage:?}"), ns / 1e3);
+        let riders: Vec<String> = times
+            .carried
+            .iter()
+            .filter(|(_, host)| host == stage)
+            .map(|(rider, _)| format!("{rider:?}"))
+            .collect();
+        let name = match riders.is_empty() {
+            true => format!("{stage:?}"),
+            false => format!("{stage:?}+{}", riders.join("+")),
+        };
+        println!("  {name:<34} {:>9.1}", ns / 1e3);
     }
-    println!("  {:<24} {:>9.1}", "total", total / 1e3);
+    println!("  {:<34} {:>9.1}", "total", total / 1e3);
     if let Some(modes) = modes {
         use palpate::particles::params::mode;
         let count = |bit: u32| modes.iter().filter(|&&m| m & bit != 0).count();

@@ -6,10 +6,16 @@
 // Edot = (Fdot^T F + F^T Fdot)/2, Fdot = Dv Dm^-1 (eq. 3-4);
 // corner forces [f1 f2 f3] = -V P Dm^-T, f0 = -(f1 + f2 + f3); energy V Psi.
 // The volume/shape split laws (MATERIAL 3-6) run in fem_forces_split.wgsl instead.
-// CPU twin: src/cpu/fem_forces.rs.
+// `fem_forces_follow` does the same per tet and, on the same grid, follow.wgsl's work over
+// the particles' force set F (a grid-stride loop: thread t takes list entries t, t + T, …, T
+// the grid's threads): the two read the vertex displacements and write disjoint arrays, so
+// the GPU records this one dispatch in place of the follow and fem_forces passes when the
+// plan allows (`StepPlan::gpu_fusions`).
+// CPU twin: src/cpu/fem_forces.rs (and src/cpu/follow.rs).
 #import params
 #import index
 #import material
+#import follow_particle
 
 @group(0) @binding(0) var<uniform> params: StepParams;
 @group(0) @binding(1) var<storage, read> displacements: array<f32>;
@@ -20,6 +26,10 @@
 @group(0) @binding(6) var<storage, read_write> corner_forces: array<f32>;
 @group(0) @binding(7) var<storage, read_write> tet_energy: array<f32>;
 @group(0) @binding(8) var<storage, read> tet_weight: array<f32>;
+// fem_forces_follow's list of the force set (the other follow arrays are
+// shared/follow_particle.wgsl's).
+@group(0) @binding(9) var<storage, read> particle_counts: array<u32>;
+@group(0) @binding(10) var<storage, read> force_list: array<u32>;
 
 // Pipeline constants: the material model, and whether the viscous terms are compiled in.
 override MATERIAL: u32 = 0u;
@@ -47,9 +57,30 @@ fn store_corner(c: u32, f: vec3<f32>) {
 @compute @workgroup_size(64)
 fn fem_forces(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let e = linear_index(gid, nwg, WORKGROUP);
-    if e >= params.n_tets {
-        return;
+    if e < params.n_tets {
+        tet_forces(e);
     }
+}
+
+@compute @workgroup_size(64)
+fn fem_forces_follow(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let e = linear_index(gid, nwg, WORKGROUP);
+    if e < params.n_tets {
+        tet_forces(e);
+    }
+    let threads = nwg.x * nwg.y * WORKGROUP;
+    let n = particle_counts[2];
+    for (var k = e; k < n; k += threads) {
+        let p = force_list[k];
+        if follow_embedded(p) {
+            let h = tets[particle_host[p]];
+            follow_particle(p, array<vec3<f32>, 4>(displacement(h.x), displacement(h.y), displacement(h.z), displacement(h.w)));
+        }
+    }
+}
+
+// Tet e's corner forces and energy.
+fn tet_forces(e: u32) {
     let t = tets[e];
     let u0 = displacement(t.x);
     let du = mat3x3<f32>(displacement(t.y) - u0, displacement(t.z) - u0, displacement(t.w) - u0);

@@ -15,10 +15,17 @@
 // `gather_exact` (design 8, `particles.coupling = "exact"`) adds to the core sum and the
 // contact, over every slot (p, a) of vertex i whose particle p is in the force set F,
 // w_ap exact_host_force_p + exact_tangent_(p,a) (exact_forces' and exact_stress' outputs).
+// `gather_coupled_integrate` does gather_coupled's work and, on the same grid, the dynamic
+// particles' symplectic Euler (integrate_particles.wgsl's work, a grid-stride loop over the
+// dynamic list: thread t takes entries t, t + T, …, T the grid's threads): the gather reads
+// no particle position or velocity and the integration no vertex array, so the GPU records
+// this one dispatch in place of the integrate_particles and gather_coupled passes when the
+// plan allows (`StepPlan::gpu_fusions`).
 #import params
 #import index
 #import tool
 #import particles
+#import integrate_particle
 
 @group(0) @binding(0) var<uniform> params: StepParams;
 @group(0) @binding(1) var<storage, read> corner_forces: array<f32>;
@@ -40,6 +47,10 @@
 @group(0) @binding(17) var<storage, read> coupled_valid: array<u32>;
 @group(0) @binding(18) var<storage, read> exact_host_force: array<f32>;
 @group(0) @binding(19) var<storage, read> exact_tangent: array<f32>;
+// gather_coupled_integrate's dynamic list (the other integration arrays are
+// shared/integrate_particle.wgsl's).
+@group(0) @binding(20) var<storage, read> particle_counts: array<u32>;
+@group(0) @binding(21) var<storage, read> dynamic_list: array<u32>;
 
 // Pipeline constants of gather_coupled: the scene has a tool / particles.
 override CONTACT: bool = false;
@@ -112,6 +123,22 @@ fn gather(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: v
 
 @compute @workgroup_size(256)
 fn gather_coupled(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>, @builtin(local_invocation_index) local: u32) {
+    coupled_vertex(wid, nwg, local);
+}
+
+@compute @workgroup_size(256)
+fn gather_coupled_integrate(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>, @builtin(local_invocation_index) local: u32) {
+    coupled_vertex(wid, nwg, local);
+    let threads = nwg.x * nwg.y * LANES * ITEMS_PER_WORKGROUP;
+    let n = particle_counts[0];
+    for (var k = workgroup_index(wid, nwg) * LANES * ITEMS_PER_WORKGROUP + local; k < n; k += threads) {
+        integrate_particle(dynamic_list[k], params.damping, params.speed_limit, params.n_vertices);
+    }
+}
+
+// gather_coupled's work for this thread: its vertex's lane share, then the vertex's force
+// (lane 0). Call in uniform control flow: it has a barrier.
+fn coupled_vertex(wid: vec3<u32>, nwg: vec3<u32>, local: u32) {
     let i = workgroup_index(wid, nwg) * ITEMS_PER_WORKGROUP + local % ITEMS_PER_WORKGROUP;
     let lane = local / ITEMS_PER_WORKGROUP;
     let live = i < params.n_vertices;

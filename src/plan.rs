@@ -463,6 +463,43 @@ const ACTIVATE_EXACT: &[Entry] = &{
     all
 };
 
+/// Two stages of a plan the GPU records as one dispatch: `entry`, a kernel of the host's file
+/// that does the host's per-item work and, in a grid-stride loop over its list on the same
+/// grid, the rider's. The two read nothing the other writes, and nothing the plan runs
+/// between their positions reads or writes what the moved one writes or reads, so the result
+/// is the plan's, bit for bit, with one pass fewer a step.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Fusion {
+    /// The stage whose grid the dispatch covers.
+    pub host: Stage,
+    /// The stage whose work rides on it.
+    pub rider: Stage,
+    /// The fused kernel entry (the host's domain).
+    pub entry: Entry,
+    /// Plan position where the fused dispatch is recorded.
+    pub at: usize,
+    /// Plan position whose pass is then not recorded.
+    pub skipped: usize,
+}
+
+/// `follow` on `fem_forces`' grid: recorded at follow's place (the element forces move ahead
+/// of the particle chain, which neither reads nor writes their arrays).
+const FEM_FORCES_FOLLOW: Entry = Entry {
+    file: "fem_forces",
+    entry: "fem_forces_follow",
+    domain: Domain::Tets,
+    aliases: &[],
+};
+
+/// `integrate_particles` on `gather_coupled`'s grid: recorded at the gather's place (the
+/// element forces and the contact between them read no particle position or velocity).
+const GATHER_COUPLED_INTEGRATE: Entry = Entry {
+    file: "gather",
+    entry: "gather_coupled_integrate",
+    domain: Domain::Vertices,
+    aliases: &[],
+};
+
 /// When a planned stage runs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
@@ -608,13 +645,70 @@ impl StepPlan {
             .map(|p| p.stage)
     }
 
+    /// The pairs of stages the GPU records as one dispatch ([`Fusion`]) in a plan of the
+    /// blend (design 8 and the split laws keep their passes): the first `follow` with
+    /// `fem_forces`, when only the particle sub-steps lie between them, and the last
+    /// `integrate_particles` with `gather_coupled`, when only the element forces and the
+    /// contact lie between them. Empty otherwise.
+    pub fn gpu_fusions(&self) -> Vec<Fusion> {
+        let every = |stage: Stage| {
+            self.stages
+                .iter()
+                .enumerate()
+                .filter(move |(_, p)| p.stage == stage && p.when == When::EveryStep)
+                .map(|(k, _)| k)
+        };
+        let between_only = |from: usize, to: usize, allowed: &[Stage]| {
+            from < to
+                && self.stages[from + 1..to]
+                    .iter()
+                    .all(|p| allowed.contains(&p.stage))
+        };
+        let mut fusions = Vec::new();
+        if let (Some(follow), Some(fem)) =
+            (every(Stage::Follow).next(), every(Stage::FemForces).next())
+        {
+            let sub_steps = [
+                Stage::SphStress,
+                Stage::SphForces,
+                Stage::SphForcesAccumulate,
+                Stage::IntegrateParticles,
+                Stage::Follow,
+            ];
+            if between_only(follow, fem, &sub_steps) {
+                fusions.push(Fusion {
+                    host: Stage::FemForces,
+                    rider: Stage::Follow,
+                    entry: FEM_FORCES_FOLLOW,
+                    at: follow,
+                    skipped: fem,
+                });
+            }
+        }
+        if let (Some(integrate), Some(gather)) = (
+            every(Stage::IntegrateParticles).last(),
+            every(Stage::GatherCoupled).next(),
+        ) {
+            if between_only(integrate, gather, &[Stage::FemForces, Stage::Contact]) {
+                fusions.push(Fusion {
+                    host: Stage::GatherCoupled,
+                    rider: Stage::IntegrateParticles,
+                    entry: GATHER_COUPLED_INTEGRATE,
+                    at: gather,
+                    skipped: integrate,
+                });
+            }
+        }
+        fusions
+    }
+
     /// True when the plan contains `stage`.
     pub fn contains(&self, stage: Stage) -> bool {
         self.stages.iter().any(|p| p.stage == stage)
     }
 
     /// One line per stage: name, schedule and kernel entry points (for `palpate info` and
-    /// the docs).
+    /// the docs); then one per pair the GPU fuses ([`StepPlan::gpu_fusions`]).
     pub fn describe(&self) -> Vec<String> {
         self.stages
             .iter()
@@ -632,6 +726,16 @@ impl StepPlan {
                     .collect();
                 format!("{:<12} {:<22} {}", p.stage.name(), when, entries.join(", "))
             })
+            .chain(self.gpu_fusions().iter().map(|f| {
+                format!(
+                    "{:<12} {:<22} {}::{} (on the GPU: one dispatch for both, at {}'s place)",
+                    format!("{}+{}", f.host.name(), f.rider.name()),
+                    "fused",
+                    f.entry.file,
+                    f.entry.entry,
+                    self.stages[f.at].stage.name()
+                )
+            }))
             .collect()
     }
 }

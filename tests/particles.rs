@@ -2387,3 +2387,99 @@ fn gated_against_full(scene: &Scene, per_leg: u32) -> GateRun {
         released,
     }
 }
+
+/// The GPU records `follow` on `fem_forces`' grid and `integrate_particles` on
+/// `gather_coupled`'s (`StepPlan::gpu_fusions`): two passes fewer a step. A stepper that
+/// records them and one that records every stage's own passes, through a press, hold,
+/// withdrawal (particles released and blending back) and wait, hold the same bits after every
+/// interval: the fused kernels do the same arithmetic, and nothing the moved stages read is
+/// written in between. With one particle sub-step, and with two (the first follow and the
+/// last integration fused).
+#[test]
+fn fused_gpu_passes_equal_the_plan_s() {
+    let m = Arc::new(Model::from_scene(&pressed_block()));
+    let k = m.particles.as_ref().unwrap().settings.activation_interval;
+    // The block's own sub-stepped step, then a quarter of its bound, which the particles take
+    // in one sub-step; the same simulated time a batch.
+    let half = 0.5 * m.bounds.dt_bound;
+    assert_eq!(m.particle_substeps(half), 2);
+    assert_eq!(m.particle_substeps(0.5 * half), 1);
+    for (dt, steps) in [(half, k), (0.5 * half, 2 * k)] {
+        fused_against_plain(&m, m.step_params(dt, 50.0), steps);
+    }
+}
+
+/// [`fused_gpu_passes_equal_the_plan_s`] at one step: batches of `steps` steps.
+fn fused_against_plain(m: &Arc<Model>, params: palpate::params::StepParams, steps: u32) {
+    let mut fused = GpuStepper::new(gpu(), m, params).unwrap();
+    fused.set_fusion(true);
+    let mut plain = GpuStepper::new(gpu(), m, params).unwrap();
+    plain.set_fusion(false);
+    let fusions: Vec<(Stage, Stage)> = fused
+        .plan()
+        .gpu_fusions()
+        .iter()
+        .map(|f| (f.host, f.rider))
+        .collect();
+    assert_eq!(
+        fusions,
+        [
+            (Stage::FemForces, Stage::Follow),
+            (Stage::GatherCoupled, Stage::IntegrateParticles)
+        ]
+    );
+    let (a, b) = press_segment();
+    let up = a + DVec3::new(0.0, 0.0, 0.01);
+    let legs = [(a, b), (b, b), (b, up), (up, up)];
+    let (mut dynamic, mut blending, mut interval) = (0, false, 0);
+    for (from, to) in legs {
+        let n = 10;
+        let at = |j: u32| from + (to - from) * (j as f64 / n as f64);
+        for j in 0..n {
+            let input = BatchInput::moving(at(j), at(j + 1));
+            let reports: Vec<_> = [&mut fused, &mut plain]
+                .into_iter()
+                .map(|s| {
+                    s.submit(steps, &input).unwrap();
+                    s.wait().unwrap()
+                })
+                .collect();
+            interval += 1;
+            assert_eq!(
+                format!("{:?}", reports[0]),
+                format!("{:?}", reports[1]),
+                "reports after batch {interval}"
+            );
+            for name in [
+                "displacements",
+                "velocities",
+                "forces",
+                "corner_forces",
+                "particle_displacements",
+                "particle_velocities",
+                "particle_forces",
+                "particle_force_sum",
+                "particle_mode",
+                "particle_timer",
+                "status",
+            ] {
+                assert_eq!(
+                    bits_u32(&fused, name),
+                    bits_u32(&plain, name),
+                    "{name} after batch {interval} (dt {})",
+                    params.dt
+                );
+            }
+            dynamic = dynamic.max(bits_u32(&fused, "particle_counts")[0]);
+            blending |= bits_u32(&fused, "particle_mode")
+                .iter()
+                .any(|m| m & mode::BLENDING != 0);
+        }
+    }
+    eprintln!(
+        "dt {}: at most {dynamic} dynamic particles; some blended back: {blending}",
+        params.dt
+    );
+    assert!(dynamic > 10, "the press woke {dynamic} particles");
+    assert!(blending, "no particle was released");
+}

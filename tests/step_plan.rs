@@ -495,3 +495,75 @@ fn indirect_dispatch_runs_exactly_the_workgroups_a_kernel_counted() {
         assert!(hits[nonzero..].iter().all(|&h| h == 0));
     }
 }
+
+/// Where the GPU fuses two passes into one dispatch (`StepPlan::gpu_fusions`): on hm1's plan
+/// `follow` rides on `fem_forces`, recorded at follow's place, and `integrate_particles` on
+/// `gather_coupled`, at the gather's; with particle sub-steps the first follow and the last
+/// integration; design 8's plan and one without particles fuse nothing.
+#[test]
+fn the_gpu_fuses_only_passes_whose_order_the_plan_leaves_free() {
+    let hm1 = scene_model("hm1");
+    let plan = StepPlan::for_model_at(&hm1, 1);
+    let at = |stage: Stage| plan.stages.iter().position(|p| p.stage == stage).unwrap();
+    let fusions: Vec<(Stage, Stage, usize, usize)> = plan
+        .gpu_fusions()
+        .iter()
+        .map(|f| (f.host, f.rider, f.at, f.skipped))
+        .collect();
+    assert_eq!(
+        fusions,
+        [
+            (
+                Stage::FemForces,
+                Stage::Follow,
+                at(Stage::Follow),
+                at(Stage::FemForces)
+            ),
+            (
+                Stage::GatherCoupled,
+                Stage::IntegrateParticles,
+                at(Stage::GatherCoupled),
+                at(Stage::IntegrateParticles)
+            ),
+        ]
+    );
+    for f in plan.gpu_fusions() {
+        assert_eq!(f.entry.domain, f.host.entries()[0].domain, "{f:?}");
+    }
+    // With two particle sub-steps: the first follow and the last integration.
+    let sub = StepPlan::for_model_at(&hm1, 2);
+    let all = |stage: Stage| -> Vec<usize> {
+        (0..sub.stages.len())
+            .filter(|&k| sub.stages[k].stage == stage)
+            .collect()
+    };
+    assert_eq!(all(Stage::Follow).len(), 2);
+    let fusions: Vec<(Stage, usize, usize)> = sub
+        .gpu_fusions()
+        .iter()
+        .map(|f| (f.rider, f.at, f.skipped))
+        .collect();
+    assert_eq!(
+        fusions,
+        [
+            (
+                Stage::Follow,
+                all(Stage::Follow)[0],
+                all(Stage::FemForces)[0]
+            ),
+            (
+                Stage::IntegrateParticles,
+                all(Stage::GatherCoupled)[0],
+                all(Stage::IntegrateParticles)[1]
+            ),
+        ]
+    );
+    let exact = scene_model("hm1_exact");
+    assert!(StepPlan::for_model(&exact).gpu_fusions().is_empty());
+    assert!(StepPlan::for_model(&scene_model("lv"))
+        .gpu_fusions()
+        .is_empty());
+    // The hybrid LV, the default haptic scene, at one sub-step: both.
+    let lv_touch = StepPlan::for_model_at(&scene_model("lv_touch"), 1);
+    assert_eq!(lv_touch.gpu_fusions().len(), 2);
+}

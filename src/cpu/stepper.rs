@@ -1673,7 +1673,10 @@ impl CpuStepper {
                 None => per_stage.push((stage, total / steps as f64)),
             }
         }
-        crate::gpu::stepper::StageTimes { per_stage }
+        crate::gpu::stepper::StageTimes {
+            per_stage,
+            carried: Vec::new(),
+        }
     }
 
     fn step_in_batch(&mut self, s: u32, len: u32) {

@@ -99,9 +99,19 @@ pub struct StagePipelines {
 impl StagePipelines {
     /// Build the stage's pipelines for `model`.
     pub fn new(ctx: &GpuContext, stage: Stage, model: &Model) -> Result<Self> {
+        StagePipelines::with_entries(ctx, stage, stage.entries(), model)
+    }
+
+    /// Pipelines for `entries`, with the constants of `stage` (a fused dispatch takes its
+    /// host's).
+    pub fn with_entries(
+        ctx: &GpuContext,
+        stage: Stage,
+        entries: &[Entry],
+        model: &Model,
+    ) -> Result<Self> {
         let constants = stage_constants(stage, model);
-        let kernels = stage
-            .entries()
+        let kernels = entries
             .iter()
             .map(|e| {
                 // Each entry gets the constants its shader declares.
@@ -125,13 +135,48 @@ struct BoundStage {
     /// Per kernel, the byte offset of its arguments in `activation_args` when it is gated
     /// ([`Domain::Gated`]).
     gated: Vec<Option<u64>>,
+    /// The stage whose work rides on this one's dispatch ([`crate::plan::Fusion`]), if any.
+    carries: Option<Stage>,
+}
+
+impl BoundStage {
+    /// `pipelines` bound to `buffers`.
+    fn bind(
+        ctx: &GpuContext,
+        buffers: &GpuBuffers,
+        pipelines: StagePipelines,
+        carries: Option<Stage>,
+    ) -> Result<BoundStage> {
+        let bind_groups = pipelines
+            .kernels
+            .iter()
+            .map(|(e, k)| k.bind(ctx, buffers, e.aliases))
+            .collect::<Result<Vec<_>>>()?;
+        Ok(BoundStage {
+            gated: vec![None; pipelines.kernels.len()],
+            pipelines,
+            bind_groups,
+            carries,
+        })
+    }
+
+    /// The label of its pass and debug group: the stage's name, with the rider's after a
+    /// `+`.
+    fn label(&self) -> String {
+        match self.carries {
+            Some(rider) => format!("{}+{}", self.pipelines.stage.name(), rider.name()),
+            None => self.pipelines.stage.name().to_string(),
+        }
+    }
 }
 
 /// Mean GPU time per stage of one step, from timestamp queries.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct StageTimes {
-    /// (stage, mean ns per run), in plan order.
+    /// (stage, mean ns per run), in plan order. A fused dispatch is timed under its host.
     pub per_stage: Vec<(Stage, f64)>,
+    /// (rider, host) of each fused dispatch: the rider's time is in its host's.
+    pub carried: Vec<(Stage, Stage)>,
 }
 
 impl StageTimes {
@@ -182,10 +227,17 @@ pub const ACTIVATION_PRODUCTS: [&str; 11] = [
 pub struct GpuStepper {
     ctx: Arc<GpuContext>,
     plan: StepPlan,
-    /// One bound stage per distinct stage of the plan (sub-steps repeat stages).
+    /// One bound stage per distinct stage of the plan (sub-steps repeat stages), then one
+    /// per fused dispatch.
     stages: Vec<BoundStage>,
     /// For each plan position, its index in `stages`.
     plan_stage: Vec<usize>,
+    /// For each plan position, what a batch records there with the plan's fusions: its
+    /// index in `stages` (a fused dispatch's at the fusion's `at`), None where the pass
+    /// rides on another.
+    fused_stage: Vec<Option<usize>>,
+    /// Whether batches record the fused dispatches (`PALPATE_GPU_FUSION=0` turns them off).
+    fusion: bool,
     model_particles: Option<crate::gpu::groups::ParticleTables>,
     /// The follower uniform (None without follower pressures).
     follower_load: Option<crate::cpu::follower_pressure::FollowerLoad>,
@@ -261,17 +313,26 @@ impl GpuStepper {
                 continue;
             }
             let pipelines = StagePipelines::new(&ctx, p.stage, model)?;
-            let bind_groups = pipelines
-                .kernels
-                .iter()
-                .map(|(e, k)| k.bind(&ctx, &buffers, e.aliases))
-                .collect::<Result<Vec<_>>>()?;
             plan_stage.push(stages.len());
-            stages.push(BoundStage {
-                gated: vec![None; pipelines.kernels.len()],
-                pipelines,
-                bind_groups,
-            });
+            stages.push(BoundStage::bind(&ctx, &buffers, pipelines, None)?);
+        }
+        let mut fused_stage: Vec<Option<usize>> = plan_stage.iter().map(|&k| Some(k)).collect();
+        for f in plan.gpu_fusions() {
+            // A fused kernel binds both stages' arrays: where the adapter allows fewer
+            // storage buffers per stage, the two keep their own passes.
+            let source = crate::gpu::kernel_source(f.entry.file).unwrap_or("");
+            let storage = crate::gpu::kernel::reflect(source, f.entry.entry)?
+                .bindings
+                .iter()
+                .filter(|b| matches!(b.ty, wgpu::BufferBindingType::Storage { .. }))
+                .count() as u32;
+            if storage > ctx.limits.max_storage_buffers_per_shader_stage {
+                continue;
+            }
+            let pipelines = StagePipelines::with_entries(&ctx, f.host, &[f.entry], model)?;
+            fused_stage[f.at] = Some(stages.len());
+            fused_stage[f.skipped] = None;
+            stages.push(BoundStage::bind(&ctx, &buffers, pipelines, Some(f.rider))?);
         }
         let mut report_layout = Vec::new();
         let mut offset = 0;
@@ -296,6 +357,8 @@ impl GpuStepper {
             plan,
             stages,
             plan_stage,
+            fused_stage,
+            fusion: std::env::var("PALPATE_GPU_FUSION").map_or(true, |v| v != "0"),
             n_particles: tool_params.n_particles,
             model_particles: tables,
             follower_load: model
@@ -439,10 +502,26 @@ impl GpuStepper {
         })
     }
 
+    /// Record the plan's fused dispatches (the default) or every stage's own passes. The
+    /// two give the same result bit for bit (`particles::fused_gpu_passes_equal_the_plan_s`).
+    pub fn set_fusion(&mut self, on: bool) {
+        self.fusion = on;
+    }
+
+    /// What a batch records at plan position `k`: an index in `stages`, None where the pass
+    /// rides on a fused dispatch.
+    fn recorded_at(&self, k: usize) -> Option<usize> {
+        if self.fusion {
+            self.fused_stage[k]
+        } else {
+            Some(self.plan_stage[k])
+        }
+    }
+
     fn record_stage_at(&self, pass: &mut wgpu::ComputePass<'_>, k: usize) -> Result<()> {
         let bound = &self.stages[k];
         let max_dim = self.ctx.limits.max_compute_workgroups_per_dimension;
-        pass.push_debug_group(bound.pipelines.stage.name());
+        pass.push_debug_group(&bound.label());
         for (((entry, kernel), bind_group), gated) in bound
             .pipelines
             .kernels
@@ -483,7 +562,7 @@ impl GpuStepper {
     fn stage_index(&self, stage: Stage) -> Result<usize> {
         self.stages
             .iter()
-            .position(|s| s.pipelines.stage == stage)
+            .position(|s| s.pipelines.stage == stage && s.carries.is_none())
             .ok_or_else(|| {
                 PalpateError::Gpu(format!("stage '{}' is not in this step plan", stage.name()))
             })
@@ -501,7 +580,9 @@ impl GpuStepper {
             for s in 0..steps {
                 for (k, run) in runs.iter_mut().enumerate() {
                     if self.plan.stages[k].runs_at(self.steps_done + s as u64, s, steps) {
-                        self.record_stage_at(&mut pass, self.plan_stage[k])?;
+                        if let Some(b) = self.recorded_at(k) {
+                            self.record_stage_at(&mut pass, b)?;
+                        }
                         *run += 1;
                     }
                 }
@@ -527,7 +608,8 @@ impl GpuStepper {
     }
 
     /// Time each stage of the plan with timestamp queries over `reps` runs (one compute pass
-    /// per stage); None when the device has no timestamp queries.
+    /// per stage as a batch records them: a fused dispatch is one, timed under its host);
+    /// None when the device has no timestamp queries.
     pub fn profile_stages(&mut self, reps: u32) -> Result<Option<StageTimes>> {
         if !self
             .ctx
@@ -538,7 +620,14 @@ impl GpuStepper {
             return Ok(None);
         }
         let reps = reps.clamp(1, 100);
-        let n_stages = self.stages.len() as u32;
+        // What a batch records, each once, in plan order.
+        let mut units: Vec<usize> = Vec::new();
+        for k in 0..self.plan.stages.len() {
+            if let Some(b) = self.recorded_at(k).filter(|b| !units.contains(b)) {
+                units.push(b);
+            }
+        }
+        let n_stages = units.len() as u32;
         let count = 2 * n_stages * reps;
         let d = &self.ctx.device;
         let queries = d.create_query_set(&wgpu::QuerySetDescriptor {
@@ -563,15 +652,17 @@ impl GpuStepper {
         for r in 0..reps {
             for k in 0..n_stages {
                 let q = 2 * (n_stages * r + k);
+                let unit = units[k as usize];
+                let label = self.stages[unit].label();
                 let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                    label: Some(self.stages[k as usize].pipelines.stage.name()),
+                    label: Some(&label),
                     timestamp_writes: Some(wgpu::ComputePassTimestampWrites {
                         query_set: &queries,
                         beginning_of_pass_write_index: Some(q),
                         end_of_pass_write_index: Some(q + 1),
                     }),
                 });
-                self.record_stage_at(&mut pass, k as usize)?;
+                self.record_stage_at(&mut pass, unit)?;
             }
         }
         enc.resolve_query_set(&queries, 0..count, &resolve, 0);
@@ -588,10 +679,17 @@ impl GpuStepper {
                         ticks[q + 1].saturating_sub(ticks[q]) as f64 * period
                     })
                     .sum();
-                (self.stages[k].pipelines.stage, total / reps as f64)
+                (self.stages[units[k]].pipelines.stage, total / reps as f64)
             })
             .collect();
-        Ok(Some(StageTimes { per_stage }))
+        let carried = units
+            .iter()
+            .filter_map(|&u| {
+                let b = &self.stages[u];
+                b.carries.map(|rider| (rider, b.pipelines.stage))
+            })
+            .collect();
+        Ok(Some(StageTimes { per_stage, carried }))
     }
 
     /// Overwrite any buffer from its start with f32 (or raw u32 bits) data (tests, debugging).
