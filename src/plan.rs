@@ -686,7 +686,7 @@ impl StepPlan {
             }
         }
         if let (Some(integrate), Some(gather)) = (
-            every(Stage::IntegrateParticles).last(),
+            every(Stage::IntegrateParticles).next_back(),
             every(Stage::GatherCoupled).next(),
         ) {
             if between_only(integrate, gather, &[Stage::FemForces, Stage::Contact]) {
