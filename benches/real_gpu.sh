@@ -13,6 +13,9 @@
 #                                        # stages of a change against .devbin/old.tgz (the
 #                                        # hybrid_step, fem_step and profile_stages binaries of
 #                                        # the build before it), in the same call
+#   bash benches/real_gpu.sh fusion      # the GPU's fused passes on and off in the same binary
+#                                        # (PALPATE_GPU_FUSION=0): hybrid_step's GPU ratio tables
+#                                        # and hm1's GPU stages, two rounds alternating
 # (calls of about five minutes each; each writes $OUT/log.txt).
 set -u
 BINS="gpu_vs_cpu particles contact cardiac_gpu cardiac_wiring lv_mesh step_plan cli hybrid_step fem_step"
@@ -81,6 +84,21 @@ if [ "${1:-}" = "ab" ]; then
         fi
         section "round $round, $v: hm1 GPU stages"
         timeout 60 "$d/profile_stages" hm1 3.5 100 gpu 2>&1 | tail -17
+      done
+    done
+    section "done"
+  } 2>&1 | tee -a "$log"
+  exit 0
+fi
+
+if [ "${1:-}" = "fusion" ]; then
+  {
+    for round in 1 2; do
+      for f in 0 1; do
+        section "round $round, PALPATE_GPU_FUSION=$f: hybrid_step GPU ratio tables"
+        PALPATE_GPU_FUSION=$f PALPATE_BENCH_BACKENDS=gpu timeout 120 "$B/hybrid_step" --bench no_criterion_group_matches 2>&1 | grep "|"
+        section "round $round, PALPATE_GPU_FUSION=$f: hm1 GPU stages"
+        PALPATE_GPU_FUSION=$f timeout 60 "$B/profile_stages" hm1 3.5 100 gpu 2>&1 | tail -17
       done
     done
     section "done"

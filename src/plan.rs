@@ -1,7 +1,8 @@
 //! The step plan: which stages one step runs, in which order and how often, built from the
 //! model. The GPU stepper records this list and the CPU stepper executes the same list, so
 //! the two backends cannot drift apart; profiling, `palpate info` and `ARCHITECTURE.md` name
-//! stages from it.
+//! stages from it. The GPU may record two stages of it as one dispatch where the list leaves
+//! their order free ([`StepPlan::gpu_fusions`]): the same work, one pass fewer.
 //!
 //! Adding a stage means: a [`Stage`] variant with its row in [`Stage::entries`], a line in
 //! `StepPlan::for_model_at` (behind [`StepPlan::for_model`]) that says when it runs, its kernel in `kernels/`, its CPU twin in
@@ -728,7 +729,7 @@ impl StepPlan {
             })
             .chain(self.gpu_fusions().iter().map(|f| {
                 format!(
-                    "{:<12} {:<22} {}::{} (on the GPU: one dispatch for both, at {}'s place)",
+                    "{:<12} {:<22} {}::{} (on a GPU that builds it, unless PALPATE_GPU_FUSION=0: one dispatch for both, at {}'s place)",
                     format!("{}+{}", f.host.name(), f.rider.name()),
                     "fused",
                     f.entry.file,

@@ -2394,7 +2394,8 @@ fn gated_against_full(scene: &Scene, per_leg: u32) -> GateRun {
 /// withdrawal (particles released and blending back) and wait, hold the same bits after every
 /// interval: the fused kernels do the same arithmetic, and nothing the moved stages read is
 /// written in between. With one particle sub-step, and with two (the first follow and the
-/// last integration fused).
+/// last integration fused); and with every particle dynamic, more than the gather's grid has
+/// threads (its grid-stride loop takes a second round).
 #[test]
 fn fused_gpu_passes_equal_the_plan_s() {
     let m = Arc::new(Model::from_scene(&pressed_block()));
@@ -2405,35 +2406,51 @@ fn fused_gpu_passes_equal_the_plan_s() {
     assert_eq!(m.particle_substeps(half), 2);
     assert_eq!(m.particle_substeps(0.5 * half), 1);
     for (dt, steps) in [(half, k), (0.5 * half, 2 * k)] {
-        fused_against_plain(&m, m.step_params(dt, 50.0), steps);
+        let (dynamic, blending) = fused_against_plain(&m, m.step_params(dt, 50.0), steps, 10);
+        assert!(dynamic > 10, "the press woke {dynamic} particles");
+        assert!(blending, "no particle was released");
     }
+    let all = PRESSED_BLOCK.replace(
+        "activation_radius = 0.003\n",
+        "activation_radius = 0.003\nactivation = \"all\"\n",
+    );
+    let m = Arc::new(Model::from_scene(
+        &Scene::from_toml(&all, "all", "all", None).unwrap(),
+    ));
+    let (dynamic, _) = fused_against_plain(&m, m.step_params(0.5 * half, 50.0), 2 * k, 2);
+    // gather_coupled's grid: 64 vertices and 256 threads a workgroup.
+    let threads = m.n_vertices().div_ceil(64) * 256;
+    assert!(
+        dynamic as usize > threads,
+        "{dynamic} dynamic against the gather's {threads} threads"
+    );
 }
 
-/// [`fused_gpu_passes_equal_the_plan_s`] at one step: batches of `steps` steps.
-fn fused_against_plain(m: &Arc<Model>, params: palpate::params::StepParams, steps: u32) {
+/// [`fused_gpu_passes_equal_the_plan_s`] at one step: batches of `steps` steps, `n` a leg of
+/// the press; (the most dynamic particles, whether one blended back).
+fn fused_against_plain(
+    m: &Arc<Model>,
+    params: palpate::params::StepParams,
+    steps: u32,
+    n: u32,
+) -> (u32, bool) {
     let mut fused = GpuStepper::new(gpu(), m, params).unwrap();
     fused.set_fusion(true);
     let mut plain = GpuStepper::new(gpu(), m, params).unwrap();
     plain.set_fusion(false);
-    let fusions: Vec<(Stage, Stage)> = fused
-        .plan()
-        .gpu_fusions()
-        .iter()
-        .map(|f| (f.host, f.rider))
-        .collect();
     assert_eq!(
-        fusions,
+        fused.fused_passes(),
         [
             (Stage::FemForces, Stage::Follow),
             (Stage::GatherCoupled, Stage::IntegrateParticles)
         ]
     );
+    assert!(plain.fused_passes().is_empty());
     let (a, b) = press_segment();
     let up = a + DVec3::new(0.0, 0.0, 0.01);
     let legs = [(a, b), (b, b), (b, up), (up, up)];
     let (mut dynamic, mut blending, mut interval) = (0, false, 0);
     for (from, to) in legs {
-        let n = 10;
         let at = |j: u32| from + (to - from) * (j as f64 / n as f64);
         for j in 0..n {
             let input = BatchInput::moving(at(j), at(j + 1));
@@ -2480,6 +2497,5 @@ fn fused_against_plain(m: &Arc<Model>, params: palpate::params::StepParams, step
         "dt {}: at most {dynamic} dynamic particles; some blended back: {blending}",
         params.dt
     );
-    assert!(dynamic > 10, "the press woke {dynamic} particles");
-    assert!(blending, "no particle was released");
+    (dynamic, blending)
 }

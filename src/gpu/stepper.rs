@@ -180,7 +180,8 @@ pub struct StageTimes {
 }
 
 impl StageTimes {
-    /// Mean ns of `stage` (0 when it is not in the plan).
+    /// Mean ns of `stage` (0 when it is not in the plan, or rides on another's dispatch:
+    /// see `carried`).
     pub fn ns(&self, stage: Stage) -> f64 {
         self.per_stage
             .iter()
@@ -316,23 +317,19 @@ impl GpuStepper {
             plan_stage.push(stages.len());
             stages.push(BoundStage::bind(&ctx, &buffers, pipelines, None)?);
         }
+        // The fused dispatches (none with PALPATE_GPU_FUSION=0). A fused kernel binds both
+        // stages' arrays: where the adapter cannot build it (fewer storage buffers per stage
+        // than it binds, a driver that refuses it), the two keep their own passes.
+        let fusion = std::env::var("PALPATE_GPU_FUSION").map_or(true, |v| v != "0");
         let mut fused_stage: Vec<Option<usize>> = plan_stage.iter().map(|&k| Some(k)).collect();
-        for f in plan.gpu_fusions() {
-            // A fused kernel binds both stages' arrays: where the adapter allows fewer
-            // storage buffers per stage, the two keep their own passes.
-            let source = crate::gpu::kernel_source(f.entry.file).unwrap_or("");
-            let storage = crate::gpu::kernel::reflect(source, f.entry.entry)?
-                .bindings
-                .iter()
-                .filter(|b| matches!(b.ty, wgpu::BufferBindingType::Storage { .. }))
-                .count() as u32;
-            if storage > ctx.limits.max_storage_buffers_per_shader_stage {
-                continue;
+        for f in plan.gpu_fusions().into_iter().filter(|_| fusion) {
+            let built = StagePipelines::with_entries(&ctx, f.host, &[f.entry], model)
+                .and_then(|p| BoundStage::bind(&ctx, &buffers, p, Some(f.rider)));
+            if let Ok(bound) = built {
+                fused_stage[f.at] = Some(stages.len());
+                fused_stage[f.skipped] = None;
+                stages.push(bound);
             }
-            let pipelines = StagePipelines::with_entries(&ctx, f.host, &[f.entry], model)?;
-            fused_stage[f.at] = Some(stages.len());
-            fused_stage[f.skipped] = None;
-            stages.push(BoundStage::bind(&ctx, &buffers, pipelines, Some(f.rider))?);
         }
         let mut report_layout = Vec::new();
         let mut offset = 0;
@@ -358,7 +355,7 @@ impl GpuStepper {
             stages,
             plan_stage,
             fused_stage,
-            fusion: std::env::var("PALPATE_GPU_FUSION").map_or(true, |v| v != "0"),
+            fusion,
             n_particles: tool_params.n_particles,
             model_particles: tables,
             follower_load: model
@@ -502,10 +499,23 @@ impl GpuStepper {
         })
     }
 
-    /// Record the plan's fused dispatches (the default) or every stage's own passes. The
-    /// two give the same result bit for bit (`particles::fused_gpu_passes_equal_the_plan_s`).
+    /// Record the plan's fused dispatches (the default; those the stepper built: none with
+    /// `PALPATE_GPU_FUSION=0`) or every stage's own passes. The two run the same WGSL
+    /// expressions (bit for bit on lavapipe: `particles::fused_gpu_passes_equal_the_plan_s`).
     pub fn set_fusion(&mut self, on: bool) {
         self.fusion = on;
+    }
+
+    /// The fused dispatches batches record now: (host, rider) in plan order (empty with the
+    /// fusion off, or where none was built).
+    pub fn fused_passes(&self) -> Vec<(Stage, Stage)> {
+        (0..self.plan.stages.len())
+            .filter_map(|k| self.recorded_at(k))
+            .filter_map(|b| {
+                let bound = &self.stages[b];
+                bound.carries.map(|rider| (bound.pipelines.stage, rider))
+            })
+            .collect()
     }
 
     /// What a batch records at plan position `k`: an index in `stages`, None where the pass
