@@ -8,7 +8,8 @@
 // The volume/shape split laws (MATERIAL 3-6) run in fem_forces_split.wgsl instead.
 // `fem_forces_follow` does the same per tet and, on the same grid, follow.wgsl's work over
 // the particles' force set F (a grid-stride loop: thread t takes list entries t, t + T, …, T
-// the grid's threads): the two read the vertex displacements and write disjoint arrays, so
+// the grid's threads; the host grows the grid so that it takes at most MAX_RIDER_ROUNDS:
+// Domain::CoveringParticles): the two read the vertex displacements and write disjoint arrays, so
 // the GPU records this one dispatch in place of the follow and fem_forces passes when the
 // plan allows (`StepPlan::gpu_fusions`).
 // CPU twin: src/cpu/fem_forces.rs (and src/cpu/follow.rs).

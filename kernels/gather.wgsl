@@ -17,7 +17,8 @@
 // w_ap exact_host_force_p + exact_tangent_(p,a) (exact_forces' and exact_stress' outputs).
 // `gather_coupled_integrate` does gather_coupled's work and, on the same grid, the dynamic
 // particles' symplectic Euler (integrate_particles.wgsl's work, a grid-stride loop over the
-// dynamic list: thread t takes entries t, t + T, …, T the grid's threads): the gather reads
+// dynamic list: thread t takes entries t, t + T, …, T the grid's threads, which the host
+// grows so that it takes at most MAX_RIDER_ROUNDS: Domain::CoveringParticles): the gather reads
 // no particle position or velocity and the integration no vertex array, so the GPU records
 // this one dispatch in place of the integrate_particles and gather_coupled passes when the
 // plan allows (`StepPlan::gpu_fusions`).

@@ -103,7 +103,19 @@ pub enum Domain {
     /// raised (a particle became or stopped being dynamic), else no workgroup; indirect,
     /// from the arguments `activate_gate` writes (`activation_args`).
     Gated(&'static Domain),
+    /// A fused dispatch ([`Fusion`]): the host's domain, grown where the particles
+    /// outnumber it so that its threads cover every particle in at most
+    /// [`MAX_RIDER_ROUNDS`] rounds of the rider's grid-stride loop (a few hundred tets or
+    /// vertices under thousands of dynamic particles do not walk them in series).
+    CoveringParticles(&'static Domain),
 }
+
+/// The most rounds a fused dispatch's rider loop takes ([`Domain::CoveringParticles`]). A
+/// round is one particle's loads and stores, a pass of its own a launch and a barrier: four
+/// rounds cost about as much as the pass the fusion saves. Covering every particle in one
+/// round instead gives hm1's fused passes 4.5× (fem_forces) and 4.7× (gather) the host's
+/// workgroups, mostly empty, which lavapipe pays for dearly (BENCHMARKS.md).
+pub const MAX_RIDER_ROUNDS: u32 = 4;
 
 /// One kernel entry point of a stage.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -475,7 +487,7 @@ pub struct Fusion {
     pub host: Stage,
     /// The stage whose work rides on it.
     pub rider: Stage,
-    /// The fused kernel entry (the host's domain).
+    /// The fused kernel entry (over [`Domain::CoveringParticles`] of the host's domain).
     pub entry: Entry,
     /// Plan position where the fused dispatch is recorded.
     pub at: usize,
@@ -488,7 +500,7 @@ pub struct Fusion {
 const FEM_FORCES_FOLLOW: Entry = Entry {
     file: "fem_forces",
     entry: "fem_forces_follow",
-    domain: Domain::Tets,
+    domain: Domain::CoveringParticles(&Domain::Tets),
     aliases: &[],
 };
 
@@ -497,7 +509,7 @@ const FEM_FORCES_FOLLOW: Entry = Entry {
 const GATHER_COUPLED_INTEGRATE: Entry = Entry {
     file: "gather",
     entry: "gather_coupled_integrate",
-    domain: Domain::Vertices,
+    domain: Domain::CoveringParticles(&Domain::Vertices),
     aliases: &[],
 };
 

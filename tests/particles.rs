@@ -2394,8 +2394,8 @@ fn gated_against_full(scene: &Scene, per_leg: u32) -> GateRun {
 /// withdrawal (particles released and blending back) and wait, hold the same bits after every
 /// interval: the fused kernels do the same arithmetic, and nothing the moved stages read is
 /// written in between. With one particle sub-step, and with two (the first follow and the
-/// last integration fused); and with every particle dynamic, more than the gather's grid has
-/// threads (its grid-stride loop takes a second round).
+/// last integration fused); and with every particle dynamic, more than the host grids have
+/// threads (the fused grids grow, and the rider loops take several rounds).
 #[test]
 fn fused_gpu_passes_equal_the_plan_s() {
     let m = Arc::new(Model::from_scene(&pressed_block()));
@@ -2418,11 +2418,12 @@ fn fused_gpu_passes_equal_the_plan_s() {
         &Scene::from_toml(&all, "all", "all", None).unwrap(),
     ));
     let (dynamic, _) = fused_against_plain(&m, m.step_params(0.5 * half, 50.0), 2 * k, 2);
-    // gather_coupled's grid: 64 vertices and 256 threads a workgroup.
+    // gather_coupled's own grid: 64 vertices and 256 threads a workgroup.
     let threads = m.n_vertices().div_ceil(64) * 256;
     assert!(
-        dynamic as usize > threads,
-        "{dynamic} dynamic against the gather's {threads} threads"
+        dynamic as usize > threads && dynamic as usize > m.n_tets(),
+        "{dynamic} dynamic against the gather's {threads} threads and {} tets",
+        m.n_tets()
     );
 }
 

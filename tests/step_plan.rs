@@ -527,8 +527,13 @@ fn the_gpu_fuses_only_passes_whose_order_the_plan_leaves_free() {
             ),
         ]
     );
+    // Each over its host's domain, grown to cover every particle.
     for f in plan.gpu_fusions() {
-        assert_eq!(f.entry.domain, f.host.entries()[0].domain, "{f:?}");
+        assert_eq!(
+            f.entry.domain,
+            palpate::plan::Domain::CoveringParticles(&f.host.entries()[0].domain),
+            "{f:?}"
+        );
     }
     // With two particle sub-steps: the first follow and the last integration.
     let sub = StepPlan::for_model_at(&hm1, 2);

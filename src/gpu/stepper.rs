@@ -491,6 +491,7 @@ impl GpuStepper {
             Domain::Indirect(name, offset) => {
                 Dispatch::Indirect(self.buffers.require(name)?, offset)
             }
+            Domain::CoveringParticles(base) => self.dispatch_for(*base)?,
             Domain::Gated(_) => {
                 return Err(PalpateError::Gpu(
                     "a gated pass has no slot in 'activation_args'".into(),
@@ -539,11 +540,23 @@ impl GpuStepper {
             .zip(&bound.bind_groups)
             .zip(&bound.gated)
         {
-            let dispatch = match gated {
-                Some(offset) => {
+            let dispatch = match (gated, entry.domain) {
+                (Some(offset), _) => {
                     Dispatch::Indirect(self.buffers.require("activation_args")?, *offset)
                 }
-                None => self.dispatch_for(entry.domain)?,
+                (None, Domain::CoveringParticles(base)) => {
+                    // Items such that the grid's threads cover every particle in at most
+                    // MAX_RIDER_ROUNDS rounds.
+                    let lanes = (kernel.workgroup_size / kernel.items_per_workgroup.max(1)).max(1);
+                    let per_item = lanes * crate::plan::MAX_RIDER_ROUNDS;
+                    match self.dispatch_for(*base)? {
+                        Dispatch::Items(n) => {
+                            Dispatch::Items(n.max(self.n_particles.div_ceil(per_item)))
+                        }
+                        other => other,
+                    }
+                }
+                (None, domain) => self.dispatch_for(domain)?,
             };
             kernel.record(pass, bind_group, dispatch, max_dim);
         }
