@@ -495,23 +495,58 @@ pub struct Fusion {
     pub skipped: usize,
 }
 
-/// `follow` on `fem_forces`' grid: recorded at follow's place (the element forces move ahead
-/// of the particle chain, which neither reads nor writes their arrays).
-const FEM_FORCES_FOLLOW: Entry = Entry {
-    file: "fem_forces",
-    entry: "fem_forces_follow",
-    domain: Domain::CoveringParticles(&Domain::Tets),
-    aliases: &[],
-};
+/// A pair of stages the GPU may record as one dispatch ([`StepPlan::gpu_fusions`]).
+struct FusionRule {
+    host: Stage,
+    rider: Stage,
+    entry: Entry,
+    /// Which of the rider's places in the plan: its last (else its first).
+    last_rider: bool,
+    /// Record the fused dispatch at the rider's place (else at the host's).
+    at_rider: bool,
+    /// The stages that may lie between that rider and the host.
+    between: &'static [Stage],
+}
 
-/// `integrate_particles` on `gather_coupled`'s grid: recorded at the gather's place (the
-/// element forces and the contact between them read no particle position or velocity).
-const GATHER_COUPLED_INTEGRATE: Entry = Entry {
-    file: "gather",
-    entry: "gather_coupled_integrate",
-    domain: Domain::CoveringParticles(&Domain::Vertices),
-    aliases: &[],
-};
+/// The pairs the GPU fuses where the plan allows.
+const FUSION_RULES: [FusionRule; 2] = [
+    // `follow` on `fem_forces`' grid, at the first follow's place: the element forces move
+    // ahead of the particle sub-steps, which neither read nor write their arrays.
+    FusionRule {
+        host: Stage::FemForces,
+        rider: Stage::Follow,
+        entry: Entry {
+            file: "fem_forces",
+            entry: "fem_forces_follow",
+            domain: Domain::CoveringParticles(&Domain::Tets),
+            aliases: &[],
+        },
+        last_rider: false,
+        at_rider: true,
+        between: &[
+            Stage::SphStress,
+            Stage::SphForces,
+            Stage::SphForcesAccumulate,
+            Stage::IntegrateParticles,
+            Stage::Follow,
+        ],
+    },
+    // The last `integrate_particles` on `gather_coupled`'s grid, at the gather's place: the
+    // element forces and the contact between read no particle position or velocity.
+    FusionRule {
+        host: Stage::GatherCoupled,
+        rider: Stage::IntegrateParticles,
+        entry: Entry {
+            file: "gather",
+            entry: "gather_coupled_integrate",
+            domain: Domain::CoveringParticles(&Domain::Vertices),
+            aliases: &[],
+        },
+        last_rider: true,
+        at_rider: false,
+        between: &[Stage::FemForces, Stage::Contact],
+    },
+];
 
 /// When a planned stage runs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
@@ -671,48 +706,27 @@ impl StepPlan {
                 .filter(move |(_, p)| p.stage == stage && p.when == When::EveryStep)
                 .map(|(k, _)| k)
         };
-        let between_only = |from: usize, to: usize, allowed: &[Stage]| {
-            from < to
-                && self.stages[from + 1..to]
-                    .iter()
-                    .all(|p| allowed.contains(&p.stage))
-        };
-        let mut fusions = Vec::new();
-        if let (Some(follow), Some(fem)) =
-            (every(Stage::Follow).next(), every(Stage::FemForces).next())
-        {
-            let sub_steps = [
-                Stage::SphStress,
-                Stage::SphForces,
-                Stage::SphForcesAccumulate,
-                Stage::IntegrateParticles,
-                Stage::Follow,
-            ];
-            if between_only(follow, fem, &sub_steps) {
-                fusions.push(Fusion {
-                    host: Stage::FemForces,
-                    rider: Stage::Follow,
-                    entry: FEM_FORCES_FOLLOW,
-                    at: follow,
-                    skipped: fem,
-                });
-            }
-        }
-        if let (Some(integrate), Some(gather)) = (
-            every(Stage::IntegrateParticles).next_back(),
-            every(Stage::GatherCoupled).next(),
-        ) {
-            if between_only(integrate, gather, &[Stage::FemForces, Stage::Contact]) {
-                fusions.push(Fusion {
-                    host: Stage::GatherCoupled,
-                    rider: Stage::IntegrateParticles,
-                    entry: GATHER_COUPLED_INTEGRATE,
-                    at: gather,
-                    skipped: integrate,
-                });
-            }
-        }
-        fusions
+        FUSION_RULES
+            .iter()
+            .filter_map(|r| {
+                let rider = match r.last_rider {
+                    true => every(r.rider).next_back()?,
+                    false => every(r.rider).next()?,
+                };
+                let host = every(r.host).next()?;
+                let free = rider < host
+                    && self.stages[rider + 1..host]
+                        .iter()
+                        .all(|p| r.between.contains(&p.stage));
+                free.then_some(Fusion {
+                    host: r.host,
+                    rider: r.rider,
+                    entry: r.entry,
+                    at: if r.at_rider { rider } else { host },
+                    skipped: if r.at_rider { host } else { rider },
+                })
+            })
+            .collect()
     }
 
     /// True when the plan contains `stage`.

@@ -253,6 +253,28 @@ fn press_segment() -> (DVec3, DVec3) {
     )
 }
 
+/// The tool's path over the [`PRESSED_BLOCK`] in four legs of `per_leg` batches each: the
+/// press, a hold, a 1 cm withdrawal and a wait.
+fn press_hold_withdraw_wait(per_leg: u32) -> Vec<BatchInput> {
+    let (a, b) = press_segment();
+    let up = a + DVec3::new(0.0, 0.0, 0.01);
+    [(a, b), (b, b), (b, up), (up, up)]
+        .into_iter()
+        .flat_map(|(from, to)| {
+            let at = move |j: u32| from + (to - from) * (j as f64 / per_leg as f64);
+            (0..per_leg).map(move |j| BatchInput::moving(at(j), at(j + 1)))
+        })
+        .collect()
+}
+
+/// Assert that `a` and `b` hold the same bits in each buffer of `names` (`when` says at
+/// which point).
+fn assert_same_buffers(a: &GpuStepper, b: &GpuStepper, names: &[&str], when: &str) {
+    for name in names {
+        assert_eq!(bits_u32(a, name), bits_u32(b, name), "{name} {when}");
+    }
+}
+
 /// The bit patterns of f32 values (for bit-for-bit comparisons).
 fn bits(v: &[f32]) -> Vec<u32> {
     v.iter().map(|x| x.to_bits()).collect()
@@ -2317,37 +2339,34 @@ fn gated_against_full(scene: &Scene, per_leg: u32) -> GateRun {
     let k = m.particles.as_ref().unwrap().settings.activation_interval;
     let mut gated = GpuStepper::new(gpu(), &m, params).unwrap();
     let mut full = GpuStepper::new(gpu(), &m, params).unwrap();
-    let (a, b) = press_segment();
-    // Press, hold, withdraw 1 cm and wait (12 intervals each take the pressed block past
-    // the release radius, the dwell and the blend).
-    let up = a + DVec3::new(0.0, 0.0, 0.01);
-    let legs = [(a, b), (b, b), (b, up), (up, up)].map(|(p, q)| (p, q, per_leg));
+    // 12 intervals a leg take the pressed block past the release radius, the dwell and the
+    // blend.
     let (mut massless, mut released, mut intervals) = (false, false, 0);
-    for (from, to, n) in legs {
-        let at = |j: u32| from + (to - from) * (j as f64 / n as f64);
-        for j in 0..n {
-            let input = BatchInput::moving(at(j), at(j + 1));
-            full.raise_activation_gate().unwrap();
-            for s in [&mut gated, &mut full] {
-                s.submit(k, &input).unwrap();
-                s.wait().unwrap();
-            }
-            intervals += 1;
-            let counts = bits_u32(&gated, "particle_counts");
+    for input in press_hold_withdraw_wait(per_leg) {
+        full.raise_activation_gate().unwrap();
+        for s in [&mut gated, &mut full] {
+            s.submit(k, &input).unwrap();
+            s.wait().unwrap();
+        }
+        intervals += 1;
+        let counts = bits_u32(&gated, "particle_counts");
+        assert_eq!(
+            counts,
+            bits_u32(&full, "particle_counts"),
+            "interval {intervals}"
+        );
+        for (list, len) in [("dynamic_list", 0), ("stress_list", 1), ("force_list", 2)] {
+            let len = counts[len] as usize;
             assert_eq!(
-                counts,
-                bits_u32(&full, "particle_counts"),
-                "interval {intervals}"
+                bits_u32(&gated, list)[..len],
+                bits_u32(&full, list)[..len],
+                "{list} after interval {intervals}"
             );
-            for (list, len) in [("dynamic_list", 0), ("stress_list", 1), ("force_list", 2)] {
-                let len = counts[len] as usize;
-                assert_eq!(
-                    bits_u32(&gated, list)[..len],
-                    bits_u32(&full, list)[..len],
-                    "{list} after interval {intervals}"
-                );
-            }
-            for name in [
+        }
+        assert_same_buffers(
+            &gated,
+            &full,
+            &[
                 "displacements",
                 "velocities",
                 "inv_mass",
@@ -2361,20 +2380,15 @@ fn gated_against_full(scene: &Scene, per_leg: u32) -> GateRun {
                 "particle_velocities",
                 "particle_mode",
                 "particle_timer",
-            ] {
-                assert_eq!(
-                    bits_u32(&gated, name),
-                    bits_u32(&full, name),
-                    "{name} after interval {intervals}"
-                );
-            }
-            massless |= bits_u32(&gated, "node_flags")
-                .iter()
-                .any(|f| f & palpate::particles::params::NODE_MASSLESS != 0);
-            released |= bits_u32(&gated, "particle_mode")
-                .iter()
-                .any(|m| m & mode::BLENDING != 0);
-        }
+            ],
+            &format!("after interval {intervals}"),
+        );
+        massless |= bits_u32(&gated, "node_flags")
+            .iter()
+            .any(|f| f & palpate::particles::params::NODE_MASSLESS != 0);
+        released |= bits_u32(&gated, "particle_mode")
+            .iter()
+            .any(|m| m & mode::BLENDING != 0);
     }
     let (runs, skips) = gated.activation_counts().unwrap();
     assert_eq!(runs + skips, intervals);
@@ -2447,28 +2461,25 @@ fn fused_against_plain(
         ]
     );
     assert!(plain.fused_passes().is_empty());
-    let (a, b) = press_segment();
-    let up = a + DVec3::new(0.0, 0.0, 0.01);
-    let legs = [(a, b), (b, b), (b, up), (up, up)];
     let (mut dynamic, mut blending, mut interval) = (0, false, 0);
-    for (from, to) in legs {
-        let at = |j: u32| from + (to - from) * (j as f64 / n as f64);
-        for j in 0..n {
-            let input = BatchInput::moving(at(j), at(j + 1));
-            let reports: Vec<_> = [&mut fused, &mut plain]
-                .into_iter()
-                .map(|s| {
-                    s.submit(steps, &input).unwrap();
-                    s.wait().unwrap()
-                })
-                .collect();
-            interval += 1;
-            assert_eq!(
-                format!("{:?}", reports[0]),
-                format!("{:?}", reports[1]),
-                "reports after batch {interval}"
-            );
-            for name in [
+    for input in press_hold_withdraw_wait(n) {
+        let reports: Vec<_> = [&mut fused, &mut plain]
+            .into_iter()
+            .map(|s| {
+                s.submit(steps, &input).unwrap();
+                s.wait().unwrap()
+            })
+            .collect();
+        interval += 1;
+        assert_eq!(
+            format!("{:?}", reports[0]),
+            format!("{:?}", reports[1]),
+            "reports after batch {interval}"
+        );
+        assert_same_buffers(
+            &fused,
+            &plain,
+            &[
                 "displacements",
                 "velocities",
                 "forces",
@@ -2480,19 +2491,13 @@ fn fused_against_plain(
                 "particle_mode",
                 "particle_timer",
                 "status",
-            ] {
-                assert_eq!(
-                    bits_u32(&fused, name),
-                    bits_u32(&plain, name),
-                    "{name} after batch {interval} (dt {})",
-                    params.dt
-                );
-            }
-            dynamic = dynamic.max(bits_u32(&fused, "particle_counts")[0]);
-            blending |= bits_u32(&fused, "particle_mode")
-                .iter()
-                .any(|m| m & mode::BLENDING != 0);
-        }
+            ],
+            &format!("after batch {interval} (dt {})", params.dt),
+        );
+        dynamic = dynamic.max(bits_u32(&fused, "particle_counts")[0]);
+        blending |= bits_u32(&fused, "particle_mode")
+            .iter()
+            .any(|m| m & mode::BLENDING != 0);
     }
     eprintln!(
         "dt {}: at most {dynamic} dynamic particles; some blended back: {blending}",

@@ -137,6 +137,9 @@ struct BoundStage {
     gated: Vec<Option<u64>>,
     /// The stage whose work rides on this one's dispatch ([`crate::plan::Fusion`]), if any.
     carries: Option<Stage>,
+    /// The label of its pass and debug group: the stage's name, with the rider's after a
+    /// `+`.
+    label: String,
 }
 
 impl BoundStage {
@@ -152,21 +155,17 @@ impl BoundStage {
             .iter()
             .map(|(e, k)| k.bind(ctx, buffers, e.aliases))
             .collect::<Result<Vec<_>>>()?;
+        let label = match carries {
+            Some(rider) => format!("{}+{}", pipelines.stage.name(), rider.name()),
+            None => pipelines.stage.name().to_string(),
+        };
         Ok(BoundStage {
             gated: vec![None; pipelines.kernels.len()],
             pipelines,
             bind_groups,
             carries,
+            label,
         })
-    }
-
-    /// The label of its pass and debug group: the stage's name, with the rider's after a
-    /// `+`.
-    fn label(&self) -> String {
-        match self.carries {
-            Some(rider) => format!("{}+{}", self.pipelines.stage.name(), rider.name()),
-            None => self.pipelines.stage.name().to_string(),
-        }
     }
 }
 
@@ -400,7 +399,7 @@ impl GpuStepper {
                 let Domain::Gated(base) = entry.domain else {
                     continue;
                 };
-                let (x, y) = match self.dispatch_for(*base)? {
+                let (x, y) = match self.dispatch_for(*base, kernel)? {
                     Dispatch::Items(n) => {
                         crate::gpu::kernel::grid_for(n, kernel.items_per_workgroup, max_dim)
                     }
@@ -471,7 +470,8 @@ impl GpuStepper {
         &self.plan
     }
 
-    fn dispatch_for(&self, domain: Domain) -> Result<Dispatch<'_>> {
+    /// The dispatch of `kernel` over `domain` (its lanes size a covering grid).
+    fn dispatch_for(&self, domain: Domain, kernel: &ComputeKernel) -> Result<Dispatch<'_>> {
         Ok(match domain {
             Domain::Tets => Dispatch::Items(self.n_tets),
             Domain::Vertices => Dispatch::Items(self.n_vertices),
@@ -491,7 +491,16 @@ impl GpuStepper {
             Domain::Indirect(name, offset) => {
                 Dispatch::Indirect(self.buffers.require(name)?, offset)
             }
-            Domain::CoveringParticles(base) => self.dispatch_for(*base)?,
+            // Items such that the grid's threads cover every particle in at most
+            // MAX_RIDER_ROUNDS rounds.
+            Domain::CoveringParticles(base) => match self.dispatch_for(*base, kernel)? {
+                Dispatch::Items(n) => {
+                    let lanes = (kernel.workgroup_size / kernel.items_per_workgroup.max(1)).max(1);
+                    let per_item = lanes * crate::plan::MAX_RIDER_ROUNDS;
+                    Dispatch::Items(n.max(self.n_particles.div_ceil(per_item)))
+                }
+                other => other,
+            },
             Domain::Gated(_) => {
                 return Err(PalpateError::Gpu(
                     "a gated pass has no slot in 'activation_args'".into(),
@@ -532,7 +541,7 @@ impl GpuStepper {
     fn record_stage_at(&self, pass: &mut wgpu::ComputePass<'_>, k: usize) -> Result<()> {
         let bound = &self.stages[k];
         let max_dim = self.ctx.limits.max_compute_workgroups_per_dimension;
-        pass.push_debug_group(&bound.label());
+        pass.push_debug_group(&bound.label);
         for (((entry, kernel), bind_group), gated) in bound
             .pipelines
             .kernels
@@ -540,23 +549,11 @@ impl GpuStepper {
             .zip(&bound.bind_groups)
             .zip(&bound.gated)
         {
-            let dispatch = match (gated, entry.domain) {
-                (Some(offset), _) => {
+            let dispatch = match gated {
+                Some(offset) => {
                     Dispatch::Indirect(self.buffers.require("activation_args")?, *offset)
                 }
-                (None, Domain::CoveringParticles(base)) => {
-                    // Items such that the grid's threads cover every particle in at most
-                    // MAX_RIDER_ROUNDS rounds.
-                    let lanes = (kernel.workgroup_size / kernel.items_per_workgroup.max(1)).max(1);
-                    let per_item = lanes * crate::plan::MAX_RIDER_ROUNDS;
-                    match self.dispatch_for(*base)? {
-                        Dispatch::Items(n) => {
-                            Dispatch::Items(n.max(self.n_particles.div_ceil(per_item)))
-                        }
-                        other => other,
-                    }
-                }
-                (None, domain) => self.dispatch_for(domain)?,
+                None => self.dispatch_for(entry.domain, kernel)?,
             };
             kernel.record(pass, bind_group, dispatch, max_dim);
         }
@@ -676,9 +673,8 @@ impl GpuStepper {
             for k in 0..n_stages {
                 let q = 2 * (n_stages * r + k);
                 let unit = units[k as usize];
-                let label = self.stages[unit].label();
                 let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                    label: Some(&label),
+                    label: Some(&self.stages[unit].label),
                     timestamp_writes: Some(wgpu::ComputePassTimestampWrites {
                         query_set: &queries,
                         beginning_of_pass_write_index: Some(q),
