@@ -1,6 +1,8 @@
 // Stage (design 8, `particles.coupling = "exact"`; every step). Two entry points:
-//   exact_offsets  per dynamic particle (indirect over the dynamic list D): its offset off its
-//                  embedded place, delta_q = u_q - sum_a w_aq u_a (the others keep 0);
+//   exact_offsets  per particle of S that is dynamic or blending back onto its host (indirect
+//                  over the stress list, which holds them all): its offset off its embedded
+//                  place, delta_q = u_q - sum_a w_aq u_a (the others keep 0: an activation
+//                  clears them);
 //   exact_stress   per particle p of S (indirect over the stress list): the host tet's
 //                  gradient H_bar = Du Dm^-1, the remainder gradient
 //                  D_p = [sum_q V (delta_q - delta_p) (x) grad W(X_q - X_p)] G_p, and
@@ -23,7 +25,6 @@
 @group(0) @binding(0) var<uniform> params: StepParams;
 @group(0) @binding(1) var<uniform> particle_params: ParticleParams;
 @group(0) @binding(2) var<storage, read> particle_counts: array<u32>;
-@group(0) @binding(3) var<storage, read> dynamic_list: array<u32>;
 @group(0) @binding(4) var<storage, read> stress_list: array<u32>;
 @group(0) @binding(5) var<storage, read> particle_rest: array<f32>;
 @group(0) @binding(6) var<storage, read> particle_displacements: array<f32>;
@@ -40,6 +41,7 @@
 @group(0) @binding(17) var<storage, read_write> particle_gradient: array<f32>;
 @group(0) @binding(18) var<storage, read_write> particle_energy: array<f32>;
 @group(0) @binding(19) var<storage, read_write> exact_tangent: array<f32>;
+@group(0) @binding(20) var<storage, read> particle_mode: array<u32>;
 
 // Pipeline constant: the material law (as fem_forces' MATERIAL).
 override MATERIAL: u32 = 0u;
@@ -104,10 +106,13 @@ fn store_tangent(k: u32, f: vec3<f32>) {
 @compute @workgroup_size(64)
 fn exact_offsets(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let k = linear_index(gid, nwg, WORKGROUP);
-    if k >= particle_counts[0] {
+    if k >= particle_counts[1] {
         return;
     }
-    let q = dynamic_list[k];
+    let q = stress_list[k];
+    if (particle_mode[q] & (MODE_DYNAMIC | MODE_BLENDING)) == 0u {
+        return;
+    }
     let t = tets[particle_host[q]];
     let w = vec4<f32>(particle_weights[4u * q], particle_weights[4u * q + 1u], particle_weights[4u * q + 2u], particle_weights[4u * q + 3u]);
     let embedded = node_u(t.x) * w.x + node_u(t.y) * w.y + node_u(t.z) * w.z + node_u(t.w) * w.w;

@@ -184,7 +184,7 @@ impl Stage {
                 Entry {
                     file: "exact_stress",
                     entry: "exact_offsets",
-                    domain: Domain::Indirect("particle_dispatch", 0),
+                    domain: Domain::Indirect("particle_dispatch", 12),
                     aliases: &[],
                 },
                 Entry {

@@ -242,11 +242,6 @@ impl Simulation {
             )));
         }
         let params = model.step_params(dt, damping);
-        if backend == Backend::Gpu && crate::gpu::stepper::exact_needs_cpu(&model) {
-            return Err(PalpateError::Usage(
-                crate::gpu::stepper::EXACT_COUPLING_CPU_ONLY.into(),
-            ));
-        }
         if backend == Backend::Gpu && opts.threads.is_some() {
             return Err(PalpateError::Usage(
                 "--threads sets the CPU backend's threads; it does not apply to --backend gpu"
@@ -254,9 +249,9 @@ impl Simulation {
             ));
         }
         let (backend, backend_reason, adapter) = match backend {
-            Backend::Auto if crate::gpu::stepper::exact_needs_cpu(&model) => (
+            Backend::Auto if crate::gpu::stepper::exact_activates_on_cpu(&model) => (
                 Backend::Cpu,
-                format!("auto: {}", crate::gpu::stepper::EXACT_COUPLING_CPU_ONLY),
+                "auto: particles.coupling = \"exact\" under the tool re-slaves on the CPU at every activation (--backend gpu runs its steps on the GPU with that round trip)".to_string(),
                 None,
             ),
             Backend::Auto if opts.gpu.is_some() => (

@@ -875,7 +875,7 @@ fn a_free_spin_in_the_engine_keeps_both_momenta_and_the_layer_on_its_tets() {
 }
 
 /// Keys that cannot take the exact coupling get a one-line error naming
-/// `particles.coupling`; the GPU backend refuses it.
+/// `particles.coupling`.
 #[test]
 fn the_exact_coupling_refuses_what_it_cannot_run() {
     let base = layered_cube_text(0.03, 3, "stvk");
@@ -907,25 +907,6 @@ fn the_exact_coupling_refuses_what_it_cannot_run() {
     assert_eq!(m.particle_substeps(m.bounds.dt_bound), 1);
     let p = m.particles.as_ref().unwrap();
     assert!(m.bounds.dt_bound <= p.dt_bound(&m.material, None));
-    // Under the tool the activation re-slaves on the CPU: the GPU backend refuses it.
-    let under_tool = exact_cube_text(0.03, 3, "stvk").replace("activation = \"all\"\n", "")
-        + &still_tool(0.003, [0.015, 0.015, 0.034]);
-    let (_, m) = block_of(&under_tool, 0.03);
-    assert!(m.slaving.is_some());
-    let e = palpate::sim::Simulation::from_model(
-        std::sync::Arc::new(m),
-        palpate::sim::Backend::Gpu,
-        1e-5,
-        0.0,
-        Default::default(),
-    )
-    .err()
-    .expect("the GPU backend ran the exact coupling under the tool")
-    .to_string();
-    assert!(
-        e.contains("CPU backend only") && e.contains("activation = \"all\"") && !e.contains('\n'),
-        "{e}"
-    );
 }
 
 // ---------------------------------------------------------------------------------------
@@ -1493,9 +1474,20 @@ fn an_affine_stretch_leaves_no_residual_on_the_gpu() {
 
 /// A 20 x 20 x 10 mm block on a fixed bottom whose upper half is particle zone under design 8
 /// (every particle dynamic), pressed by a 3 mm tool moving across its top.
-fn pressed_exact_block() -> Scene {
+fn pressed_exact_block(all_dynamic: bool) -> Scene {
     let text = "name = \"exact block\"\n[mesh]\ngenerator = \"beam\"\nsize = [0.02, 0.02, 0.01]\ncells = [4, 4, 2]\n[material]\nyoungs_modulus = 3.0e4\npoisson_ratio = 0.3\ndensity = 1000.0\n[[fixed]]\nplane = { normal = [0.0, 0.0, 1.0], offset = 0.0 }\n[particles]\nregion = 0\nspacing = 0.001\nactivation_radius = 0.003\nactivation = \"all\"\ncoupling = \"exact\"\n[tool]\nradius = 0.003\nstiffness = 1.0e6\npath = [[0.0, 0.006, 0.01, 0.0125], [0.03, 0.014, 0.01, 0.0115]]\n[solver]\ndamping = 50.0\n";
-    let mut scene = Scene::from_toml(text, "exact block", "exact_block", None).unwrap();
+    // Under the tool: press and slide for 0.015 s, withdraw by 0.03 s; short dwell and blend
+    // times, so that within 600 steps (0.047 s) particles wake, switch, blend back and sleep.
+    let text = match all_dynamic {
+        true => text.to_string(),
+        false => text
+            .replace("activation = \"all\"\n", "dwell = 0.002\nblend = 0.004\n")
+            .replace(
+                "[0.03, 0.014, 0.01, 0.0115]]",
+                "[0.015, 0.01, 0.01, 0.0115], [0.03, 0.01, 0.01, 0.02]]",
+            ),
+    };
+    let mut scene = Scene::from_toml(&text, "exact block", "exact_block", None).unwrap();
     for e in 0..scene.mesh.n_tets() {
         let z: f64 = scene.mesh.corners(e).iter().map(|p| p.z).sum::<f64>() / 4.0;
         scene.mesh.regions[e] = if z < 0.005 { 1 } else { 0 };
@@ -1503,55 +1495,204 @@ fn pressed_exact_block() -> Scene {
     scene
 }
 
+type Design8Point = (Vec<f32>, Vec<f32>, DVec3, Vec<bool>);
+
+fn points(r: &[Design8Point]) -> Vec<common::RunPoint<'_>> {
+    r.iter().map(|s| (&s.0[..], &s.1[..], s.2)).collect()
+}
+
 /// 300 steps of design 8 with a moving tool on both backends (three batches of 100): the
 /// vertices', the particles' displacements and the tool's force agree within 1e-4 of the
-/// largest the CPU reaches. Measured 2026-11-27 on lavapipe: ≤ 3.5e-7 (vertices), 5.1e-7
-/// (particles), 1.9e-7 (tool force).
+/// largest the CPU reaches, with every particle dynamic (`activation = "all"`) and with the
+/// dynamic set following the tool, where the GPU's activations re-slave on its CPU twin
+/// (`cpu/stepper/gpu_activation.rs`): there both backends also leave the same particles
+/// dynamic after each batch, and the tool wakes some and changes the set. Measured
+/// 2026-11-27 on lavapipe, all dynamic: ≤ 3.5e-7 (vertices), 5.1e-7 (particles), 1.9e-7 (tool
+/// force).
 #[test]
-fn design_8s_300_step_trajectory_matches_on_both_backends() {
-    let scene = pressed_exact_block();
-    let run = |backend: palpate::sim::Backend| {
-        let mut sim = palpate::sim::Simulation::new(
-            &scene,
-            backend,
-            palpate::sim::SimOptions {
-                gpu: (backend == palpate::sim::Backend::Gpu).then(common::gpu),
-                ..Default::default()
-            },
-        )
-        .unwrap();
-        (0..3)
-            .map(|_| {
-                assert!(matches!(
-                    sim.advance(100).unwrap(),
-                    palpate::sim::Advance::Done(_)
-                ));
-                let u = sim.state().unwrap().displacements;
-                let p = sim.particle_state().unwrap().unwrap().displacements;
-                assert!(u.iter().chain(&p).all(|x| x.is_finite()));
-                (u, p, sim.last_tool.unwrap().force)
-            })
-            .collect::<Vec<_>>()
-    };
-    let (c, g) = (
-        run(palpate::sim::Backend::Cpu),
-        run(palpate::sim::Backend::Gpu),
-    );
-    fn points(r: &[(Vec<f32>, Vec<f32>, DVec3)]) -> Vec<common::RunPoint<'_>> {
-        r.iter().map(|s| (&s.0[..], &s.1[..], s.2)).collect()
-    }
-    let (offsets, scale_f) = common::run_offsets(&points(&c), &points(&g));
-    assert!(scale_f > 1e-6, "the tool never touched: {scale_f:e} N");
-    for (k, (cc, [eu, ep, ef])) in c.iter().zip(offsets).enumerate() {
-        eprintln!(
-            "design 8, step {}: |F| {:.4e} N; GPU off the CPU by {eu:.2e} (vertices), {ep:.2e} (particles), {ef:.2e} (tool force)",
-            100 * (k + 1),
-            cc.2.length()
+fn design_8s_trajectories_match_on_both_backends() {
+    for (name, scene, batches) in [
+        ("every particle dynamic", pressed_exact_block(true), 3),
+        ("under the tool", pressed_exact_block(false), 6),
+    ] {
+        let run = |backend: palpate::sim::Backend| {
+            let mut sim = palpate::sim::Simulation::new(
+                &scene,
+                backend,
+                palpate::sim::SimOptions {
+                    gpu: (backend == palpate::sim::Backend::Gpu).then(common::gpu),
+                    ..Default::default()
+                },
+            )
+            .unwrap();
+            (0..batches)
+                .map(|_| {
+                    assert!(matches!(
+                        sim.advance(100).unwrap(),
+                        palpate::sim::Advance::Done(_)
+                    ));
+                    let u = sim.state().unwrap().displacements;
+                    let ps = sim.particle_state().unwrap().unwrap();
+                    assert!(u.iter().chain(&ps.displacements).all(|x| x.is_finite()));
+                    let dynamic: Vec<bool> = ps
+                        .modes
+                        .iter()
+                        .map(|&m| m & palpate::particles::params::mode::DYNAMIC != 0)
+                        .collect();
+                    (u, ps.displacements, sim.last_tool.unwrap().force, dynamic)
+                })
+                .collect::<Vec<_>>()
+        };
+        let (c, g) = (
+            run(palpate::sim::Backend::Cpu),
+            run(palpate::sim::Backend::Gpu),
         );
+        let (offsets, scale_f) = common::run_offsets(&points(&c), &points(&g));
         assert!(
-            eu <= 1e-4 && ep <= 1e-4 && ef <= 1e-4,
-            "step {}",
-            100 * (k + 1)
+            scale_f > 1e-6,
+            "{name}: the tool never touched: {scale_f:e} N"
         );
+        let counts: Vec<usize> = c
+            .iter()
+            .map(|s| s.3.iter().filter(|&&d| d).count())
+            .collect();
+        for (k, ((cc, gg), [eu, ep, ef])) in c.iter().zip(&g).zip(offsets).enumerate() {
+            eprintln!(
+                "design 8, {name}, step {}: |F| {:.4e} N, {} dynamic; GPU off the CPU by {eu:.2e} (vertices), {ep:.2e} (particles), {ef:.2e} (tool force)",
+                100 * (k + 1),
+                cc.2.length(),
+                counts[k]
+            );
+            assert!(
+                eu <= 1e-4 && ep <= 1e-4 && ef <= 1e-4,
+                "{name}, step {}",
+                100 * (k + 1)
+            );
+            assert!(
+                cc.3 == gg.3,
+                "{name}, step {}: other particles dynamic",
+                100 * (k + 1)
+            );
+        }
+        if name == "under the tool" {
+            let n = c[0].3.len();
+            let most = *counts.iter().max().unwrap();
+            assert!(
+                counts[0] > 0 && most < n && counts[5] < most,
+                "the tool did not wake part of the layer and let it go: {counts:?} of {n}"
+            );
+        }
     }
+}
+
+/// Design 8 under the tool on the GPU, whose activations re-slave on its CPU twin
+/// (`cpu/stepper/gpu_activation.rs`), batch by batch against the CPU backend's stepper through
+/// the press, the slide, the withdrawal and the release of [`pressed_exact_block`]: after every
+/// batch of 20 steps the vertices', the particles' and design 8's per-step arrays (δ, the
+/// hosts' forces, the tangent forces) agree within 1e-4 of the largest the CPU's has held so
+/// far, the modes are the same, and no particle of the force set outside S keeps a tangent
+/// force. A restore on the GPU (its buffers, the twin's slaving, sets and
+/// offsets) repeats the run after the checkpoint bit for bit, across activations that change
+/// the set.
+#[test]
+fn design_8s_gpu_activations_match_the_cpu_and_restore_exactly() {
+    use palpate::stepper::Stepper;
+    let scene = pressed_exact_block(false);
+    let dt = palpate::sim::Simulation::new(&scene, palpate::sim::Backend::Cpu, Default::default())
+        .unwrap()
+        .dt;
+    let m = std::sync::Arc::new(Model::from_scene(&scene));
+    let params = m.step_params(dt, scene.solver.damping);
+    let mut cpu = palpate::cpu::CpuStepper::with_threads(m.clone(), params, 2).unwrap();
+    let mut gpu = palpate::gpu::GpuStepper::new(common::gpu(), &m, params).unwrap();
+    let tool = scene.tool.clone().unwrap();
+    const BATCH: u32 = 20;
+    let input = |k: u32| {
+        let t = |k: u32| (k * BATCH) as f64 * dt;
+        palpate::stepper::BatchInput::moving(tool.position_at(t(k)), tool.position_at(t(k + 1)))
+    };
+    let dynamic = |modes: &[u32]| {
+        modes
+            .iter()
+            .filter(|&&q| q & palpate::particles::params::mode::DYNAMIC != 0)
+            .count()
+    };
+    let mut counts = Vec::new();
+    let mut largest = std::collections::HashMap::new();
+    for k in 0..30 {
+        for s in [&mut cpu as &mut dyn Stepper, &mut gpu] {
+            s.submit(BATCH, &input(k)).unwrap();
+            s.wait().unwrap();
+        }
+        for name in [
+            "displacements",
+            "velocities",
+            "particle_displacements",
+            "particle_velocities",
+            "exact_delta",
+            "exact_host_force",
+            "exact_tangent",
+        ] {
+            let c = cpu.array(name).unwrap();
+            let g = gpu.read_f32(name).unwrap();
+            let scale = largest.entry(name).or_insert(1e-30f64);
+            *scale = c.iter().fold(*scale, |a, &x| a.max((x as f64).abs()));
+            let scale = *scale;
+            let off = c
+                .iter()
+                .zip(&g)
+                .fold(0.0f64, |a, (&x, &y)| a.max((x as f64 - y as f64).abs()));
+            assert!(
+                off <= 1e-4 * scale,
+                "batch {k}: '{name}' off by {off:e} of {scale:e}"
+            );
+        }
+        let (cm, gm) = (
+            cpu.particle_state().unwrap().modes,
+            gpu.read_particle_state().unwrap().unwrap().modes,
+        );
+        assert!(cm == gm, "batch {k}: other modes");
+        // A particle of the force set outside S carries no tangent force (an activation
+        // zeroes what it carried in S).
+        use palpate::particles::params::mode::{IN_F, IN_S};
+        let tangent = gpu.read_f32("exact_tangent").unwrap();
+        let stale = (0..gm.len())
+            .filter(|&q| gm[q] & IN_F != 0 && gm[q] & IN_S == 0)
+            .filter(|&q| tangent[12 * q..12 * q + 12].iter().any(|&x| x != 0.0))
+            .count();
+        assert_eq!(stale, 0, "batch {k}: tangent forces outside S");
+        counts.push(dynamic(&gm));
+    }
+    let most = *counts.iter().max().unwrap();
+    assert!(
+        most > 0 && counts[29] < most,
+        "the tool did not wake particles and let them go: {counts:?}"
+    );
+    // The restore: checkpoint while the tool presses, run through the withdrawal.
+    let mut gpu = palpate::gpu::GpuStepper::new(common::gpu(), &m, params).unwrap();
+    for k in 0..8 {
+        gpu.submit(BATCH, &input(k)).unwrap();
+        gpu.wait().unwrap();
+    }
+    gpu.checkpoint().unwrap();
+    let run = |gpu: &mut palpate::gpu::GpuStepper| {
+        let mut seen = Vec::new();
+        for k in 8..20 {
+            gpu.submit(BATCH, &input(k)).unwrap();
+            gpu.wait().unwrap();
+            seen.push(dynamic(&gpu.read_particle_state().unwrap().unwrap().modes));
+        }
+        let bits = |v: Vec<f32>| v.into_iter().map(f32::to_bits).collect::<Vec<u32>>();
+        let names = ["displacements", "particle_displacements", "particle_mode"];
+        (seen, names.map(|n| bits(gpu.read_f32(n).unwrap())))
+    };
+    let (first_counts, first) = run(&mut gpu);
+    gpu.restore().unwrap();
+    let (again_counts, again) = run(&mut gpu);
+    assert!(
+        first_counts.windows(2).any(|w| w[0] != w[1]),
+        "the set did not change after the checkpoint: {first_counts:?}"
+    );
+    assert_eq!(first_counts, again_counts);
+    assert!(first == again, "the run after the restore differs");
 }

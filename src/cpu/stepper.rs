@@ -2007,6 +2007,9 @@ impl Stepper for CpuStepper {
     }
 }
 
+mod gpu_activation;
+pub use gpu_activation::{ExactActivationInput, ExactActivationOutput};
+
 #[cfg(test)]
 mod tests {
     use super::chain_before_core_forces;

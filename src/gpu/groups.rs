@@ -310,9 +310,27 @@ pub struct ExactTables {
 }
 
 impl ExactTables {
-    /// The tables of `model` (None without the exact coupling).
+    /// The tables of `model` (None without the exact coupling): its slaving, and where the
+    /// dynamic set follows the tool ([`crate::gpu::stepper::exact_activates_on_cpu`]) lists
+    /// sized for every vertex–particle slot, which bounds every slaving's (a vertex fits
+    /// over particles it hosts), so that each activation's slaving fits in the same buffers.
     pub fn new(model: &Model) -> Option<ExactTables> {
         let sl = model.slaving.as_ref()?;
+        let capacity = crate::gpu::stepper::exact_activates_on_cpu(model)
+            .then(|| model.particles.as_ref().map(|p| p.slots.len()))
+            .flatten();
+        let mut t = ExactTables::of(model, sl)?;
+        if let Some(c) = capacity {
+            t.fit_particles.resize(c.max(t.fit_particles.len()), 0);
+            t.fit_weights.resize(c.max(t.fit_weights.len()), 0.0);
+            t.slave_vertices.resize(c.max(t.slave_vertices.len()), 0);
+            t.slave_weights.resize(c.max(t.slave_weights.len()), 0.0);
+        }
+        Some(t)
+    }
+
+    /// The tables of `sl`, a slaving of `model`'s particles (None without particles).
+    pub fn of(model: &Model, sl: &crate::cpu::exact_coupling::Slaving) -> Option<ExactTables> {
         let n = model.particles.as_ref()?.len();
         let inv_mass = (0..model.n_vertices())
             .map(|v| {
@@ -360,18 +378,31 @@ impl ExactTables {
     }
 }
 
-/// Design 8's buffers: its per-step arrays (δ, the hosts' forces, the tangent corner forces)
-/// and the slaving ([`ExactTables`]).
-pub fn exact<'a>(t: &'a ExactTables, n_particles: u32) -> BufferGroup<'a> {
+/// Design 8's buffers: its per-step arrays (δ, the hosts' forces, the tangent corner forces),
+/// the slaved vertices' fading offsets and their clocks (state), and the slaving
+/// ([`ExactTables`]; state too where activations re-slave on the CPU, `reslaved`, so that a
+/// checkpoint keeps the slaving its masses and lists were made with).
+pub fn exact<'a>(
+    t: &'a ExactTables,
+    n_particles: u32,
+    n_vertices: u32,
+    reslaved: bool,
+) -> BufferGroup<'a> {
     let n = n_particles as u64;
+    let nv = n_vertices as u64;
+    let usage = if reslaved {
+        Usage::State
+    } else {
+        Usage::Storage
+    };
     // An empty list still binds 4 bytes.
     let data_u32 = |name, v: &'a [u32]| match v.is_empty() {
-        true => BufferSpec::zeroed(name, Usage::Storage, 4),
-        false => BufferSpec::data(name, Usage::Storage, v),
+        true => BufferSpec::zeroed(name, usage, 4),
+        false => BufferSpec::data(name, usage, v),
     };
     let data_f32 = |name, v: &'a [f32]| match v.is_empty() {
-        true => BufferSpec::zeroed(name, Usage::Storage, 4),
-        false => BufferSpec::data(name, Usage::Storage, v),
+        true => BufferSpec::zeroed(name, usage, 4),
+        false => BufferSpec::data(name, usage, v),
     };
     BufferGroup {
         name: "exact coupling",
@@ -379,12 +410,14 @@ pub fn exact<'a>(t: &'a ExactTables, n_particles: u32) -> BufferGroup<'a> {
             BufferSpec::zeroed("exact_delta", Usage::Storage, 12 * n),
             BufferSpec::zeroed("exact_host_force", Usage::Storage, 12 * n),
             BufferSpec::zeroed("exact_tangent", Usage::Storage, 48 * n),
-            BufferSpec::data("exact_mass", Usage::Storage, &t.mass),
-            BufferSpec::data("exact_inv_mass", Usage::Storage, &t.inv_mass),
-            BufferSpec::data("exact_fit_offsets", Usage::Storage, &t.fit_offsets),
+            BufferSpec::zeroed("exact_vertex_offset", Usage::State, 12 * nv),
+            BufferSpec::zeroed("exact_vertex_timer", Usage::State, 4 * nv),
+            BufferSpec::data("exact_mass", usage, &t.mass),
+            BufferSpec::data("exact_inv_mass", usage, &t.inv_mass),
+            BufferSpec::data("exact_fit_offsets", usage, &t.fit_offsets),
             data_u32("exact_fit_particles", &t.fit_particles),
             data_f32("exact_fit_weights", &t.fit_weights),
-            BufferSpec::data("exact_slave_offsets", Usage::Storage, &t.slave_offsets),
+            BufferSpec::data("exact_slave_offsets", usage, &t.slave_offsets),
             data_u32("exact_slave_vertices", &t.slave_vertices),
             data_f32("exact_slave_weights", &t.slave_weights),
         ],
@@ -520,7 +553,12 @@ pub fn for_model<'a>(
             groups.push(self::particles(p, &t.grid, &t.setup_scans));
             groups.push(particle_step(model, t));
             if let Some(x) = exact {
-                groups.push(self::exact(x, t.params.n_particles));
+                groups.push(self::exact(
+                    x,
+                    t.params.n_particles,
+                    model.n_vertices() as u32,
+                    crate::gpu::stepper::exact_activates_on_cpu(model),
+                ));
             }
         }
         _ => groups.push(particle_stubs()),

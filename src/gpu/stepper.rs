@@ -3,6 +3,7 @@
 //! is recorded (or read by the GPU from an indirect-argument buffer), and each batch copies
 //! its small report into the next slot of a readback ring, mapped without blocking.
 
+use crate::contact::ToolState;
 use crate::error::{PalpateError, Result};
 use crate::gpu::buffers::{GpuBuffers, Usage};
 use crate::gpu::groups::{STATS_BYTES, STATUS_BYTES};
@@ -18,18 +19,18 @@ use std::sync::Arc;
 
 pub use crate::plan::Stage;
 
-/// Why a model with `particles.coupling = "exact"` under the tool does not run here.
-pub const EXACT_COUPLING_CPU_ONLY: &str = "particles.coupling = \"exact\" with a dynamic set that follows the tool runs on the CPU backend only (--backend cpu): its activation re-slaves on the CPU; on the GPU set particles.activation = \"all\"";
-
-/// True when `model` has the exact coupling with a set the tool moves, which only the CPU
-/// backend runs (the GPU runs design 8 under `activation = "all"`, whose slaving is fixed).
-pub fn exact_needs_cpu(model: &Model) -> bool {
+/// True when `model` has the exact coupling with a dynamic set the tool moves: its
+/// activations re-slave on the CPU (a CPU twin beside the GPU stepper runs `ActivateExact`
+/// at each activation step, `cpu/stepper/gpu_activation.rs`); under `activation = "all"`
+/// the slaving is fixed and the GPU runs everything.
+pub fn exact_activates_on_cpu(model: &Model) -> bool {
     model.slaving.is_some()
         && model
             .particles
             .as_ref()
             .is_some_and(|p| !p.settings.all_active)
 }
+
 /// The pipeline-overridable constants a stage's kernels are built with for `model`.
 pub fn stage_constants(stage: Stage, model: &Model) -> Vec<(&'static str, f64)> {
     match stage {
@@ -260,14 +261,25 @@ pub struct GpuStepper {
     checkpoint: Vec<(&'static str, wgpu::Buffer)>,
     checkpoint_steps: (u64, glam::DVec3),
     readback_state: Option<wgpu::Buffer>,
+    /// Design 8 under the tool: the CPU twin that runs its activations
+    /// ([`exact_activates_on_cpu`]).
+    exact_twin: Option<ExactTwin>,
+    /// Where an activation on the CPU twin reads the GPU's arrays into.
+    staging: Option<wgpu::Buffer>,
+}
+
+/// The CPU stepper beside a GPU stepper whose design 8 activations re-slave on the CPU, and
+/// the model it was made from (for the slaving's tables).
+struct ExactTwin {
+    stepper: Box<crate::cpu::CpuStepper>,
+    model: Arc<Model>,
+    /// The plan position of `ActivateExact`, which batches do not record.
+    at: usize,
 }
 
 impl GpuStepper {
     /// Upload `model`, build its plan's pipelines and bind groups and the readback ring.
     pub fn new(ctx: Arc<GpuContext>, model: &Model, params: StepParams) -> Result<GpuStepper> {
-        if exact_needs_cpu(model) {
-            return Err(PalpateError::Usage(EXACT_COUPLING_CPU_ONLY.into()));
-        }
         let n = model.n_vertices() as u64;
         let m = model.n_tets() as u64;
         if n > u32::MAX as u64 / 4 || m > u32::MAX as u64 / 4 {
@@ -380,8 +392,24 @@ impl GpuStepper {
             checkpoint: Vec::new(),
             checkpoint_steps: (0, glam::DVec3::ZERO),
             readback_state: None,
+            exact_twin: None,
+            staging: None,
             ctx,
         };
+        if exact_activates_on_cpu(model) {
+            let model = Arc::new(model.clone());
+            let at = stepper
+                .plan
+                .stages
+                .iter()
+                .position(|p| p.stage == Stage::ActivateExact)
+                .ok_or_else(|| PalpateError::Internal("design 8 plans no activation".into()))?;
+            stepper.exact_twin = Some(ExactTwin {
+                stepper: Box::new(crate::cpu::CpuStepper::new(model.clone(), params)),
+                model,
+                at,
+            });
+        }
         stepper.fill_gated_args()?;
         // The state at rest is the first checkpoint.
         stepper.checkpoint()?;
@@ -589,30 +617,206 @@ impl GpuStepper {
     }
 
     /// Record `steps` steps of the plan into `encoder` (one compute pass), counting stage runs.
+    /// Under design 8 with the tool ([`exact_activates_on_cpu`]) each activation step ends the
+    /// pass after the stages before `ActivateExact`: what is recorded is submitted and waited
+    /// for, the CPU twin activates ([`Self::activate_on_cpu`]), and the rest goes into a new
+    /// encoder that replaces `encoder`.
     fn record_batch(&mut self, encoder: &mut wgpu::CommandEncoder, steps: u32) -> Result<()> {
         self.counts.iter_mut().for_each(|(_, c)| *c = 0);
         let mut runs = vec![0u32; self.plan.stages.len()];
-        {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("steps"),
-                timestamp_writes: None,
-            });
-            for s in 0..steps {
-                for (k, run) in runs.iter_mut().enumerate() {
-                    if self.plan.stages[k].runs_at(self.steps_done + s as u64, s, steps) {
-                        if let Some(b) = self.recorded_at(k) {
-                            self.record_stage_at(&mut pass, b)?;
-                        }
-                        *run += 1;
-                    }
+        let on_cpu = self.exact_twin.as_ref().map(|t| t.at);
+        let mut from = (0, 0);
+        for s in 0..steps {
+            for (k, run) in runs.iter_mut().enumerate() {
+                if !self.plan.stages[k].runs_at(self.steps_done + s as u64, s, steps) {
+                    continue;
+                }
+                *run += 1;
+                if on_cpu == Some(k) {
+                    self.record_range(encoder, steps, from, (s, k))?;
+                    let done = std::mem::replace(
+                        encoder,
+                        self.ctx.device.create_command_encoder(&Default::default()),
+                    );
+                    self.ctx.queue.submit([done.finish()]);
+                    self.activate_on_cpu(self.steps_done + s as u64)?;
+                    from = (s, k + 1);
                 }
             }
         }
+        self.record_range(encoder, steps, from, (steps, 0))?;
         for (c, r) in self.counts.iter_mut().zip(runs) {
             c.1 = r;
         }
         self.steps_done += steps as u64;
         Ok(())
+    }
+
+    /// Record, as one compute pass, the stages of a `steps`-step batch from (step, plan
+    /// position) `from` up to but not including `to`; the CPU twin's `ActivateExact` is never
+    /// recorded.
+    fn record_range(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        steps: u32,
+        from: (u32, usize),
+        to: (u32, usize),
+    ) -> Result<()> {
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("steps"),
+            timestamp_writes: None,
+        });
+        let on_cpu = self.exact_twin.as_ref().map(|t| t.at);
+        for s in from.0..steps.min(to.0 + 1) {
+            for k in 0..self.plan.stages.len() {
+                let here = (s, k);
+                if here < from || here >= to || on_cpu == Some(k) {
+                    continue;
+                }
+                if self.plan.stages[k].runs_at(self.steps_done + s as u64, s, steps) {
+                    if let Some(b) = self.recorded_at(k) {
+                        self.record_stage_at(&mut pass, b)?;
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The first `len` floats of each named buffer (u32 buffers as their bits), copied in one
+    /// submission into one staging buffer (kept for the next call) and read with one wait.
+    fn read_prefixes(&mut self, which: &[(&str, usize)]) -> Result<Vec<Vec<f32>>> {
+        let bytes: u64 = which.iter().map(|&(_, len)| 4 * len as u64).sum();
+        if self.staging.as_ref().is_none_or(|b| b.size() < bytes) {
+            self.staging = Some(self.ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("activation readback"),
+                size: bytes.max(4),
+                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            }));
+        }
+        let staging = self.staging.as_ref().expect("made above");
+        let mut enc = self.ctx.device.create_command_encoder(&Default::default());
+        let mut at = 0;
+        for &(name, len) in which {
+            let size = 4 * len as u64;
+            if size > 0 {
+                enc.copy_buffer_to_buffer(self.buffers.require(name)?, 0, staging, at, size);
+            }
+            at += size;
+        }
+        self.ctx.queue.submit([enc.finish()]);
+        let raw = self.ctx.read_mapped(staging, bytes.max(4))?;
+        let all: &[f32] = bytemuck::cast_slice(&raw);
+        let mut start = 0;
+        Ok(which
+            .iter()
+            .map(|&(_, len)| {
+                start += len;
+                all[start - len..start].to_vec()
+            })
+            .collect())
+    }
+
+    /// Design 8's activation at step `step` (0-based, the tool already moved) on the CPU twin:
+    /// read what the steps changed, activate, and write back what the activation wrote
+    /// (`cpu/stepper/gpu_activation.rs`). The writes go ahead of the next submission.
+    fn activate_on_cpu(&mut self, step: u64) -> Result<()> {
+        let (nv, n) = (self.n_vertices as usize, self.n_particles as usize);
+        let tool_len = std::mem::size_of::<ToolState>() / 4;
+        let mut read = self
+            .read_prefixes(&[
+                ("displacements", 3 * nv),
+                ("velocities", 3 * nv),
+                ("particle_displacements", 3 * n),
+                ("particle_velocities", 3 * n),
+                ("particle_mode", n),
+                ("particle_timer", n),
+                ("particle_offset", 3 * n),
+                ("exact_vertex_timer", nv),
+                ("exact_tangent", 12 * n),
+                ("tool_state", tool_len),
+            ])?
+            .into_iter();
+        let mut next = || read.next().unwrap_or_default();
+        let (u, v, pu, pv) = (next(), next(), next(), next());
+        let mode: Vec<u32> = next().into_iter().map(f32::to_bits).collect();
+        let (timer, offset, vertex_timer, tangent) = (next(), next(), next(), next());
+        let tool = next();
+        if tool.len() != tool_len {
+            return Err(PalpateError::Internal("the tool state was not read".into()));
+        }
+        let tool_state: ToolState = bytemuck::pod_read_unaligned(bytemuck::cast_slice(&tool));
+        let input = crate::cpu::stepper::ExactActivationInput {
+            displacements: &u,
+            velocities: &v,
+            particle_displacements: &pu,
+            particle_velocities: &pv,
+            particle_mode: &mode,
+            particle_timer: &timer,
+            particle_offset: &offset,
+            tool_state,
+            vertex_timer: &vertex_timer,
+            tangent: &tangent,
+            steps_done: step,
+        };
+        let twin = self
+            .exact_twin
+            .as_mut()
+            .ok_or_else(|| PalpateError::Internal("no CPU twin to activate on".into()))?;
+        let out = twin
+            .stepper
+            .activate_exact_for_gpu(&input)?
+            .ok_or_else(|| PalpateError::Internal("the CPU twin has no design 8".into()))?;
+        let (queue, buffers) = (&self.ctx.queue, &self.buffers);
+        let write = |name: &str, bytes: &[u8]| -> Result<()> {
+            let buf = buffers.require(name)?;
+            if bytes.len() as u64 > buf.size() {
+                return Err(PalpateError::Internal(format!(
+                    "{} bytes from the CPU twin's activation do not fit buffer '{name}'",
+                    bytes.len()
+                )));
+            }
+            if !bytes.is_empty() {
+                queue.write_buffer(buf, 0, bytes);
+            }
+            Ok(())
+        };
+        let f = |a: &[f32]| bytemuck::cast_slice::<f32, u8>(a).to_vec();
+        let w = |a: &[u32]| bytemuck::cast_slice::<u32, u8>(a).to_vec();
+        write("displacements", &f(out.displacements))?;
+        write("velocities", &f(out.velocities))?;
+        write("mass", &f(out.mass))?;
+        write("inv_mass", &f(out.inv_mass))?;
+        write("particle_displacements", &f(out.particle_displacements))?;
+        write("particle_velocities", &f(out.particle_velocities))?;
+        write("particle_mode", &w(out.particle_mode))?;
+        write("particle_timer", &f(out.particle_timer))?;
+        write("particle_offset", &f(out.particle_offset))?;
+        if out.changed {
+            write("dynamic_list", &w(out.dynamic_list))?;
+            write("stress_list", &w(out.stress_list))?;
+            write("force_list", &w(out.force_list))?;
+            write("particle_counts", &w(&out.counts))?;
+            write("particle_dispatch", &w(&out.dispatch))?;
+            write("tet_weight", &f(out.tet_weight))?;
+            write("contact_weight", &f(out.contact_weight))?;
+            write("exact_vertex_offset", &f(out.vertex_offset))?;
+            write("exact_vertex_timer", &f(out.vertex_timer))?;
+            write("exact_tangent", &f(out.tangent))?;
+            write("exact_delta", &f(&vec![0.0; 3 * n]))?;
+            let t = crate::gpu::groups::ExactTables::of(&twin.model, out.slaving)
+                .ok_or_else(|| PalpateError::Internal("design 8 without particles".into()))?;
+            write("exact_mass", &f(&t.mass))?;
+            write("exact_inv_mass", &f(&t.inv_mass))?;
+            write("exact_fit_offsets", &w(&t.fit_offsets))?;
+            write("exact_fit_particles", &w(&t.fit_particles))?;
+            write("exact_fit_weights", &f(&t.fit_weights))?;
+            write("exact_slave_offsets", &w(&t.slave_offsets))?;
+            write("exact_slave_vertices", &w(&t.slave_vertices))?;
+            write("exact_slave_weights", &f(&t.slave_weights))?;
+        }
+        self.ctx.check_errors()
     }
 
     /// Run a single stage on the current buffers and wait (tests, bisecting a mismatch).
@@ -642,7 +846,8 @@ impl GpuStepper {
         let reps = reps.clamp(1, 100);
         // What a batch records, each once, in plan order.
         let mut units: Vec<usize> = Vec::new();
-        for k in 0..self.plan.stages.len() {
+        let on_cpu = self.exact_twin.as_ref().map(|t| t.at);
+        for k in (0..self.plan.stages.len()).filter(|&k| Some(k) != on_cpu) {
             if let Some(b) = self.recorded_at(k).filter(|b| !units.contains(b)) {
                 units.push(b);
             }
@@ -850,6 +1055,9 @@ impl Stepper for GpuStepper {
     }
 
     fn set_params(&mut self, params: &StepParams) -> Result<()> {
+        if let Some(t) = &mut self.exact_twin {
+            t.stepper.set_params(params)?;
+        }
         self.params = *params;
         self.ctx.queue.write_buffer(
             self.buffers.require("params")?,
@@ -1009,6 +1217,9 @@ impl Stepper for GpuStepper {
         }
         self.ctx.queue.submit([enc.finish()]);
         self.checkpoint_steps = (self.steps_done, self.tool_at);
+        if let Some(t) = &mut self.exact_twin {
+            t.stepper.checkpoint()?;
+        }
         self.ctx.check_errors()
     }
 
@@ -1020,6 +1231,14 @@ impl Stepper for GpuStepper {
             enc.copy_buffer_to_buffer(saved, 0, b, 0, b.size());
         }
         enc.clear_buffer(self.buffers.require("stats")?, 0, None);
+        if let Some(t) = &mut self.exact_twin {
+            // As the CPU backend's restore: design 8's per-step arrays start from zero, which
+            // is what they hold where a step reads them before writing them.
+            t.stepper.restore()?;
+            for name in ["exact_delta", "exact_host_force", "exact_tangent"] {
+                enc.clear_buffer(self.buffers.require(name)?, 0, None);
+            }
+        }
         self.ctx.queue.submit([enc.finish()]);
         (self.steps_done, self.tool_at) = self.checkpoint_steps;
         self.raise_activation_gate()?;
@@ -1060,6 +1279,10 @@ impl Stepper for GpuStepper {
     fn write_state(&mut self, state: &State) -> Result<()> {
         // (the particle modes stay, so gather_coupled's short lists stay valid)
         self.drain()?;
+        if let Some(t) = &mut self.exact_twin {
+            // (the twin's next activation is then a full one, as the CPU backend's)
+            t.stepper.write_state(state)?;
+        }
         let q = &self.ctx.queue;
         q.write_buffer(
             self.buffers.require("displacements")?,
