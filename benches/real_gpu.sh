@@ -7,7 +7,8 @@
 #   bash benches/real_gpu.sh pack        # .devbin/bins.tgz: the stripped test/bench binaries
 # then on the device, from the repository root, with .gl (the Vulkan loader, see the device
 # tool's README) and .devbin carried:
-#   bash benches/real_gpu.sh tests       # the machine, the GPU tests, hybrid_step
+#   bash benches/real_gpu.sh tests       # the machine, the GPU tests, hm1_exact on both
+#                                        # backends, hybrid_step
 #   bash benches/real_gpu.sh benches     # fem_step, lv at 1M tets, haptic lv_touch, hm1 stages
 #   bash benches/real_gpu.sh ab          # the GPU tests, then the ratio tables and hm1's GPU
 #                                        # stages of a change against .devbin/old.tgz (the
@@ -18,7 +19,7 @@
 #                                        # and hm1's GPU stages, two rounds alternating
 # (calls of about five minutes each; each writes $OUT/log.txt).
 set -u
-BINS="gpu_vs_cpu particles contact cardiac_gpu cardiac_wiring lv_mesh step_plan cli hybrid_step fem_step"
+BINS="gpu_vs_cpu particles contact cardiac_gpu cardiac_wiring lv_mesh step_plan cli exact_coupling hybrid_step fem_step"
 
 if [ "${1:-}" = "pack" ]; then
   set -e
@@ -68,7 +69,7 @@ if [ "${1:-}" = "ab" ]; then
   O=$PWD/.devbin/old
   {
     section "GPU tests (PALPATE_ADAPTER=NVIDIA)"
-    for n in particles gpu_vs_cpu contact cardiac_gpu cardiac_wiring lv_mesh step_plan cli; do
+    for n in particles gpu_vs_cpu contact cardiac_gpu cardiac_wiring lv_mesh step_plan cli exact_coupling; do
       echo "--- $n"
       timeout 100 "$B/$n" --test-threads 8 --nocapture 2>&1 | grep -E "rel err|test result|panicked|FAILED|differ|step [0-9]+:" | grep -v " ok$" | tail -40
       echo "rc ${PIPESTATUS[0]}"
@@ -109,10 +110,15 @@ fi
 if [ "${1:-}" = "tests" ]; then
 {
   section "GPU tests (PALPATE_ADAPTER=NVIDIA)"
-  for n in gpu_vs_cpu particles contact cardiac_gpu cardiac_wiring lv_mesh step_plan cli; do
+  for n in gpu_vs_cpu particles contact cardiac_gpu cardiac_wiring lv_mesh step_plan cli exact_coupling; do
     echo "--- $n"
     timeout 100 "$B/$n" --test-threads 8 2>&1 | grep -E "^test |test result|panicked|assert|FAILED|error" | grep -v " ok$"
     echo "rc ${PIPESTATUS[0]}"
+  done
+
+  section "hm1_exact (design 8 under the tool; the GPU's activations on its CPU twin), 10 s: gpu, then cpu"
+  for b in gpu cpu; do
+    timeout 60 "$B/palpate" run hm1_exact --backend $b --out /tmp/hm1x_$b 2>&1 | tail -3
   done
 
   section "hybrid_step (criterion; ratio table last)"
