@@ -769,31 +769,59 @@ impl GpuStepper {
             .activate_exact_for_gpu(&input)?
             .ok_or_else(|| PalpateError::Internal("the CPU twin has no design 8".into()))?;
         let (queue, buffers) = (&self.ctx.queue, &self.buffers);
-        let write = |name: &str, bytes: &[u8]| -> Result<()> {
+        // Writes `words` (f32 or u32 as bits) at word `at` of buffer `name`.
+        let write_at = |name: &str, at: usize, words: &[u32]| -> Result<()> {
             let buf = buffers.require(name)?;
-            if bytes.len() as u64 > buf.size() {
+            let end = 4 * (at + words.len()) as u64;
+            if end > buf.size() {
                 return Err(PalpateError::Internal(format!(
-                    "{} bytes from the CPU twin's activation do not fit buffer '{name}'",
-                    bytes.len()
+                    "{end} bytes from the CPU twin's activation do not fit buffer '{name}'"
                 )));
             }
-            if !bytes.is_empty() {
-                queue.write_buffer(buf, 0, bytes);
+            if !words.is_empty() {
+                queue.write_buffer(buf, 4 * at as u64, bytemuck::cast_slice(words));
             }
             Ok(())
         };
-        let f = |a: &[f32]| bytemuck::cast_slice::<f32, u8>(a).to_vec();
-        let w = |a: &[u32]| bytemuck::cast_slice::<u32, u8>(a).to_vec();
-        write("displacements", &f(out.displacements))?;
-        write("velocities", &f(out.velocities))?;
-        write("mass", &f(out.mass))?;
-        write("inv_mass", &f(out.inv_mass))?;
-        write("particle_displacements", &f(out.particle_displacements))?;
-        write("particle_velocities", &f(out.particle_velocities))?;
-        write("particle_mode", &w(out.particle_mode))?;
-        write("particle_timer", &f(out.particle_timer))?;
-        write("particle_offset", &f(out.particle_offset))?;
+        let write = |name: &str, words: &[u32]| write_at(name, 0, words);
+        // Only the span where the activation changed what was read (bitwise): an activation
+        // that keeps its sets moves the modes and clocks of a few particles.
+        let write_changed = |name: &str, new: &[u32], old: &[u32]| -> Result<()> {
+            if new.len() != old.len() {
+                return write(name, new);
+            }
+            let differ = |(a, b): (&u32, &u32)| a != b;
+            match new.iter().zip(old).position(differ) {
+                None => Ok(()),
+                Some(first) => {
+                    let last = new.iter().zip(old).rposition(differ).unwrap_or(first);
+                    write_at(name, first, &new[first..=last])
+                }
+            }
+        };
+        let f = |a: &[f32]| -> Vec<u32> { bytemuck::cast_slice(a).to_vec() };
+        let w = |a: &[u32]| a.to_vec();
+        fn bits(a: &[f32]) -> &[u32] {
+            bytemuck::cast_slice(a)
+        }
+        write_changed("displacements", bits(out.displacements), bits(&u))?;
+        write_changed("velocities", bits(out.velocities), bits(&v))?;
+        write_changed(
+            "particle_displacements",
+            bits(out.particle_displacements),
+            bits(&pu),
+        )?;
+        write_changed(
+            "particle_velocities",
+            bits(out.particle_velocities),
+            bits(&pv),
+        )?;
+        write_changed("particle_mode", out.particle_mode, &mode)?;
+        write_changed("particle_timer", bits(out.particle_timer), bits(&timer))?;
+        write_changed("particle_offset", bits(out.particle_offset), bits(&offset))?;
         if out.changed {
+            write("mass", &f(out.mass))?;
+            write("inv_mass", &f(out.inv_mass))?;
             write("dynamic_list", &w(out.dynamic_list))?;
             write("stress_list", &w(out.stress_list))?;
             write("force_list", &w(out.force_list))?;
