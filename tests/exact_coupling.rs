@@ -1588,12 +1588,14 @@ fn design_8s_trajectories_match_on_both_backends() {
 /// Design 8 under the tool on the GPU, whose activations re-slave on its CPU twin
 /// (`cpu/stepper/gpu_activation.rs`), batch by batch against the CPU backend's stepper through
 /// the press, the slide, the withdrawal and the release of [`pressed_exact_block`]: after every
-/// batch of 20 steps the vertices', the particles' and design 8's per-step arrays (δ, the
-/// hosts' forces, the tangent forces) agree within 1e-4 of the largest the CPU's has held so
-/// far, the modes are the same, and no particle of the force set outside S keeps a tangent
-/// force. A restore on the GPU (its buffers, the twin's slaving, sets and
-/// offsets) repeats the run after the checkpoint bit for bit, across activations that change
-/// the set.
+/// batch of 7 steps (the activations every 10 fall at every place in a batch, its last step
+/// too) the vertices', the particles', the masses, the activation's weights and design 8's
+/// arrays (δ, the hosts' forces, the tangent forces, the slaved vertices' offsets and clocks)
+/// agree within 1e-4 of the largest the CPU's has held so far, the modes are the same, and no
+/// particle of the force set outside S keeps a tangent force; some vertex is slaved off its
+/// fit (a fading offset). A restore on the GPU (its buffers, the twin's slaving, sets and
+/// offsets) from a checkpoint between two activations repeats the run bit for bit, across
+/// activations that change the set.
 #[test]
 fn design_8s_gpu_activations_match_the_cpu_and_restore_exactly() {
     use palpate::stepper::Stepper;
@@ -1606,7 +1608,7 @@ fn design_8s_gpu_activations_match_the_cpu_and_restore_exactly() {
     let mut cpu = palpate::cpu::CpuStepper::with_threads(m.clone(), params, 2).unwrap();
     let mut gpu = palpate::gpu::GpuStepper::new(common::gpu(), &m, params).unwrap();
     let tool = scene.tool.clone().unwrap();
-    const BATCH: u32 = 20;
+    const BATCH: u32 = 7;
     let input = |k: u32| {
         let t = |k: u32| (k * BATCH) as f64 * dt;
         palpate::stepper::BatchInput::moving(tool.position_at(t(k)), tool.position_at(t(k + 1)))
@@ -1619,7 +1621,8 @@ fn design_8s_gpu_activations_match_the_cpu_and_restore_exactly() {
     };
     let mut counts = Vec::new();
     let mut largest = std::collections::HashMap::new();
-    for k in 0..30 {
+    const BATCHES: u32 = 86;
+    for k in 0..BATCHES {
         for s in [&mut cpu as &mut dyn Stepper, &mut gpu] {
             s.submit(BATCH, &input(k)).unwrap();
             s.wait().unwrap();
@@ -1632,6 +1635,12 @@ fn design_8s_gpu_activations_match_the_cpu_and_restore_exactly() {
             "exact_delta",
             "exact_host_force",
             "exact_tangent",
+            "exact_vertex_offset",
+            "exact_vertex_timer",
+            "mass",
+            "inv_mass",
+            "tet_weight",
+            "contact_weight",
         ] {
             let c = cpu.array(name).unwrap();
             let g = gpu.read_f32(name).unwrap();
@@ -1665,19 +1674,25 @@ fn design_8s_gpu_activations_match_the_cpu_and_restore_exactly() {
     }
     let most = *counts.iter().max().unwrap();
     assert!(
-        most > 0 && counts[29] < most,
+        most > 0 && counts[BATCHES as usize - 1] < most,
         "the tool did not wake particles and let them go: {counts:?}"
     );
-    // The restore: checkpoint while the tool presses, run through the withdrawal.
+    eprintln!("largest on the CPU over the run: {largest:?}");
+    assert!(
+        largest["exact_vertex_offset"] > 1e-9,
+        "no vertex was slaved off its fit: {largest:?}"
+    );
+    // The restore: checkpoint while the tool presses (step 161, between two activations),
+    // run through the withdrawal.
     let mut gpu = palpate::gpu::GpuStepper::new(common::gpu(), &m, params).unwrap();
-    for k in 0..8 {
+    for k in 0..23 {
         gpu.submit(BATCH, &input(k)).unwrap();
         gpu.wait().unwrap();
     }
     gpu.checkpoint().unwrap();
     let run = |gpu: &mut palpate::gpu::GpuStepper| {
         let mut seen = Vec::new();
-        for k in 8..20 {
+        for k in 23..57 {
             gpu.submit(BATCH, &input(k)).unwrap();
             gpu.wait().unwrap();
             seen.push(dynamic(&gpu.read_particle_state().unwrap().unwrap().modes));
@@ -1695,4 +1710,48 @@ fn design_8s_gpu_activations_match_the_cpu_and_restore_exactly() {
     );
     assert_eq!(first_counts, again_counts);
     assert!(first == again, "the run after the restore differs");
+}
+
+/// Design 8 without a tool and without `activation = "all"` plans no particle stage: the GPU
+/// backend runs it as its core (no CPU twin), as the CPU backend does, and both agree (20
+/// steps falling under gravity).
+#[test]
+fn design_8_without_a_tool_runs_its_core_on_both_backends() {
+    let text = exact_cube_text(0.03, 3, "stvk").replace("activation = \"all\"\n", "")
+        + "[loads]\ngravity = [0.0, 0.0, -9.81]\n";
+    let (_, m) = block_of(&text, 0.03);
+    assert!(m.slaving.is_some() && m.tool.is_none());
+    let m = std::sync::Arc::new(m);
+    let dt = 0.5 * m.bounds.dt_bound;
+    let run = |backend: palpate::sim::Backend| {
+        let mut sim = palpate::sim::Simulation::from_model(
+            m.clone(),
+            backend,
+            dt,
+            0.0,
+            palpate::sim::SimOptions {
+                gpu: (backend == palpate::sim::Backend::Gpu).then(common::gpu),
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        assert!(matches!(
+            sim.advance(20).unwrap(),
+            palpate::sim::Advance::Done(_)
+        ));
+        sim.state().unwrap().displacements
+    };
+    let (c, g) = (
+        run(palpate::sim::Backend::Cpu),
+        run(palpate::sim::Backend::Gpu),
+    );
+    let scale = c.iter().fold(1e-30f32, |a, &x| a.max(x.abs()));
+    let off = c
+        .iter()
+        .zip(&g)
+        .fold(0.0f32, |a, (x, y)| a.max((x - y).abs()));
+    assert!(
+        scale > 1e-12 && off <= 1e-4 * scale,
+        "off {off:e} of {scale:e}"
+    );
 }

@@ -1801,8 +1801,10 @@ impl CpuStepper {
     /// there), for stage-by-stage comparisons: the vertices' `displacements`, `velocities`,
     /// `forces`, `mass`, `inv_mass`, `corner_forces`; the particles' `particle_displacements`,
     /// `particle_velocities`, `particle_stress`, `particle_gradient`, `particle_energy`,
-    /// `particle_forces`, `particle_contact`; design 8's `exact_delta`, `exact_host_force`,
-    /// `exact_tangent`. None for another name or an array the model does not have.
+    /// `particle_forces`, `particle_contact`, the activation's `tet_weight` and
+    /// `contact_weight`; design 8's `exact_delta`, `exact_host_force`, `exact_tangent`,
+    /// `exact_vertex_offset`, `exact_vertex_timer`. None for another name or an array the
+    /// model does not have.
     pub fn array(&self, name: &str) -> Option<&[f32]> {
         let pa = self.particles.as_ref();
         let x = self.exact.as_ref();
@@ -1823,6 +1825,10 @@ impl CpuStepper {
             "exact_delta" => &x?.delta,
             "exact_host_force" => &x?.host_force,
             "exact_tangent" => &x?.tangent,
+            "exact_vertex_offset" => &x?.offsets.offset,
+            "exact_vertex_timer" => &x?.offsets.timer,
+            "tet_weight" => &pa?.act.tet_weight,
+            "contact_weight" => &pa?.act.contact_weight,
             _ => return None,
         })
     }

@@ -22,9 +22,11 @@ pub use crate::plan::Stage;
 /// True when `model` has the exact coupling with a dynamic set the tool moves: its
 /// activations re-slave on the CPU (a CPU twin beside the GPU stepper runs `ActivateExact`
 /// at each activation step, `cpu/stepper/gpu_activation.rs`); under `activation = "all"`
-/// the slaving is fixed and the GPU runs everything.
+/// the slaving is fixed and the GPU runs everything, and without a tool no particle stage
+/// runs.
 pub fn exact_activates_on_cpu(model: &Model) -> bool {
     model.slaving.is_some()
+        && model.tool.is_some()
         && model
             .particles
             .as_ref()
@@ -404,8 +406,12 @@ impl GpuStepper {
                 .iter()
                 .position(|p| p.stage == Stage::ActivateExact)
                 .ok_or_else(|| PalpateError::Internal("design 8 plans no activation".into()))?;
+            // On the thread that steps this stepper (a pool of one): the activation runs while
+            // the GPU waits, and a haptic session's other core stays the servo's.
+            let twin = crate::cpu::CpuStepper::on_this_thread(model.clone(), params)?;
+            stepper.check_neighbour_lists(&twin)?;
             stepper.exact_twin = Some(ExactTwin {
-                stepper: Box::new(crate::cpu::CpuStepper::new(model.clone(), params)),
+                stepper: Box::new(twin),
                 model,
                 at,
             });
@@ -479,10 +485,15 @@ impl GpuStepper {
 
     /// How many activations rebuilt the sets and lists (the dynamic set changed, or the host
     /// wrote a buffer) and how many skipped that, since the stepper was made: (full,
-    /// skipped). (0, 0) without particles.
+    /// skipped). (0, 0) without particles. Design 8 under the tool: its CPU twin's counts
+    /// (full and region passes, unchanged ones).
     pub fn activation_counts(&self) -> Result<(u32, u32)> {
         if self.n_particles == 0 {
             return Ok((0, 0));
+        }
+        if let Some(t) = &self.exact_twin {
+            let c = t.stepper.activation_counts().unwrap_or_default();
+            return Ok(((c.full + c.region) as u32, c.unchanged as u32));
         }
         let gate = self.read_f32("activation_gate")?;
         Ok((gate[2].to_bits(), gate[3].to_bits()))
@@ -683,6 +694,26 @@ impl GpuStepper {
         Ok(())
     }
 
+    /// Design 8 under the tool: the twin's stress and force sets come from its CPU-built
+    /// neighbour lists and the GPU's kernels walk the GPU-built ones, so the two must be the
+    /// same (they are built by the same rule; a GPU compiler that contracts the distance test
+    /// differently could move a pair at the kernel radius). An error naming what differs.
+    fn check_neighbour_lists(&mut self, twin: &crate::cpu::CpuStepper) -> Result<()> {
+        let Some(l) = twin.neighbour_lists() else {
+            return Ok(());
+        };
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
+        let offsets = self.read_prefixes(&[("neighbour_offsets", l.neighbour_offsets.len())])?;
+        let same = bits(&offsets[0]) == l.neighbour_offsets
+            && bits(&self.read_prefixes(&[("neighbours", l.neighbours.len())])?[0]) == l.neighbours;
+        if !same {
+            return Err(PalpateError::Gpu(
+                "particles.coupling = \"exact\" under the tool: this GPU built other particle neighbour lists than the CPU (a pair at particles.kernel_radius); run it with --backend cpu, or move kernel_radius off a lattice shell".into(),
+            ));
+        }
+        Ok(())
+    }
+
     /// The first `len` floats of each named buffer (u32 buffers as their bits), copied in one
     /// submission into one staging buffer (kept for the next call) and read with one wait.
     fn read_prefixes(&mut self, which: &[(&str, usize)]) -> Result<Vec<Vec<f32>>> {
@@ -848,7 +879,19 @@ impl GpuStepper {
     }
 
     /// Run a single stage on the current buffers and wait (tests, bisecting a mismatch).
+    /// Design 8's activation under the tool runs on the CPU twin only, within a batch: an
+    /// error here.
     pub fn run_stage(&self, stage: Stage) -> Result<()> {
+        if self
+            .exact_twin
+            .as_ref()
+            .is_some_and(|t| self.plan.stages[t.at].stage == stage)
+        {
+            return Err(PalpateError::Usage(format!(
+                "stage '{}' runs on the CPU twin within a batch (design 8 under the tool); it has no GPU pass to run alone",
+                stage.name()
+            )));
+        }
         let k = self.stage_index(stage)?;
         let mut enc = self.ctx.device.create_command_encoder(&Default::default());
         {
