@@ -277,6 +277,8 @@ struct ExactTwin {
     model: Arc<Model>,
     /// The plan position of `ActivateExact`, which batches do not record.
     at: usize,
+    /// 3 zeros per particle: δ after an activation that changed the sets.
+    zeros: Vec<u32>,
 }
 
 impl GpuStepper {
@@ -412,6 +414,7 @@ impl GpuStepper {
             stepper.check_neighbour_lists(&twin)?;
             stepper.exact_twin = Some(ExactTwin {
                 stepper: Box::new(twin),
+                zeros: vec![0; 3 * stepper.n_particles as usize],
                 model,
                 at,
             });
@@ -702,10 +705,10 @@ impl GpuStepper {
         let Some(l) = twin.neighbour_lists() else {
             return Ok(());
         };
-        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
+        let bits = |v: &[f32]| -> Vec<u32> { bytemuck::cast_slice(v).to_vec() };
         let offsets = self.read_prefixes(&[("neighbour_offsets", l.neighbour_offsets.len())])?;
-        let same = bits(&offsets[0]) == l.neighbour_offsets
-            && bits(&self.read_prefixes(&[("neighbours", l.neighbours.len())])?[0]) == l.neighbours;
+        let same = bits(&offsets) == l.neighbour_offsets
+            && bits(&self.read_prefixes(&[("neighbours", l.neighbours.len())])?) == l.neighbours;
         if !same {
             return Err(PalpateError::Gpu(
                 "particles.coupling = \"exact\" under the tool: this GPU built other particle neighbour lists than the CPU (a pair at particles.kernel_radius); run it with --backend cpu, or move kernel_radius off a lattice shell".into(),
@@ -714,9 +717,10 @@ impl GpuStepper {
         Ok(())
     }
 
-    /// The first `len` floats of each named buffer (u32 buffers as their bits), copied in one
-    /// submission into one staging buffer (kept for the next call) and read with one wait.
-    fn read_prefixes(&mut self, which: &[(&str, usize)]) -> Result<Vec<Vec<f32>>> {
+    /// The first `len` floats of each named buffer (u32 buffers as their bits), one after the
+    /// other, copied in one submission into one staging buffer (kept for the next call) and
+    /// read with one wait.
+    fn read_prefixes(&mut self, which: &[(&str, usize)]) -> Result<Vec<f32>> {
         let bytes: u64 = which.iter().map(|&(_, len)| 4 * len as u64).sum();
         if self.staging.as_ref().is_none_or(|b| b.size() < bytes) {
             self.staging = Some(self.ctx.device.create_buffer(&wgpu::BufferDescriptor {
@@ -726,7 +730,9 @@ impl GpuStepper {
                 mapped_at_creation: false,
             }));
         }
-        let staging = self.staging.as_ref().expect("made above");
+        let Some(staging) = self.staging.as_ref() else {
+            return Err(PalpateError::Internal("no staging buffer".into()));
+        };
         let mut enc = self.ctx.device.create_command_encoder(&Default::default());
         let mut at = 0;
         for &(name, len) in which {
@@ -738,15 +744,9 @@ impl GpuStepper {
         }
         self.ctx.queue.submit([enc.finish()]);
         let raw = self.ctx.read_mapped(staging, bytes.max(4))?;
-        let all: &[f32] = bytemuck::cast_slice(&raw);
-        let mut start = 0;
-        Ok(which
-            .iter()
-            .map(|&(_, len)| {
-                start += len;
-                all[start - len..start].to_vec()
-            })
-            .collect())
+        let mut all: Vec<f32> = bytemuck::pod_collect_to_vec(&raw);
+        all.truncate(bytes as usize / 4);
+        Ok(all)
     }
 
     /// Design 8's activation at step `step` (0-based, the tool already moved) on the CPU twin:
@@ -755,40 +755,45 @@ impl GpuStepper {
     fn activate_on_cpu(&mut self, step: u64) -> Result<()> {
         let (nv, n) = (self.n_vertices as usize, self.n_particles as usize);
         let tool_len = std::mem::size_of::<ToolState>() / 4;
-        let mut read = self
-            .read_prefixes(&[
-                ("displacements", 3 * nv),
-                ("velocities", 3 * nv),
-                ("particle_displacements", 3 * n),
-                ("particle_velocities", 3 * n),
-                ("particle_mode", n),
-                ("particle_timer", n),
-                ("particle_offset", 3 * n),
-                ("exact_vertex_timer", nv),
-                ("exact_tangent", 12 * n),
-                ("tool_state", tool_len),
-            ])?
-            .into_iter();
-        let mut next = || read.next().unwrap_or_default();
-        let (u, v, pu, pv) = (next(), next(), next(), next());
-        let mode: Vec<u32> = next().into_iter().map(f32::to_bits).collect();
-        let (timer, offset, vertex_timer, tangent) = (next(), next(), next(), next());
-        let tool = next();
+        let all = self.read_prefixes(&[
+            ("displacements", 3 * nv),
+            ("velocities", 3 * nv),
+            ("particle_displacements", 3 * n),
+            ("particle_velocities", 3 * n),
+            ("particle_mode", n),
+            ("particle_timer", n),
+            ("particle_offset", 3 * n),
+            ("exact_vertex_timer", nv),
+            ("exact_tangent", 12 * n),
+            ("tool_state", tool_len),
+        ])?;
+        let mut rest = &all[..];
+        let mut next = |len: usize| {
+            let (head, tail) = rest.split_at(len.min(rest.len()));
+            rest = tail;
+            head
+        };
+        let (u, v) = (next(3 * nv), next(3 * nv));
+        let (pu, pv) = (next(3 * n), next(3 * n));
+        let mode: &[u32] = bytemuck::cast_slice(next(n));
+        let (timer, offset) = (next(n), next(3 * n));
+        let (vertex_timer, tangent) = (next(nv), next(12 * n));
+        let tool = next(tool_len);
         if tool.len() != tool_len {
             return Err(PalpateError::Internal("the tool state was not read".into()));
         }
-        let tool_state: ToolState = bytemuck::pod_read_unaligned(bytemuck::cast_slice(&tool));
+        let tool_state: ToolState = bytemuck::pod_read_unaligned(bytemuck::cast_slice(tool));
         let input = crate::cpu::stepper::ExactActivationInput {
-            displacements: &u,
-            velocities: &v,
-            particle_displacements: &pu,
-            particle_velocities: &pv,
-            particle_mode: &mode,
-            particle_timer: &timer,
-            particle_offset: &offset,
+            displacements: u,
+            velocities: v,
+            particle_displacements: pu,
+            particle_velocities: pv,
+            particle_mode: mode,
+            particle_timer: timer,
+            particle_offset: offset,
             tool_state,
-            vertex_timer: &vertex_timer,
-            tangent: &tangent,
+            vertex_timer,
+            tangent,
             steps_done: step,
         };
         let twin = self
@@ -830,50 +835,48 @@ impl GpuStepper {
                 }
             }
         };
-        let f = |a: &[f32]| -> Vec<u32> { bytemuck::cast_slice(a).to_vec() };
-        let w = |a: &[u32]| a.to_vec();
         fn bits(a: &[f32]) -> &[u32] {
             bytemuck::cast_slice(a)
         }
-        write_changed("displacements", bits(out.displacements), bits(&u))?;
-        write_changed("velocities", bits(out.velocities), bits(&v))?;
+        write_changed("displacements", bits(out.displacements), bits(u))?;
+        write_changed("velocities", bits(out.velocities), bits(v))?;
         write_changed(
             "particle_displacements",
             bits(out.particle_displacements),
-            bits(&pu),
+            bits(pu),
         )?;
         write_changed(
             "particle_velocities",
             bits(out.particle_velocities),
-            bits(&pv),
+            bits(pv),
         )?;
-        write_changed("particle_mode", out.particle_mode, &mode)?;
-        write_changed("particle_timer", bits(out.particle_timer), bits(&timer))?;
-        write_changed("particle_offset", bits(out.particle_offset), bits(&offset))?;
+        write_changed("particle_mode", out.particle_mode, mode)?;
+        write_changed("particle_timer", bits(out.particle_timer), bits(timer))?;
+        write_changed("particle_offset", bits(out.particle_offset), bits(offset))?;
         if out.changed {
-            write("mass", &f(out.mass))?;
-            write("inv_mass", &f(out.inv_mass))?;
-            write("dynamic_list", &w(out.dynamic_list))?;
-            write("stress_list", &w(out.stress_list))?;
-            write("force_list", &w(out.force_list))?;
-            write("particle_counts", &w(&out.counts))?;
-            write("particle_dispatch", &w(&out.dispatch))?;
-            write("tet_weight", &f(out.tet_weight))?;
-            write("contact_weight", &f(out.contact_weight))?;
-            write("exact_vertex_offset", &f(out.vertex_offset))?;
-            write("exact_vertex_timer", &f(out.vertex_timer))?;
-            write("exact_tangent", &f(out.tangent))?;
-            write("exact_delta", &f(&vec![0.0; 3 * n]))?;
+            write("mass", bits(out.mass))?;
+            write("inv_mass", bits(out.inv_mass))?;
+            write("dynamic_list", out.dynamic_list)?;
+            write("stress_list", out.stress_list)?;
+            write("force_list", out.force_list)?;
+            write("particle_counts", &out.counts)?;
+            write("particle_dispatch", &out.dispatch)?;
+            write("tet_weight", bits(out.tet_weight))?;
+            write("contact_weight", bits(out.contact_weight))?;
+            write("exact_vertex_offset", bits(out.vertex_offset))?;
+            write("exact_vertex_timer", bits(out.vertex_timer))?;
+            write("exact_tangent", bits(out.tangent))?;
+            write("exact_delta", &twin.zeros)?;
             let t = crate::gpu::groups::ExactTables::of(&twin.model, out.slaving)
                 .ok_or_else(|| PalpateError::Internal("design 8 without particles".into()))?;
-            write("exact_mass", &f(&t.mass))?;
-            write("exact_inv_mass", &f(&t.inv_mass))?;
-            write("exact_fit_offsets", &w(&t.fit_offsets))?;
-            write("exact_fit_particles", &w(&t.fit_particles))?;
-            write("exact_fit_weights", &f(&t.fit_weights))?;
-            write("exact_slave_offsets", &w(&t.slave_offsets))?;
-            write("exact_slave_vertices", &w(&t.slave_vertices))?;
-            write("exact_slave_weights", &f(&t.slave_weights))?;
+            write("exact_mass", bits(&t.mass))?;
+            write("exact_inv_mass", bits(&t.inv_mass))?;
+            write("exact_fit_offsets", &t.fit_offsets)?;
+            write("exact_fit_particles", &t.fit_particles)?;
+            write("exact_fit_weights", bits(&t.fit_weights))?;
+            write("exact_slave_offsets", &t.slave_offsets)?;
+            write("exact_slave_vertices", &t.slave_vertices)?;
+            write("exact_slave_weights", bits(&t.slave_weights))?;
         }
         self.ctx.check_errors()
     }
