@@ -17,6 +17,11 @@
 #   bash benches/real_gpu.sh fusion      # the GPU's fused passes on and off in the same binary
 #                                        # (PALPATE_GPU_FUSION=0): hybrid_step's GPU ratio tables
 #                                        # and hm1's GPU stages, two rounds alternating
+#   bash benches/real_gpu.sh round       # the GPU tests, design 8 under the tool (hm1_exact on
+#                                        # both backends, its GPU stages and round trips to the
+#                                        # CPU twin), fusion, and gpu_vs_cpu on 8 threads 8 times
+#   bash benches/real_gpu.sh hang        # the GPU tests, then gpu_vs_cpu on 8 threads with one
+#                                        # device per binary and with one per test, 6 runs each
 # (calls of about five minutes each; each writes $OUT/log.txt).
 set -u
 BINS="gpu_vs_cpu particles contact cardiac_gpu cardiac_wiring lv_mesh step_plan cli exact_coupling hybrid_step fem_step"
@@ -64,16 +69,73 @@ fi
 if ! "$B/palpate" info 2>&1 | grep -qi nvidia; then echo "no NVIDIA adapter: stop" | tee -a "$log"; exit 3; fi
 export PALPATE_ADAPTER=NVIDIA
 
+GPU_TESTS="gpu_vs_cpu particles contact cardiac_gpu cardiac_wiring lv_mesh step_plan cli exact_coupling"
+
+# Every GPU test binary once, on 8 test threads: the failing lines only, and each rc.
+gpu_tests() {
+  section "GPU tests (PALPATE_ADAPTER=NVIDIA)"
+  for n in $GPU_TESTS; do
+    echo "--- $n"
+    timeout 100 "$B/$n" --test-threads 8 2>&1 | grep -A3 -E "^test |test result|panicked|assert|FAILED|error" | grep -v " ok$"
+    echo "rc ${PIPESTATUS[0]}"
+  done
+}
+
+# Design 8 under the tool: hm1_exact's 10 s on both backends, and the GPU's stages and round
+# trips to its CPU twin at two holds.
+design_8() {
+  section "hm1_exact (design 8 under the tool; the GPU's activations on its CPU twin), 10 s: gpu, then cpu"
+  for b in gpu cpu; do
+    timeout 60 "$B/palpate" run hm1_exact --backend $b --out /tmp/hm1x_$b 2>&1 | tail -3
+    grep -E '"(wall_seconds|steps_per_second|realtime_factor|max_displacement|active_particles_max)"' /tmp/hm1x_$b/summary.json
+  done
+  for t in 3.5 2.0; do
+    section "hm1_exact GPU stages and round trips, tool held at t = $t"
+    timeout 60 "$B/profile_stages" hm1_exact $t 200 gpu 2>&1 | tail -32
+  done
+}
+
+# The GPU's fused passes on and off in the same binary: hybrid_step's GPU ratio tables and
+# hm1's GPU stages, two rounds alternating.
+fusion() {
+  for round in 1 2; do
+    for f in 0 1; do
+      section "round $round, PALPATE_GPU_FUSION=$f: hybrid_step GPU ratio tables"
+      PALPATE_GPU_FUSION=$f PALPATE_BENCH_BACKENDS=gpu timeout 120 "$B/hybrid_step" --bench no_criterion_group_matches 2>&1 | grep "|"
+      section "round $round, PALPATE_GPU_FUSION=$f: hm1 GPU stages"
+      PALPATE_GPU_FUSION=$f timeout 60 "$B/profile_stages" hm1 3.5 100 gpu 2>&1 | tail -22
+    done
+  done
+}
+
+# gpu_vs_cpu on 8 test threads, $1 runs of at most 20 s each (a pass takes 2-4 s), with
+# PALPATE_TEST_DEVICE=$2 (shared: one device per test binary; per-test: one per test): the
+# hang seen on the H200 (BENCHMARKS.md). A run still going after 20 s is hung: each of its
+# threads' name, kernel wait channel and kernel stack are printed, then it is killed.
+hang_check() {
+  section "gpu_vs_cpu --test-threads 8 --nocapture, PALPATE_TEST_DEVICE=$2, $1 runs, 20 s each"
+  for i in $(seq 1 "$1"); do
+    PALPATE_TEST_DEVICE=$2 "$B/gpu_vs_cpu" --test-threads 8 --nocapture > /tmp/gvc_$i.txt 2>&1 &
+    pid=$!
+    for _ in $(seq 1 80); do sleep 0.25; kill -0 $pid 2>/dev/null || break; done
+    if kill -0 $pid 2>/dev/null; then
+      echo "run $i HUNG ($(grep -c ' ok$' /tmp/gvc_$i.txt) ok); its threads:"
+      for t in /proc/$pid/task/*; do
+        echo "  $(cat "$t/comm") | $(cat "$t/wchan") | $(head -4 "$t/stack" 2>/dev/null | awk '{print $2}' | tr '\n' ' ')"
+      done
+      kill -9 $pid; wait $pid 2>/dev/null
+    else
+      wait $pid
+      echo "run $i rc $? ($(grep -c ' ok$' /tmp/gvc_$i.txt) ok; $(grep 'test result' /tmp/gvc_$i.txt))"
+    fi
+  done
+}
+
 if [ "${1:-}" = "ab" ]; then
   mkdir -p .devbin/old && tar xzf .devbin/old.tgz -C .devbin/old
   O=$PWD/.devbin/old
   {
-    section "GPU tests (PALPATE_ADAPTER=NVIDIA)"
-    for n in particles gpu_vs_cpu contact cardiac_gpu cardiac_wiring lv_mesh step_plan cli exact_coupling; do
-      echo "--- $n"
-      timeout 100 "$B/$n" --test-threads 8 --nocapture 2>&1 | grep -E "rel err|test result|panicked|FAILED|differ|step [0-9]+:" | grep -v " ok$" | tail -40
-      echo "rc ${PIPESTATUS[0]}"
-    done
+    gpu_tests
     for round in 1 2; do
       for v in old new; do
         d=$B; [ $v = old ] && d=$O
@@ -93,37 +155,26 @@ if [ "${1:-}" = "ab" ]; then
 fi
 
 if [ "${1:-}" = "fusion" ]; then
-  {
-    for round in 1 2; do
-      for f in 0 1; do
-        section "round $round, PALPATE_GPU_FUSION=$f: hybrid_step GPU ratio tables"
-        PALPATE_GPU_FUSION=$f PALPATE_BENCH_BACKENDS=gpu timeout 120 "$B/hybrid_step" --bench no_criterion_group_matches 2>&1 | grep "|"
-        section "round $round, PALPATE_GPU_FUSION=$f: hm1 GPU stages"
-        PALPATE_GPU_FUSION=$f timeout 60 "$B/profile_stages" hm1 3.5 100 gpu 2>&1 | tail -17
-      done
-    done
-    section "done"
-  } 2>&1 | tee -a "$log"
+  { fusion; section "done"; } 2>&1 | tee -a "$log"
+  exit 0
+fi
+
+if [ "${1:-}" = "round" ]; then
+  { gpu_tests; design_8; fusion; hang_check 8 shared; section "done"; } 2>&1 | tee -a "$log"
+  exit 0
+fi
+
+if [ "${1:-}" = "hang" ]; then
+  { gpu_tests; hang_check 6 shared; hang_check 6 per-test; section "done"; } 2>&1 | tee -a "$log"
   exit 0
 fi
 
 if [ "${1:-}" = "tests" ]; then
 {
-  section "GPU tests (PALPATE_ADAPTER=NVIDIA)"
-  for n in gpu_vs_cpu particles contact cardiac_gpu cardiac_wiring lv_mesh step_plan cli exact_coupling; do
-    echo "--- $n"
-    timeout 100 "$B/$n" --test-threads 8 2>&1 | grep -E "^test |test result|panicked|assert|FAILED|error" | grep -v " ok$"
-    echo "rc ${PIPESTATUS[0]}"
-  done
-
-  section "hm1_exact (design 8 under the tool; the GPU's activations on its CPU twin), 10 s: gpu, then cpu"
-  for b in gpu cpu; do
-    timeout 60 "$B/palpate" run hm1_exact --backend $b --out /tmp/hm1x_$b 2>&1 | tail -3
-  done
-
+  gpu_tests
+  design_8
   section "hybrid_step (criterion; ratio table last)"
   timeout 200 "$B/hybrid_step" --bench 2>&1 | grep -v "^$\|Warming\|Collecting\|Analyzing\|Found\|outlier\|mild\|severe\|change:\|Performance\|No change"
-
   section "done"
 } 2>&1 | tee -a "$log"
 exit 0

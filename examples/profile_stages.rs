@@ -4,7 +4,9 @@
 //! stepper (`GpuStepper::profile_stages`: timestamp queries, one compute pass per stage as a batch records them (a fused dispatch is one, shown as host+rider), at
 //! most 100 runs; every stage runs once per run, including those planned every k steps). On
 //! the CPU it then times one batch of whole steps as the stepper runs them (on more than one
-//! thread the particle stages run beside the element forces there).
+//! thread the particle stages run beside the element forces there); on the GPU, batches of 10
+//! steps each waited for, and where design 8's activations run on a CPU twin
+//! (`hm1_exact`), what their round trips cost.
 //!
 //! `cargo run --release --example profile_stages -- [scene] [t] [steps] [threads | gpu]`
 //! (defaults: hm1 3.5 200 1).
@@ -33,9 +35,35 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let (times, modes, on): (StageTimes, Option<Vec<u32>>, String) = if on_gpu {
         let ctx = Arc::new(palpate::gpu::GpuContext::new()?);
         let mut g = GpuStepper::new(ctx, &model, params)?;
-        press(&mut g, &scene, sim.dt, hold_time)?;
+        let held = press(&mut g, &scene, sim.dt, hold_time)?;
         let (full, skipped) = g.activation_counts()?;
         println!("activations during the press: {full} full, {skipped} skipped by the gate (no particle became or stopped being dynamic)");
+        if let Some(trips) = g.exact_round_trips() {
+            print_round_trips("during the press", &trips);
+        }
+        // Whole steps as batches run them (the CPU twin's round trips included), after one
+        // batch of warm-up.
+        let tool = held.map(|p| (p, p));
+        let input = BatchInput {
+            tool,
+            tool_slice: None,
+        };
+        g.submit(10, &input)?;
+        g.wait()?;
+        let before = g.exact_round_trips().map_or(0, |t| t.len());
+        let batches = steps.div_ceil(10);
+        let start = std::time::Instant::now();
+        for _ in 0..batches {
+            g.submit(10, &input)?;
+            g.wait()?;
+        }
+        let whole = start.elapsed().as_secs_f64() * 1e6 / (10 * batches) as f64;
+        println!(
+            "whole steps, batches of 10 each submitted and waited for: {whole:.1} µs per step"
+        );
+        if let Some(trips) = g.exact_round_trips() {
+            print_round_trips("during those steps", &trips[before.min(trips.len())..]);
+        }
         let times = g
             .profile_stages(steps)?
             .ok_or("the adapter has no timestamp queries")?;
@@ -103,4 +131,31 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         );
     }
     Ok(())
+}
+
+/// Median and largest of each part of design 8's round trips to the CPU twin, in µs.
+fn print_round_trips(when: &str, trips: &[palpate::gpu::stepper::RoundTrip]) {
+    if trips.is_empty() {
+        println!("no activation round trips {when}");
+        return;
+    }
+    let stat = |f: &dyn Fn(&palpate::gpu::stepper::RoundTrip) -> f64| {
+        let mut v: Vec<f64> = trips.iter().map(f).collect();
+        v.sort_by(f64::total_cmp);
+        (v[v.len() / 2] * 1e6, v[v.len() - 1] * 1e6)
+    };
+    let changed = trips.iter().filter(|t| t.changed).count();
+    println!(
+        "{} activation round trips to the CPU twin {when} ({changed} changed a set); µs, median / largest:",
+        trips.len()
+    );
+    for (name, (median, largest)) in [
+        ("drain (the GPU's steps)", stat(&|t| t.drain)),
+        ("read back", stat(&|t| t.read)),
+        ("activate on the twin", stat(&|t| t.activate)),
+        ("queue the writes", stat(&|t| t.write)),
+        ("round trip (read + activate + write)", stat(&|t| t.cost())),
+    ] {
+        println!("  {name:<38} {median:>9.1} {largest:>9.1}");
+    }
 }

@@ -1591,7 +1591,8 @@ fn design_8s_trajectories_match_on_both_backends() {
 /// batch of 7 steps (the activations every 10 fall at every place in a batch, its last step
 /// too) the vertices', the particles', the masses, the activation's weights and design 8's
 /// arrays (δ, the hosts' forces, the tangent forces, the slaved vertices' offsets and clocks)
-/// agree within 1e-4 of the largest the CPU's has held so far, the modes are the same, and no
+/// agree within 1e-4 of the largest the CPU's has held so far (the offsets: or of 1e-6 of
+/// the largest displacement, where that is larger), the modes are the same, and no
 /// particle of the force set outside S keeps a tangent force; some vertex is slaved off its
 /// fit (a fading offset). A restore on the GPU (its buffers, the twin's slaving, sets and
 /// offsets) from a checkpoint between two activations repeats the run bit for bit, across
@@ -1646,7 +1647,15 @@ fn design_8s_gpu_activations_match_the_cpu_and_restore_exactly() {
             let g = gpu.read_f32(name).unwrap();
             let scale = largest.entry(name).or_insert(1e-30f64);
             *scale = c.iter().fold(*scale, |a, &x| a.max((x as f64).abs()));
-            let scale = *scale;
+            let mut scale = *scale;
+            if name == "exact_vertex_offset" {
+                // An offset is the difference between a vertex's fit and where it was, both
+                // from displacements that differ between the backends by rounding (about 1e-7
+                // of the displacements where the GPU fuses multiply-adds and the CPU does
+                // not): judged also against 1e-6 of the largest displacement (on an NVIDIA
+                // H200, 2026-11-28: 1.8e-12 off an offset of 1.8e-8 at batch 5).
+                scale = scale.max(1e-6 * largest["displacements"]);
+            }
             let off = c
                 .iter()
                 .zip(&g)

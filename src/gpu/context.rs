@@ -9,7 +9,8 @@
 use crate::error::{PalpateError, Result};
 use std::sync::{Arc, Mutex};
 
-/// A headless device and queue.
+/// A headless device and queue. A clone shares the device, the queue and the error sink.
+#[derive(Clone)]
 pub struct GpuContext {
     /// The chosen adapter.
     pub adapter: wgpu::Adapter,

@@ -279,7 +279,37 @@ struct ExactTwin {
     at: usize,
     /// 3 zeros per particle: δ after an activation that changed the sets.
     zeros: Vec<u32>,
+    /// The last activations' round trips, oldest first.
+    round_trips: VecDeque<RoundTrip>,
 }
+
+/// One design 8 activation done on the CPU twin ([`GpuStepper::exact_round_trips`]), seconds
+/// of wall clock on the stepping thread.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct RoundTrip {
+    /// Waiting for the GPU to finish the steps recorded before the activation.
+    pub drain: f64,
+    /// Copying the arrays the twin reads into the staging buffer and mapping it.
+    pub read: f64,
+    /// The twin's `ActivateExact`.
+    pub activate: f64,
+    /// Queueing the writes of what it changed (uploaded with the next submission), and the
+    /// slaving's tables when a set changed.
+    pub write: f64,
+    /// Whether the dynamic or blending set changed (the tables were written).
+    pub changed: bool,
+}
+
+impl RoundTrip {
+    /// What the round trip adds to the steps: read + activate + write (the drain is the GPU's
+    /// own steps finishing).
+    pub fn cost(&self) -> f64 {
+        self.read + self.activate + self.write
+    }
+}
+
+/// How many round trips [`GpuStepper::exact_round_trips`] keeps.
+const ROUND_TRIPS_KEPT: usize = 4096;
 
 impl GpuStepper {
     /// Upload `model`, build its plan's pipelines and bind groups and the readback ring.
@@ -417,6 +447,7 @@ impl GpuStepper {
                 zeros: vec![0; 3 * stepper.n_particles as usize],
                 model,
                 at,
+                round_trips: VecDeque::new(),
             });
         }
         stepper.fill_gated_args()?;
@@ -755,6 +786,9 @@ impl GpuStepper {
     fn activate_on_cpu(&mut self, step: u64) -> Result<()> {
         let (nv, n) = (self.n_vertices as usize, self.n_particles as usize);
         let tool_len = std::mem::size_of::<ToolState>() / 4;
+        let clock = std::time::Instant::now();
+        self.ctx.wait()?;
+        let drained = clock.elapsed().as_secs_f64();
         let all = self.read_prefixes(&[
             ("displacements", 3 * nv),
             ("velocities", 3 * nv),
@@ -800,10 +834,12 @@ impl GpuStepper {
             .exact_twin
             .as_mut()
             .ok_or_else(|| PalpateError::Internal("no CPU twin to activate on".into()))?;
+        let read = clock.elapsed().as_secs_f64();
         let out = twin
             .stepper
             .activate_exact_for_gpu(&input)?
             .ok_or_else(|| PalpateError::Internal("the CPU twin has no design 8".into()))?;
+        let activated = clock.elapsed().as_secs_f64();
         let (queue, buffers) = (&self.ctx.queue, &self.buffers);
         // Writes `words` (f32 or u32 as bits) at word `at` of buffer `name`.
         let write_at = |name: &str, at: usize, words: &[u32]| -> Result<()> {
@@ -878,7 +914,26 @@ impl GpuStepper {
             write("exact_slave_vertices", &t.slave_vertices)?;
             write("exact_slave_weights", bits(&t.slave_weights))?;
         }
+        let trip = RoundTrip {
+            drain: drained,
+            read: read - drained,
+            activate: activated - read,
+            write: clock.elapsed().as_secs_f64() - activated,
+            changed: out.changed,
+        };
+        if twin.round_trips.len() == ROUND_TRIPS_KEPT {
+            twin.round_trips.pop_front();
+        }
+        twin.round_trips.push_back(trip);
         self.ctx.check_errors()
+    }
+
+    /// Design 8 under the tool: the last activations' round trips to the CPU twin (at most
+    /// 4,096, oldest first); None when this stepper's activations run on the GPU.
+    pub fn exact_round_trips(&self) -> Option<Vec<RoundTrip>> {
+        self.exact_twin
+            .as_ref()
+            .map(|t| t.round_trips.iter().copied().collect())
     }
 
     /// Run a single stage on the current buffers and wait (tests, bisecting a mismatch).
