@@ -60,6 +60,9 @@ pub(crate) struct ExactArrays {
     /// Per slot p·4 + corner, the tangent term's force on that corner of p's host tet, packed
     /// xyz, N (zero outside S).
     pub tangent: Vec<f32>,
+    /// The particles the last activation that changed the sets took out of S, whose tangent
+    /// forces it zeroed (what a GPU stepper's CPU twin has it zero too).
+    pub left_stress: Vec<u32>,
 }
 
 impl ExactArrays {
@@ -83,6 +86,7 @@ impl ExactArrays {
         for a in [&mut into.delta, &mut into.host_force, &mut into.tangent] {
             a.clear();
         }
+        into.left_stress.clear();
     }
 
     /// Take back what [`Self::save_into`] kept; the per-step arrays become zero, which is
@@ -124,6 +128,7 @@ impl ExactArrays {
             host_force: vec![0.0; 3 * n],
             gather_slots: (vec![0; model.n_vertices() + 1], Vec::new()),
             tangent: vec![0.0; 12 * n],
+            left_stress: Vec::new(),
         })
     }
 }

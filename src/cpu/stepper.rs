@@ -1410,15 +1410,17 @@ impl CpuStepper {
                 1.0 / mass
             };
         }
+        let mut left = std::mem::take(&mut x.left_stress);
+        left.clone_from(&pa.act.stress_list);
         pa.mark_sets_and_compact(n, mode::DYNAMIC | mode::BLENDING);
         x.delta.iter_mut().for_each(|d| *d = 0.0);
         // The gather adds every force-set slot's tangent force; only S's are written each
-        // step: a particle that has left S keeps none.
-        for &q in &pa.act.force_list {
-            if pa.state.mode[q as usize] & mode::IN_S == 0 {
-                x.tangent[12 * q as usize..12 * q as usize + 12].fill(0.0);
-            }
+        // step, so only S's can be nonzero: a particle that has left S keeps none.
+        left.retain(|&q| pa.state.mode[q as usize] & mode::IN_S == 0);
+        for &q in &left {
+            x.tangent[12 * q as usize..12 * q as usize + 12].fill(0.0);
         }
+        x.left_stress = left;
         super::exact_stages::force_set_slots(
             m,
             pd,

@@ -277,7 +277,8 @@ struct ExactTwin {
     model: Arc<Model>,
     /// The plan position of `ActivateExact`, which batches do not record.
     at: usize,
-    /// 3 zeros per particle: δ after an activation that changed the sets.
+    /// 12 zeros per particle: δ after an activation that changed the sets (3 per particle),
+    /// and the tangent forces of the particles that left S (12 each).
     zeros: Vec<u32>,
     /// The last activations' round trips, oldest first.
     round_trips: VecDeque<RoundTrip>,
@@ -444,7 +445,7 @@ impl GpuStepper {
             stepper.check_neighbour_lists(&twin)?;
             stepper.exact_twin = Some(ExactTwin {
                 stepper: Box::new(twin),
-                zeros: vec![0; 3 * stepper.n_particles as usize],
+                zeros: vec![0; 12 * stepper.n_particles as usize],
                 model,
                 at,
                 round_trips: VecDeque::new(),
@@ -798,7 +799,6 @@ impl GpuStepper {
             ("particle_timer", n),
             ("particle_offset", 3 * n),
             ("exact_vertex_timer", nv),
-            ("exact_tangent", 12 * n),
             ("tool_state", tool_len),
         ])?;
         let mut rest = &all[..];
@@ -811,7 +811,7 @@ impl GpuStepper {
         let (pu, pv) = (next(3 * n), next(3 * n));
         let mode: &[u32] = bytemuck::cast_slice(next(n));
         let (timer, offset) = (next(n), next(3 * n));
-        let (vertex_timer, tangent) = (next(nv), next(12 * n));
+        let vertex_timer = next(nv);
         let tool = next(tool_len);
         if tool.len() != tool_len {
             return Err(PalpateError::Internal("the tool state was not read".into()));
@@ -827,7 +827,6 @@ impl GpuStepper {
             particle_offset: offset,
             tool_state,
             vertex_timer,
-            tangent,
             steps_done: step,
         };
         let twin = self
@@ -901,8 +900,21 @@ impl GpuStepper {
             write("contact_weight", bits(out.contact_weight))?;
             write("exact_vertex_offset", bits(out.vertex_offset))?;
             write("exact_vertex_timer", bits(out.vertex_timer))?;
-            write("exact_tangent", bits(out.tangent))?;
-            write("exact_delta", &twin.zeros)?;
+            // The particles that left S lose their tangent forces, in runs of consecutive
+            // indices.
+            let mut left = out.left_stress.to_vec();
+            left.sort_unstable();
+            let mut k = 0;
+            while k < left.len() {
+                let mut end = k + 1;
+                while end < left.len() && left[end] == left[end - 1] + 1 {
+                    end += 1;
+                }
+                let run = 12 * (end - k);
+                write_at("exact_tangent", 12 * left[k] as usize, &twin.zeros[..run])?;
+                k = end;
+            }
+            write("exact_delta", &twin.zeros[..3 * n])?;
             let t = crate::gpu::groups::ExactTables::of(&twin.model, out.slaving)
                 .ok_or_else(|| PalpateError::Internal("design 8 without particles".into()))?;
             write("exact_mass", bits(&t.mass))?;

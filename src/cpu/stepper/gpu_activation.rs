@@ -33,8 +33,6 @@ pub struct ExactActivationInput<'a> {
     pub tool_state: ToolState,
     /// The slaved vertices' offset clocks, s (`exact_vertex_timer`).
     pub vertex_timer: &'a [f32],
-    /// The tangent corner forces, N (`exact_tangent`).
-    pub tangent: &'a [f32],
     /// Steps done before this activation's step (named in an error).
     pub steps_done: u64,
 }
@@ -82,8 +80,10 @@ pub struct ExactActivationOutput<'a> {
     pub vertex_offset: &'a [f32],
     /// Their clocks, s (`exact_vertex_timer`).
     pub vertex_timer: &'a [f32],
-    /// The tangent corner forces, the force set's outside S zeroed (`exact_tangent`).
-    pub tangent: &'a [f32],
+    /// The particles this activation took out of S: their 12 tangent corner forces each
+    /// become zero in `exact_tangent` (only S's are ever nonzero, and S's the next
+    /// `exact_stress` rewrites, so the twin neither reads nor returns the array).
+    pub left_stress: &'a [u32],
 }
 
 impl CpuStepper {
@@ -110,7 +110,6 @@ impl CpuStepper {
         ps.timer.copy_from_slice(input.particle_timer);
         ps.offset.copy_from_slice(input.particle_offset);
         x.offsets.timer.copy_from_slice(input.vertex_timer);
-        x.tangent.copy_from_slice(input.tangent);
         self.tool.state = input.tool_state;
         self.steps_done = input.steps_done;
         let unchanged = pa.activations.unchanged;
@@ -145,7 +144,7 @@ impl CpuStepper {
             slaving: &x.slaving,
             vertex_offset: &x.offsets.offset,
             vertex_timer: &x.offsets.timer,
-            tangent: &x.tangent,
+            left_stress: &x.left_stress,
         }))
     }
 }
