@@ -20,6 +20,8 @@
 #   bash benches/real_gpu.sh round       # the GPU tests, design 8 under the tool (hm1_exact on
 #                                        # both backends, its GPU stages and round trips to the
 #                                        # CPU twin), fusion, and gpu_vs_cpu on 8 threads 8 times
+#   bash benches/real_gpu.sh trip        # the GPU tests, design 8's round trips against
+#                                        # .devbin/old.tgz's profile_stages, hm1 with nothing awake
 #   bash benches/real_gpu.sh hang        # the GPU tests, then gpu_vs_cpu on 8 threads with one
 #                                        # device per binary and with one per test, 6 runs each
 # (calls of about five minutes each; each writes $OUT/log.txt).
@@ -161,6 +163,30 @@ fi
 
 if [ "${1:-}" = "round" ]; then
   { gpu_tests; design_8; fusion; hang_check 8 shared; section "done"; } 2>&1 | tee -a "$log"
+  exit 0
+fi
+
+# Design 8's GPU stages and round trips at t = 3.5 from .devbin/old.tgz's profile_stages
+# (the build before a change) and this build's, alternating, two rounds; then what hm1 and
+# its core alone cost with the tool gone (t = 8, nothing awake).
+round_trip_ab() {
+  mkdir -p .devbin/old && tar xzf .devbin/old.tgz -C .devbin/old
+  for round in 1 2; do
+    for v in old new; do
+      d=$B; [ $v = old ] && d=$PWD/.devbin/old/bin
+      section "round $round, $v: hm1_exact GPU stages and round trips, t = 3.5"
+      timeout 60 "$d/profile_stages" hm1_exact 3.5 200 gpu 2>&1 | tail -30
+    done
+  done
+  awk '/^\[particles\]/{skip=1;next} /^\[/{skip=0} !skip' scenes/hm1.toml > /tmp/hm1core.toml
+  for s in hm1 /tmp/hm1core.toml; do
+    section "$s GPU stages, tool gone (t = 8)"
+    timeout 60 "$B/profile_stages" $s 8 100 gpu 2>&1 | tail -17
+  done
+}
+
+if [ "${1:-}" = "trip" ]; then
+  { gpu_tests; round_trip_ab; section "done"; } 2>&1 | tee -a "$log"
   exit 0
 fi
 
