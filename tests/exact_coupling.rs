@@ -1693,6 +1693,19 @@ fn design_8s_gpu_activations_match_the_cpu_and_restore_exactly() {
         "the tool did not wake particles and let them go: {counts:?}"
     );
     eprintln!("largest on the CPU over the run: {largest:?}");
+    // One round trip to the twin per activation, timed in parts; those that changed a set
+    // are the twin's activations that did.
+    let trips = gpu
+        .exact_round_trips()
+        .expect("design 8 under the tool activates on the CPU twin");
+    let (changed, unchanged) = gpu.activation_counts().unwrap();
+    let interval = scene.particles.as_ref().unwrap().activation_interval as u32;
+    assert_eq!(trips.len(), (BATCHES * BATCH).div_ceil(interval) as usize);
+    assert_eq!(trips.len(), (changed + unchanged) as usize);
+    assert_eq!(trips.iter().filter(|t| t.changed).count(), changed as usize);
+    assert!(trips
+        .iter()
+        .all(|t| t.drain >= 0.0 && t.read > 0.0 && t.activate > 0.0 && t.write >= 0.0));
     assert!(
         largest["exact_vertex_offset"] > 1e-9,
         "no vertex was slaved off its fit: {largest:?}"
