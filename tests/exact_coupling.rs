@@ -1699,7 +1699,7 @@ fn design_8s_gpu_activations_match_the_cpu_and_restore_exactly() {
         .exact_round_trips()
         .expect("design 8 under the tool activates on the CPU twin");
     let (changed, unchanged) = gpu.activation_counts().unwrap();
-    let interval = scene.particles.as_ref().unwrap().activation_interval as u32;
+    let interval = scene.particles.as_ref().unwrap().activation_interval;
     assert_eq!(trips.len(), (BATCHES * BATCH).div_ceil(interval) as usize);
     assert_eq!(trips.len(), (changed + unchanged) as usize);
     assert_eq!(trips.iter().filter(|t| t.changed).count(), changed as usize);
