@@ -27,6 +27,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let name = args.first().map_or("hm1", |s| s.as_str());
     let hold_time: f64 = args.get(1).map_or(Ok(3.5), |s| s.parse())?;
     let steps: u32 = args.get(2).map_or(Ok(200), |s| s.parse())?;
+    if steps == 0 {
+        return Err("steps: at least 1".into());
+    }
     let on_gpu = args.get(3).is_some_and(|s| s == "gpu");
     let scene = Scene::load(name)?;
     let sim = Simulation::new(&scene, Backend::Cpu, SimOptions::default())?;
@@ -38,7 +41,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let held = press(&mut g, &scene, sim.dt, hold_time)?;
         let (full, skipped) = g.activation_counts()?;
         println!("activations during the press: {full} full, {skipped} skipped by the gate (no particle became or stopped being dynamic)");
-        if let Some(trips) = g.exact_round_trips() {
+        if let Some(trips) = g.take_exact_round_trips() {
             print_round_trips("during the press", &trips);
         }
         // Whole steps as batches run them (the CPU twin's round trips included), after one
@@ -50,7 +53,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         };
         g.submit(10, &input)?;
         g.wait()?;
-        let before = g.exact_round_trips().map_or(0, |t| t.len());
+        g.take_exact_round_trips();
         let batches = steps.div_ceil(10);
         let start = std::time::Instant::now();
         for _ in 0..batches {
@@ -61,8 +64,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         println!(
             "whole steps, batches of 10 each submitted and waited for: {whole:.1} µs per step"
         );
-        if let Some(trips) = g.exact_round_trips() {
-            print_round_trips("during those steps", &trips[before.min(trips.len())..]);
+        if let Some(trips) = g.take_exact_round_trips() {
+            print_round_trips("during those steps", &trips);
         }
         let times = g
             .profile_stages(steps)?

@@ -91,8 +91,8 @@ impl ExactArrays {
 
     /// Take back what [`Self::save_into`] kept; the per-step arrays become zero, which is
     /// what they hold where they are read before a step writes them: δ outside the δ list,
-    /// and the tangent forces of the force set's particles outside S (an activation zeroes
-    /// those). The next step writes the rest before reading it.
+    /// and the tangent forces outside S (an activation zeroes those of the particles leaving
+    /// S). The next step writes the rest before reading it.
     pub fn restore_from(&mut self, saved: &ExactArrays) {
         let (n_delta, n_tangent) = (self.delta.len(), self.tangent.len());
         let (mut delta, mut host, mut tangent) = (

@@ -284,7 +284,7 @@ struct ExactTwin {
     round_trips: VecDeque<RoundTrip>,
 }
 
-/// One design 8 activation done on the CPU twin ([`GpuStepper::exact_round_trips`]), seconds
+/// One design 8 activation done on the CPU twin ([`GpuStepper::take_exact_round_trips`]), seconds
 /// of wall clock on the stepping thread.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct RoundTrip {
@@ -309,7 +309,7 @@ impl RoundTrip {
     }
 }
 
-/// How many round trips [`GpuStepper::exact_round_trips`] keeps.
+/// How many round trips [`GpuStepper::take_exact_round_trips`] keeps.
 const ROUND_TRIPS_KEPT: usize = 4096;
 
 impl GpuStepper {
@@ -940,12 +940,13 @@ impl GpuStepper {
         self.ctx.check_errors()
     }
 
-    /// Design 8 under the tool: the last activations' round trips to the CPU twin (at most
-    /// 4,096, oldest first); None when this stepper's activations run on the GPU.
-    pub fn exact_round_trips(&self) -> Option<Vec<RoundTrip>> {
+    /// Design 8 under the tool: the round trips to the CPU twin since the last call (the last
+    /// 4,096 at most, oldest first), which it forgets; None when this stepper's activations
+    /// run on the GPU.
+    pub fn take_exact_round_trips(&mut self) -> Option<Vec<RoundTrip>> {
         self.exact_twin
-            .as_ref()
-            .map(|t| t.round_trips.iter().copied().collect())
+            .as_mut()
+            .map(|t| t.round_trips.drain(..).collect())
     }
 
     /// Run a single stage on the current buffers and wait (tests, bisecting a mismatch).
