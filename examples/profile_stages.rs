@@ -65,7 +65,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
         let per_step = |s: f64| s * 1e6 / (10 * batches) as f64;
         println!(
-            "whole steps, batches of 10 each submitted and waited for: {:.1} µs per step, of which {:.1} recording and submitting them on the CPU",
+            "whole steps, batches of 10 each submitted and waited for: {:.1} µs per step, of which {:.1} in submit on the CPU (recording and submitting; with batches recorded ahead, recording the next while the GPU runs this one)",
             per_step(start.elapsed().as_secs_f64()),
             per_step(submitting)
         );

@@ -2441,6 +2441,84 @@ fn fused_gpu_passes_equal_the_plan_s() {
     );
 }
 
+/// A GPU stepper records the next batch while the GPU runs the one it submitted, where nothing
+/// else is in flight (`GpuStepper::set_prerecord`), and uses it when the next submission asks
+/// for the same batch. Through the press, hold, withdrawal and wait, against a stepper that
+/// records every batch at its submission, with what would make a batch recorded ahead wrong
+/// (another step count, the fused passes switched off, a restore to an earlier step, two
+/// batches in flight), the two hold the same bits and reports after every batch, and most
+/// batches were recorded ahead.
+#[test]
+fn batches_recorded_ahead_equal_batches_recorded_at_submission() {
+    let m = Arc::new(Model::from_scene(&pressed_block()));
+    let k = m.particles.as_ref().unwrap().settings.activation_interval;
+    let params = m.step_params(0.5 * m.bounds.dt_bound, 50.0);
+    let mut ahead = GpuStepper::new(gpu(), &m, params).unwrap();
+    ahead.set_prerecord(true);
+    let mut fresh = GpuStepper::new(gpu(), &m, params).unwrap();
+    fresh.set_prerecord(false);
+    let names = [
+        "displacements",
+        "velocities",
+        "particle_displacements",
+        "particle_velocities",
+        "particle_mode",
+        "particle_timer",
+        "status",
+    ];
+    let inputs = press_hold_withdraw_wait(6);
+    let batches = inputs.len() as u32;
+    for (i, input) in inputs.iter().enumerate() {
+        let i = i as u32;
+        // Every fifth batch is shorter (the one recorded ahead has k steps).
+        let steps = if i % 5 == 4 { k / 2 + 1 } else { k };
+        if i == 2 {
+            ahead.checkpoint().unwrap();
+            fresh.checkpoint().unwrap();
+        }
+        if i == batches / 2 {
+            for s in [&mut ahead, &mut fresh] {
+                s.set_fusion(false);
+            }
+        }
+        let reports: Vec<String> = if i == batches - 2 {
+            // Two in flight: the second submission finds the first's batch ahead.
+            [&mut ahead, &mut fresh]
+                .into_iter()
+                .map(|s| {
+                    s.submit(steps, input).unwrap();
+                    s.submit(steps, input).unwrap();
+                    format!("{:?} {:?}", s.wait().unwrap(), s.wait().unwrap())
+                })
+                .collect()
+        } else {
+            [&mut ahead, &mut fresh]
+                .into_iter()
+                .map(|s| {
+                    s.submit(steps, input).unwrap();
+                    format!("{:?}", s.wait().unwrap())
+                })
+                .collect()
+        };
+        assert_eq!(reports[0], reports[1], "reports after batch {i}");
+        assert_same_buffers(&ahead, &fresh, &names, &format!("after batch {i}"));
+        if i == 5 {
+            // Back to the checkpoint while the tool presses, to a step count whose place
+            // among the activation steps (every k) is not the batch recorded ahead's.
+            ahead.restore().unwrap();
+            fresh.restore().unwrap();
+            assert_same_buffers(&ahead, &fresh, &names, &format!("restored at batch {i}"));
+        }
+    }
+    assert_eq!(fresh.batches_recorded_ahead(), 0);
+    let used = ahead.batches_recorded_ahead();
+    eprintln!("{used} of {batches} batches (and one more) were recorded ahead");
+    assert!(
+        used >= batches as u64 / 2,
+        "only {used} of {batches} batches were recorded ahead"
+    );
+}
+
 /// [`fused_gpu_passes_equal_the_plan_s`] at one step: batches of `steps` steps, `n` a leg of
 /// the press; (the most dynamic particles, whether one blended back).
 fn fused_against_plain(

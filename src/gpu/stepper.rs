@@ -241,6 +241,13 @@ pub struct GpuStepper {
     fused_stage: Vec<Option<usize>>,
     /// Whether batches record the fused dispatches (`PALPATE_GPU_FUSION=0` turns them off).
     fusion: bool,
+    /// Whether `submit` records the next batch while the GPU runs the one it submitted
+    /// ([`Ahead`]; `PALPATE_GPU_PRERECORD=0` turns it off).
+    prerecord: bool,
+    /// The batch recorded ahead, for the `submit` that asks for it.
+    ahead: Option<Ahead>,
+    /// How many submitted batches had been recorded ahead.
+    ahead_used: u64,
     model_particles: Option<crate::gpu::groups::ParticleTables>,
     /// The follower uniform (None without follower pressures).
     follower_load: Option<crate::cpu::follower_pressure::FollowerLoad>,
@@ -268,6 +275,25 @@ pub struct GpuStepper {
     exact_twin: Option<ExactTwin>,
     /// Where an activation on the CPU twin reads the GPU's arrays into.
     staging: Option<wgpu::Buffer>,
+}
+
+/// A batch recorded while the GPU ran the one before it. A batch's commands depend only on
+/// where it starts, how many steps it takes, its readback slot and whether the fused
+/// dispatches are recorded (the tool's motion, the parameters and the state are buffers
+/// written before its submission), so `submit` uses it when it asks for the same batch, and
+/// records afresh otherwise. On a real GPU a step is short enough that recording a batch on
+/// the CPU (several µs per dispatch) would otherwise add to every batch waited for.
+struct Ahead {
+    /// Steps done before the batch.
+    first: u64,
+    steps: u32,
+    /// Its ring slot.
+    slot: usize,
+    /// Whether it records the fused dispatches.
+    fusion: bool,
+    commands: wgpu::CommandBuffer,
+    /// Runs of each plan stage.
+    runs: Vec<u32>,
 }
 
 /// The CPU stepper beside a GPU stepper whose design 8 activations re-slave on the CPU, and
@@ -429,6 +455,9 @@ impl GpuStepper {
             readback_state: None,
             exact_twin: None,
             staging: None,
+            prerecord: std::env::var("PALPATE_GPU_PRERECORD").map_or(true, |v| v != "0"),
+            ahead: None,
+            ahead_used: 0,
             ctx,
         };
         if exact_activates_on_cpu(model) {
@@ -590,6 +619,19 @@ impl GpuStepper {
         self.fusion = on;
     }
 
+    /// Record each batch when it is submitted (`false`), or also the next one while the GPU
+    /// runs it where nothing else is in flight (`true`, the default unless
+    /// `PALPATE_GPU_PRERECORD=0`: [`Ahead`]). The same commands either way.
+    pub fn set_prerecord(&mut self, on: bool) {
+        self.prerecord = on;
+        self.ahead = None;
+    }
+
+    /// How many submitted batches had been recorded ahead ([`Self::set_prerecord`]).
+    pub fn batches_recorded_ahead(&self) -> u64 {
+        self.ahead_used
+    }
+
     /// The fused dispatches batches record now: (host, rider) in plan order (empty with the
     /// fusion off, or where none was built).
     pub fn fused_passes(&self) -> Vec<(Stage, Stage)> {
@@ -679,7 +721,7 @@ impl GpuStepper {
                 }
                 *run += 1;
                 if on_cpu == Some(k) {
-                    self.record_range(encoder, steps, from, (s, k))?;
+                    self.record_range(encoder, (self.steps_done, steps), from, (s, k))?;
                     let done = std::mem::replace(
                         encoder,
                         self.ctx.device.create_command_encoder(&Default::default()),
@@ -690,7 +732,7 @@ impl GpuStepper {
                 }
             }
         }
-        self.record_range(encoder, steps, from, (steps, 0))?;
+        self.record_range(encoder, (self.steps_done, steps), from, (steps, 0))?;
         for (c, r) in self.counts.iter_mut().zip(runs) {
             c.1 = r;
         }
@@ -698,13 +740,58 @@ impl GpuStepper {
         Ok(())
     }
 
-    /// Record, as one compute pass, the stages of a `steps`-step batch from (step, plan
-    /// position) `from` up to but not including `to`; the CPU twin's `ActivateExact` is never
+    fn batch_encoder(&self) -> wgpu::CommandEncoder {
+        self.ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("batch"),
+            })
+    }
+
+    /// Copy what a batch reports into ring slot `slot`.
+    fn record_report_copies(&self, enc: &mut wgpu::CommandEncoder, slot: usize) -> Result<()> {
+        for &(name, offset, size) in &self.report_layout {
+            enc.copy_buffer_to_buffer(
+                self.buffers.require(name)?,
+                0,
+                &self.ring[slot].buffer,
+                offset,
+                size,
+            );
+        }
+        Ok(())
+    }
+
+    /// The next batch of `steps` steps, recorded now ([`Ahead`]; not under a CPU twin).
+    fn record_ahead(&self, steps: u32) -> Result<Ahead> {
+        let (first, slot) = (self.steps_done, self.next_slot);
+        let runs = (0..self.plan.stages.len())
+            .map(|k| {
+                (0..steps)
+                    .filter(|&s| self.plan.stages[k].runs_at(first + s as u64, s, steps))
+                    .count() as u32
+            })
+            .collect();
+        let mut enc = self.batch_encoder();
+        self.record_range(&mut enc, (first, steps), (0, 0), (steps, 0))?;
+        self.record_report_copies(&mut enc, slot)?;
+        Ok(Ahead {
+            first,
+            steps,
+            slot,
+            fusion: self.fusion,
+            commands: enc.finish(),
+            runs,
+        })
+    }
+
+    /// Record, as one compute pass, the stages of the `steps`-step batch that starts after
+    /// `first` steps, from (step, plan position) `from` up to but not including `to`; the CPU twin's `ActivateExact` is never
     /// recorded.
     fn record_range(
         &self,
         encoder: &mut wgpu::CommandEncoder,
-        steps: u32,
+        (first, steps): (u64, u32),
         from: (u32, usize),
         to: (u32, usize),
     ) -> Result<()> {
@@ -719,7 +806,7 @@ impl GpuStepper {
                 if here < from || here >= to || on_cpu == Some(k) {
                     continue;
                 }
-                if self.plan.stages[k].runs_at(self.steps_done + s as u64, s, steps) {
+                if self.plan.stages[k].runs_at(first + s as u64, s, steps) {
                     if let Some(b) = self.recorded_at(k) {
                         self.record_stage_at(&mut pass, b)?;
                     }
@@ -1258,25 +1345,30 @@ impl Stepper for GpuStepper {
             );
         }
         self.tool_at = to;
-        let mut enc = self
-            .ctx
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("batch"),
-            });
-        self.record_batch(&mut enc, steps)?;
         let slot = self.next_slot;
+        let (first, fusion) = (self.steps_done, self.fusion);
+        let ahead = self
+            .ahead
+            .take()
+            .filter(|a| (a.first, a.steps, a.slot, a.fusion) == (first, steps, slot, fusion));
+        let commands = match ahead {
+            Some(a) => {
+                for (c, &r) in self.counts.iter_mut().zip(&a.runs) {
+                    c.1 = r;
+                }
+                self.steps_done += steps as u64;
+                self.ahead_used += 1;
+                a.commands
+            }
+            None => {
+                let mut enc = self.batch_encoder();
+                self.record_batch(&mut enc, steps)?;
+                self.record_report_copies(&mut enc, slot)?;
+                enc.finish()
+            }
+        };
         self.next_slot = (self.next_slot + 1) % RING;
-        for &(name, offset, size) in &self.report_layout {
-            enc.copy_buffer_to_buffer(
-                self.buffers.require(name)?,
-                0,
-                &self.ring[slot].buffer,
-                offset,
-                size,
-            );
-        }
-        self.ctx.queue.submit([enc.finish()]);
+        self.ctx.queue.submit([commands]);
         let flag = self.ring[slot].mapped.clone();
         self.ring[slot]
             .buffer
@@ -1292,6 +1384,12 @@ impl Stepper for GpuStepper {
             steps,
             tool_to: to,
         });
+        // The caller will wait for this batch before the next (nothing else in flight):
+        // record the next one, of as many steps, while the GPU runs this. Not under design 8
+        // with the tool, whose batches stop at each activation for the CPU twin.
+        if self.prerecord && self.exact_twin.is_none() && self.in_flight.len() == 1 {
+            self.ahead = Some(self.record_ahead(steps)?);
+        }
         self.ctx.check_errors()
     }
 
