@@ -22,6 +22,8 @@
 #                                        # CPU twin), fusion, and gpu_vs_cpu on 8 threads 8 times
 #   bash benches/real_gpu.sh trip        # the GPU tests, design 8's round trips against
 #                                        # .devbin/old.tgz's profile_stages, hm1 with nothing awake
+#   bash benches/real_gpu.sh prerecord   # batches recorded ahead on and off (same binary):
+#                                        # hybrid_step's GPU tables, hm1's and its core's steps
 #   bash benches/real_gpu.sh hang        # the GPU tests, then gpu_vs_cpu on 8 threads with one
 #                                        # device per binary and with one per test, 6 runs each
 # (calls of about five minutes each; each writes $OUT/log.txt).
@@ -184,6 +186,26 @@ round_trip_ab() {
     timeout 60 "$B/profile_stages" $s 8 100 gpu 2>&1 | tail -17
   done
 }
+
+# Batches recorded ahead on and off in the same binary (PALPATE_GPU_PRERECORD): hybrid_step's
+# GPU ratio tables and the whole steps of hm1 and its core alone, two rounds alternating.
+prerecord() {
+  awk '/^\[particles\]/{skip=1;next} /^\[/{skip=0} !skip' scenes/hm1.toml > /tmp/hm1core.toml
+  for round in 1 2; do
+    for v in 0 1; do
+      section "round $round, PALPATE_GPU_PRERECORD=$v: hybrid_step GPU ratio tables"
+      PALPATE_GPU_PRERECORD=$v PALPATE_BENCH_BACKENDS=gpu timeout 120 "$B/hybrid_step" --bench no_criterion_group_matches 2>&1 | grep "|"
+      for s in hm1 /tmp/hm1core.toml; do
+        echo "$s: $(PALPATE_GPU_PRERECORD=$v timeout 60 "$B/profile_stages" $s 3.5 200 gpu 2>&1 | grep whole)"
+      done
+    done
+  done
+}
+
+if [ "${1:-}" = "prerecord" ]; then
+  { prerecord; section "done"; } 2>&1 | tee -a "$log"
+  exit 0
+fi
 
 if [ "${1:-}" = "trip" ]; then
   { gpu_tests; round_trip_ab; section "done"; } 2>&1 | tee -a "$log"
