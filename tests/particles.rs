@@ -2479,6 +2479,8 @@ fn batches_recorded_ahead_equal_batches_recorded_at_submission() {
         if i == batches / 2 {
             for s in [&mut ahead, &mut fresh] {
                 s.set_fusion(false);
+                // Parameters are a buffer written at submission: the batch ahead stands.
+                s.set_params(&params).unwrap();
             }
         }
         let reports: Vec<String> = if i == batches - 2 {
@@ -2501,6 +2503,11 @@ fn batches_recorded_ahead_equal_batches_recorded_at_submission() {
                 .collect()
         };
         assert_eq!(reports[0], reports[1], "reports after batch {i}");
+        assert_eq!(
+            ahead.stage_counts(),
+            fresh.stage_counts(),
+            "stage runs of batch {i}"
+        );
         assert_same_buffers(&ahead, &fresh, &names, &format!("after batch {i}"));
         if i == 5 {
             // Back to the checkpoint while the tool presses, to a step count whose place

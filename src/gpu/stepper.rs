@@ -1387,8 +1387,10 @@ impl Stepper for GpuStepper {
         // The caller will wait for this batch before the next (nothing else in flight):
         // record the next one, of as many steps, while the GPU runs this. Not under design 8
         // with the tool, whose batches stop at each activation for the CPU twin.
+        // A failure here leaves the next batch to be recorded at its submission (where the
+        // same failure, if it is one, is reported).
         if self.prerecord && self.exact_twin.is_none() && self.in_flight.len() == 1 {
-            self.ahead = Some(self.record_ahead(steps)?);
+            self.ahead = self.record_ahead(steps).ok();
         }
         self.ctx.check_errors()
     }
