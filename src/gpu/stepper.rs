@@ -1236,6 +1236,9 @@ impl GpuStepper {
         match slot.mapped.load(Ordering::Acquire) {
             SLOT_PENDING => Ok(None),
             SLOT_FAILED => {
+                // The slot is free again (a failed mapping leaves it unmapped): a later batch
+                // that takes it must not read this failure as its own.
+                slot.mapped.store(SLOT_PENDING, Ordering::Release);
                 self.in_flight.pop_front();
                 Err(PalpateError::Gpu("mapping a readback slot failed".into()))
             }
