@@ -1593,9 +1593,8 @@ fn design_8s_trajectories_match_on_both_backends() {
 /// arrays (δ, the hosts' forces, the tangent forces, the slaved vertices' offsets and clocks)
 /// agree within 1e-4 of the largest the CPU's has held so far (the offsets, δ and the tangent
 /// forces, differences, or within 1e-6 of the largest displacement, particle displacement or
-/// host force, where that is larger), the modes are the same, and no
-/// particle outside S keeps a tangent force; some vertex is slaved off its
-/// fit (a fading offset). A restore on the GPU (its buffers, the twin's slaving, sets and
+/// host force, where that is larger), the modes are the same, and no particle outside S keeps
+/// a tangent force; some vertex is slaved off its fit (a fading offset). A restore on the GPU (its buffers, the twin's slaving, sets and
 /// offsets) from a checkpoint between two activations repeats the run bit for bit, across
 /// activations that change the set, with three batches in flight at a time.
 #[test]

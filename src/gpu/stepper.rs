@@ -292,8 +292,6 @@ struct Ahead {
     /// Whether it records the fused dispatches.
     fusion: bool,
     commands: wgpu::CommandBuffer,
-    /// Runs of each plan stage.
-    runs: Vec<u32>,
 }
 
 /// The CPU stepper beside a GPU stepper whose design 8 activations re-slave on the CPU, and
@@ -310,8 +308,8 @@ struct ExactTwin {
     round_trips: VecDeque<RoundTrip>,
 }
 
-/// One design 8 activation done on the CPU twin ([`GpuStepper::take_exact_round_trips`]), seconds
-/// of wall clock on the stepping thread.
+/// One design 8 activation done on the CPU twin ([`GpuStepper::take_exact_round_trips`]),
+/// seconds of wall clock on the stepping thread.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct RoundTrip {
     /// Waiting for the GPU to finish the steps recorded before the activation.
@@ -710,34 +708,50 @@ impl GpuStepper {
     /// for, the CPU twin activates ([`Self::activate_on_cpu`]), and the rest goes into a new
     /// encoder that replaces `encoder`.
     fn record_batch(&mut self, encoder: &mut wgpu::CommandEncoder, steps: u32) -> Result<()> {
-        self.counts.iter_mut().for_each(|(_, c)| *c = 0);
-        let mut runs = vec![0u32; self.plan.stages.len()];
-        let on_cpu = self.exact_twin.as_ref().map(|t| t.at);
-        let mut from = (0, 0);
-        for s in 0..steps {
-            for (k, run) in runs.iter_mut().enumerate() {
-                if !self.plan.stages[k].runs_at(self.steps_done + s as u64, s, steps) {
-                    continue;
-                }
-                *run += 1;
-                if on_cpu == Some(k) {
-                    self.record_range(encoder, (self.steps_done, steps), from, (s, k))?;
+        let first = self.steps_done;
+        if let Some(at) = self.exact_twin.as_ref().map(|t| t.at) {
+            let mut from = (0, 0);
+            for s in 0..steps {
+                if self.plan.stages[at].runs_at(first + s as u64, s, steps) {
+                    self.record_range(encoder, (first, steps), from, (s, at))?;
                     let done = std::mem::replace(
                         encoder,
                         self.ctx.device.create_command_encoder(&Default::default()),
                     );
                     self.ctx.queue.submit([done.finish()]);
-                    self.activate_on_cpu(self.steps_done + s as u64)?;
-                    from = (s, k + 1);
+                    self.activate_on_cpu(first + s as u64)?;
+                    from = (s, at + 1);
                 }
             }
+            self.record_range(encoder, (first, steps), from, (steps, 0))?;
+        } else {
+            self.record_range(encoder, (first, steps), (0, 0), (steps, 0))?;
         }
-        self.record_range(encoder, (self.steps_done, steps), from, (steps, 0))?;
+        self.count_batch(first, steps);
+        Ok(())
+    }
+
+    /// The runs of each plan stage in the `steps`-step batch that starts after `first` steps.
+    fn stage_runs(&self, first: u64, steps: u32) -> Vec<u32> {
+        self.plan
+            .stages
+            .iter()
+            .map(|p| {
+                (0..steps)
+                    .filter(|&s| p.runs_at(first + s as u64, s, steps))
+                    .count() as u32
+            })
+            .collect()
+    }
+
+    /// A batch of `steps` steps after `first` was recorded: its stage runs, and the steps
+    /// done.
+    fn count_batch(&mut self, first: u64, steps: u32) {
+        let runs = self.stage_runs(first, steps);
         for (c, r) in self.counts.iter_mut().zip(runs) {
             c.1 = r;
         }
-        self.steps_done += steps as u64;
-        Ok(())
+        self.steps_done = first + steps as u64;
     }
 
     fn batch_encoder(&self) -> wgpu::CommandEncoder {
@@ -765,13 +779,6 @@ impl GpuStepper {
     /// The next batch of `steps` steps, recorded now ([`Ahead`]; not under a CPU twin).
     fn record_ahead(&self, steps: u32) -> Result<Ahead> {
         let (first, slot) = (self.steps_done, self.next_slot);
-        let runs = (0..self.plan.stages.len())
-            .map(|k| {
-                (0..steps)
-                    .filter(|&s| self.plan.stages[k].runs_at(first + s as u64, s, steps))
-                    .count() as u32
-            })
-            .collect();
         let mut enc = self.batch_encoder();
         self.record_range(&mut enc, (first, steps), (0, 0), (steps, 0))?;
         self.record_report_copies(&mut enc, slot)?;
@@ -781,13 +788,12 @@ impl GpuStepper {
             slot,
             fusion: self.fusion,
             commands: enc.finish(),
-            runs,
         })
     }
 
     /// Record, as one compute pass, the stages of the `steps`-step batch that starts after
-    /// `first` steps, from (step, plan position) `from` up to but not including `to`; the CPU twin's `ActivateExact` is never
-    /// recorded.
+    /// `first` steps, from (step, plan position) `from` up to but not including `to`; the CPU
+    /// twin's `ActivateExact` is never recorded.
     fn record_range(
         &self,
         encoder: &mut wgpu::CommandEncoder,
@@ -1356,10 +1362,7 @@ impl Stepper for GpuStepper {
             .filter(|a| (a.first, a.steps, a.slot, a.fusion) == (first, steps, slot, fusion));
         let commands = match ahead {
             Some(a) => {
-                for (c, &r) in self.counts.iter_mut().zip(&a.runs) {
-                    c.1 = r;
-                }
-                self.steps_done += steps as u64;
+                self.count_batch(first, steps);
                 self.ahead_used += 1;
                 a.commands
             }

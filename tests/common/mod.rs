@@ -108,29 +108,28 @@ pub fn run_offsets(a: &[RunPoint], b: &[RunPoint]) -> (Vec<[f64; 3]>, f64) {
     (offsets, scale_f)
 }
 
-/// The test binary's GPU context, or a failure that says how to get a software adapter.
+/// The test binary's GPU context ([`open_gpu`]).
 ///
 /// Every test of a binary shares one device (opened on first use, never torn down before the
 /// process ends): on an NVIDIA H200 (driver 580.159.04) `gpu_vs_cpu` on 8 test threads, each
-/// opening and dropping its own device, hung in 6 of 10 runs on 2026-11-27 and in 4 of 8 on
-/// 2026-11-28 with one instance per process. `PALPATE_TEST_DEVICE=per-test` gives each call
+/// opening and dropping its own device, hung in 6 of 10 runs on 2026-11-27 and in 4 of 8 and
+/// 4 of 6 on 2026-11-28 with one instance per process. `PALPATE_TEST_DEVICE=per-test` gives each call
 /// a device of its own, as before (to compare).
 pub fn gpu() -> Arc<palpate::gpu::GpuContext> {
     static SHARED: std::sync::Mutex<Option<Arc<palpate::gpu::GpuContext>>> =
         std::sync::Mutex::new(None);
-    let open = || {
-        match palpate::gpu::GpuContext::new() {
-        Ok(c) => Arc::new(c),
-        Err(e) => panic!(
-            "GPU tests need an adapter: {e}. On Debian/Ubuntu install the software Vulkan adapter with `sudo apt-get install -y mesa-vulkan-drivers` (lavapipe), or set PALPATE_BACKEND=gl to use llvmpipe through EGL."
-        ),
-    }
-    };
     if std::env::var("PALPATE_TEST_DEVICE").is_ok_and(|v| v == "per-test") {
-        return open();
+        return open_gpu();
     }
     let mut shared = SHARED.lock().unwrap_or_else(|p| p.into_inner());
-    shared.get_or_insert_with(open).clone()
+    shared.get_or_insert_with(open_gpu).clone()
+}
+
+/// A new GPU context, or a failure that says how to get a software adapter.
+fn open_gpu() -> Arc<palpate::gpu::GpuContext> {
+    palpate::gpu::GpuContext::new().map(Arc::new).unwrap_or_else(|e| {
+        panic!("GPU tests need an adapter: {e}. On Debian/Ubuntu install the software Vulkan adapter with `sudo apt-get install -y mesa-vulkan-drivers` (lavapipe), or set PALPATE_BACKEND=gl to use llvmpipe through EGL.")
+    })
 }
 
 /// The values of a binary (base64, UInt64 header) point-data array `name` of a `.vtu` file
