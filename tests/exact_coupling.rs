@@ -1014,6 +1014,78 @@ fn hm1_exact_follows_the_tool_and_switches_without_pops() {
     );
 }
 
+/// Only the stress set S's tangent forces are rewritten each step (before the gather reads
+/// them), and the gather adds every force-set slot's, so an activation must zero those of the
+/// particles leaving S, or one that later sits in the force set outside S would push its host
+/// corners with a stale force. In a real run a particle leaves S only after every δ around it
+/// has faded to exactly zero, so its last tangent force is already zero and a missing zeroing
+/// shows nowhere. Here every particle of S gets a nonzero tangent force after each batch of
+/// hm1_exact's press and withdrawal (a value the next step overwrites while it stays in S):
+/// after every batch no particle outside S carries one, some particles that left S had been
+/// given one (else the check proves nothing), and the run ends bit-equal to one left alone.
+#[test]
+fn particles_leaving_the_stress_set_keep_no_tangent_force() {
+    use palpate::particles::params::mode;
+    use palpate::stepper::Stepper;
+    let scene = Scene::load("hm1_exact").unwrap();
+    let m = std::sync::Arc::new(Model::from_scene(&scene));
+    let dt = scene.solver.dt.unwrap();
+    let tool = scene.tool.clone().unwrap();
+    let interval = scene.particles.as_ref().unwrap().activation_interval;
+    let in_s = |x: u32| x & mode::IN_S != 0;
+    let run = |poison: bool| {
+        let mut s =
+            palpate::cpu::CpuStepper::new(m.clone(), m.step_params(dt, scene.solver.damping));
+        let (mut poisoned, mut witnessed) = (Vec::<bool>::new(), 0usize);
+        let mut t = 0.0;
+        while t < 8.0 {
+            let (a, b) = (
+                tool.position_at(t),
+                tool.position_at(t + interval as f64 * dt),
+            );
+            s.submit(interval, &palpate::stepper::BatchInput::moving(a, b))
+                .unwrap();
+            s.wait().unwrap();
+            t += interval as f64 * dt;
+            let mut tangent = s.array("exact_tangent").unwrap().to_vec();
+            let modes = s.particle_modes().unwrap().to_vec();
+            for (q, &x) in modes.iter().enumerate() {
+                let now = &mut tangent[12 * q..12 * q + 12];
+                if !in_s(x) {
+                    assert!(
+                        now.iter().all(|&v| v == 0.0),
+                        "t = {t:.3}: particle {q} (mode {x:#x}, outside S) carries tangent {now:?}"
+                    );
+                    witnessed += poisoned.get(q).is_some_and(|&p| p) as usize;
+                }
+            }
+            if poison {
+                poisoned = modes.iter().map(|&x| in_s(x)).collect();
+                for q in (0..modes.len()).filter(|&q| poisoned[q]) {
+                    tangent[12 * q..12 * q + 12].fill(1.0);
+                }
+                assert!(s.write_exact_array("exact_tangent", &tangent));
+            }
+        }
+        (
+            s.read_state().unwrap(),
+            s.particle_state().unwrap(),
+            witnessed,
+        )
+    };
+    let (nodes, particles, witnessed) = run(true);
+    let (clean_nodes, clean_particles, _) = run(false);
+    eprintln!("{witnessed} particles left S carrying a planted tangent force");
+    assert!(
+        witnessed > 0,
+        "no particle left S: the check proves nothing"
+    );
+    assert_eq!(nodes.displacements, clean_nodes.displacements);
+    assert_eq!(nodes.velocities, clean_nodes.velocities);
+    assert_eq!(particles.displacements, clean_particles.displacements);
+    assert_eq!(particles.velocities, clean_particles.velocities);
+}
+
 /// An activation under design 8 runs the mode machine over the region the tool can change,
 /// and one that finds the same set as the last one keeps what that one made
 /// (`activation_counts().unchanged`); the reference path (`set_full_activation(true)`) runs
@@ -1594,7 +1666,9 @@ fn design_8s_trajectories_match_on_both_backends() {
 /// agree within 1e-4 of the largest the CPU's has held so far (the offsets, δ and the tangent
 /// forces, differences, or within 1e-6 of the largest displacement, particle displacement or
 /// host force, where that is larger), the modes are the same, and no particle outside S keeps
-/// a tangent force; some vertex is slaved off its fit (a fading offset). A restore on the GPU (its buffers, the twin's slaving, sets and
+/// a tangent force, though every particle of S is given one after each batch (the next step
+/// overwrites it, an activation zeroes it when the particle leaves S); some vertex is slaved off
+/// its fit (a fading offset). A restore on the GPU (its buffers, the twin's slaving, sets and
 /// offsets) from a checkpoint between two activations repeats the run bit for bit, across
 /// activations that change the set, with three batches in flight at a time.
 #[test]
@@ -1686,6 +1760,15 @@ fn design_8s_gpu_activations_match_the_cpu_and_restore_exactly() {
             .filter(|&q| tangent[12 * q..12 * q + 12].iter().any(|&x| x != 0.0))
             .count();
         assert_eq!(stale, 0, "batch {k}: tangent forces outside S");
+        // Plant a tangent force on every particle of S, on both: the next step overwrites it
+        // while the particle stays in S, the activation must zero it when it leaves (a real
+        // run's are already zero by then, `particles_leaving_the_stress_set_keep_no_tangent_force`).
+        let mut planted = tangent;
+        for q in (0..gm.len()).filter(|&q| gm[q] & IN_S != 0) {
+            planted[12 * q..12 * q + 12].fill(1.0);
+        }
+        assert!(cpu.write_exact_array("exact_tangent", &planted));
+        gpu.write_f32("exact_tangent", &planted).unwrap();
         counts.push(dynamic(&gm));
     }
     let most = *counts.iter().max().unwrap();

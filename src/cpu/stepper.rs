@@ -1835,6 +1835,29 @@ impl CpuStepper {
         })
     }
 
+    /// Overwrite design 8's per-step array `name` (`exact_delta`, `exact_host_force` or
+    /// `exact_tangent`, as [`Self::array`] names them) from its start with `data` (tests,
+    /// debugging; `GpuStepper::write_f32` does the same there). False when the model has no
+    /// such array or `data` is longer than it.
+    pub fn write_exact_array(&mut self, name: &str, data: &[f32]) -> bool {
+        let Some(x) = self.exact.as_mut() else {
+            return false;
+        };
+        let a = match name {
+            "exact_delta" => &mut x.delta,
+            "exact_host_force" => &mut x.host_force,
+            "exact_tangent" => &mut x.tangent,
+            _ => return false,
+        };
+        match a.get_mut(..data.len()) {
+            Some(head) => {
+                head.copy_from_slice(data);
+                true
+            }
+            None => false,
+        }
+    }
+
     /// The last SPH forces on the particles (None without particles).
     pub fn particle_forces(&self) -> Option<&[f32]> {
         self.particles.as_ref().map(|pa| pa.forces.as_slice())
