@@ -22,7 +22,15 @@ pub struct GpuContext {
     pub queue: wgpu::Queue,
     /// The device's limits (= the adapter's).
     pub limits: wgpu::Limits,
-    errors: Arc<Mutex<Vec<String>>>,
+    errors: Arc<Mutex<Vec<CapturedError>>>,
+}
+
+/// An uncaptured wgpu error: its first line and the thread whose call raised it.
+#[derive(Debug)]
+struct CapturedError {
+    message: String,
+    thread: std::thread::ThreadId,
+    thread_name: Option<String>,
 }
 
 /// Backends named by `PALPATE_BACKEND` (default: all compiled in).
@@ -199,7 +207,12 @@ impl GpuContext {
         let sink = errors.clone();
         device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
             if let Ok(mut v) = sink.lock() {
-                v.push(e.to_string().lines().next().unwrap_or("").to_string());
+                let here = std::thread::current();
+                v.push(CapturedError {
+                    message: e.to_string().lines().next().unwrap_or("").to_string(),
+                    thread: here.id(),
+                    thread_name: here.name().map(str::to_string),
+                });
             }
         }));
         Ok(GpuContext {
@@ -220,7 +233,9 @@ impl GpuContext {
         )
     }
 
-    /// Return the first wgpu error captured since the last check, if any.
+    /// Return the first wgpu error captured since the last check, if any. One raised by
+    /// another thread's call (threads sharing the device: the test binaries) names that
+    /// thread, so the report points at the code that caused it.
     pub fn check_errors(&self) -> Result<()> {
         let mut v = self
             .errors
@@ -228,7 +243,12 @@ impl GpuContext {
             .map_err(|_| PalpateError::Gpu("error sink poisoned".into()))?;
         let first = v.drain(..).next();
         match first {
-            Some(e) => Err(PalpateError::Gpu(e)),
+            Some(e) if e.thread == std::thread::current().id() => Err(PalpateError::Gpu(e.message)),
+            Some(e) => Err(PalpateError::Gpu(format!(
+                "{} (raised on thread '{}')",
+                e.message,
+                e.thread_name.as_deref().unwrap_or("unnamed")
+            ))),
             None => Ok(()),
         }
     }

@@ -114,7 +114,9 @@ pub fn run_offsets(a: &[RunPoint], b: &[RunPoint]) -> (Vec<[f64; 3]>, f64) {
 /// process ends): on an NVIDIA H200 (driver 580.159.04) `gpu_vs_cpu` on 8 test threads, each
 /// opening and dropping its own device, hung in 6 of 10 runs on 2026-11-27 and in 4 of 8 and
 /// 4 of 6 on 2026-11-28 with one instance per process. `PALPATE_TEST_DEVICE=per-test` gives
-/// each call a device of its own, as before (to compare).
+/// each call a device of its own, as before (to compare). A test may then find another test's
+/// uncaptured GPU error when it checks; the error names the thread, so the test, that raised it
+/// (`GpuContext::check_errors`, tests/gpu_errors.rs).
 pub fn gpu() -> Arc<palpate::gpu::GpuContext> {
     static SHARED: std::sync::Mutex<Option<Arc<palpate::gpu::GpuContext>>> =
         std::sync::Mutex::new(None);
