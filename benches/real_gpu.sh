@@ -24,11 +24,15 @@
 #                                        # .devbin/old.tgz's profile_stages, hm1 with nothing awake
 #   bash benches/real_gpu.sh prerecord   # batches recorded ahead on and off (same binary):
 #                                        # hybrid_step's GPU tables, hm1's and its core's steps
+#   bash benches/real_gpu.sh next        # what the 2026-11-28 sessions built without a GPU, in
+#                                        # one call: the GPU tests, one round of prerecord, hm1
+#                                        # and its core with nothing awake (t = 8), hm1_exact's
+#                                        # round trips without the tangent forces
 #   bash benches/real_gpu.sh hang        # the GPU tests, then gpu_vs_cpu on 8 threads with one
 #                                        # device per binary and with one per test, 6 runs each
 # (calls of about five minutes each; each writes $OUT/log.txt).
 set -u
-BINS="gpu_vs_cpu particles contact cardiac_gpu cardiac_wiring lv_mesh step_plan cli exact_coupling hybrid_step fem_step"
+BINS="gpu_vs_cpu particles contact cardiac_gpu cardiac_wiring lv_mesh step_plan cli exact_coupling gpu_errors hybrid_step fem_step"
 
 if [ "${1:-}" = "pack" ]; then
   set -e
@@ -73,7 +77,7 @@ fi
 if ! "$B/palpate" info 2>&1 | grep -qi nvidia; then echo "no NVIDIA adapter: stop" | tee -a "$log"; exit 3; fi
 export PALPATE_ADAPTER=NVIDIA
 
-GPU_TESTS="gpu_vs_cpu particles contact cardiac_gpu cardiac_wiring lv_mesh step_plan cli exact_coupling"
+GPU_TESTS="gpu_vs_cpu particles contact cardiac_gpu cardiac_wiring lv_mesh step_plan cli exact_coupling gpu_errors"
 
 # Every GPU test binary once, on 8 test threads: the failing lines only, and each rc.
 gpu_tests() {
@@ -201,6 +205,30 @@ prerecord() {
     done
   done
 }
+
+# The checks left for a GPU by the sessions of 2026-11-28 (no GPU lent to the second).
+next_checks() {
+  gpu_tests
+  awk '/^\[particles\]/{skip=1;next} /^\[/{skip=0} !skip' scenes/hm1.toml > /tmp/hm1core.toml
+  for v in 0 1; do
+    section "PALPATE_GPU_PRERECORD=$v: hybrid_step GPU ratio tables"
+    PALPATE_GPU_PRERECORD=$v PALPATE_BENCH_BACKENDS=gpu timeout 120 "$B/hybrid_step" --bench no_criterion_group_matches 2>&1 | grep "|"
+    for s in hm1 /tmp/hm1core.toml; do
+      echo "$s: $(PALPATE_GPU_PRERECORD=$v timeout 60 "$B/profile_stages" $s 3.5 200 gpu 2>&1 | grep whole)"
+    done
+  done
+  for s in hm1 /tmp/hm1core.toml; do
+    section "$s GPU stages, tool gone (t = 8)"
+    timeout 60 "$B/profile_stages" $s 8 100 gpu 2>&1 | tail -17
+  done
+  section "hm1_exact GPU stages and round trips, t = 3.5 (tangent forces no longer read back)"
+  timeout 60 "$B/profile_stages" hm1_exact 3.5 200 gpu 2>&1 | tail -30
+}
+
+if [ "${1:-}" = "next" ]; then
+  { next_checks; section "done"; } 2>&1 | tee -a "$log"
+  exit 0
+fi
 
 if [ "${1:-}" = "prerecord" ]; then
   { prerecord; section "done"; } 2>&1 | tee -a "$log"
