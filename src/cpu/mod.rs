@@ -51,13 +51,25 @@ use glam::{Vec3, Vec3A};
 /// Read vector `i` from a packed xyz array.
 #[inline]
 pub fn load3(a: &[f32], i: usize) -> Vec3 {
-    Vec3::new(a[3 * i], a[3 * i + 1], a[3 * i + 2])
+    let [x, y, z] = xyz(a, i);
+    Vec3::new(x, y, z)
+}
+
+/// The three floats of vector `i`, with one bounds check (indexing each would check three
+/// times, inside the neighbour and incidence loops).
+#[inline(always)]
+fn xyz(a: &[f32], i: usize) -> [f32; 3] {
+    match a[3 * i..3 * i + 3] {
+        [x, y, z] => [x, y, z],
+        _ => unreachable!("a range of three"),
+    }
 }
 
 /// [`load3`] into a SIMD-width vector.
 #[inline]
 pub fn load3a(a: &[f32], i: usize) -> Vec3A {
-    Vec3A::new(a[3 * i], a[3 * i + 1], a[3 * i + 2])
+    let [x, y, z] = xyz(a, i);
+    Vec3A::new(x, y, z)
 }
 
 /// Write vector `i` into a packed xyz array.
