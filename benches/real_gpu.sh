@@ -14,8 +14,8 @@
 #                                        # stages of a change against .devbin/old.tgz (the
 #                                        # hybrid_step, fem_step and profile_stages binaries of
 #                                        # the build before it), in the same call
-#   bash benches/real_gpu.sh fusion      # the GPU's fused passes on and off in the same binary
-#                                        # (PALPATE_GPU_FUSION=0): hybrid_step's GPU ratio tables
+#   bash benches/real_gpu.sh fusion      # the GPU's fused passes off, measured, all in the same
+#                                        # binary (PALPATE_GPU_FUSION=0/1/all): hybrid_step's GPU ratio tables
 #                                        # and hm1's GPU stages, two rounds alternating
 #   bash benches/real_gpu.sh round       # the GPU tests, design 8 under the tool (hm1_exact on
 #                                        # both backends, its GPU stages and round trips to the
@@ -25,9 +25,11 @@
 #   bash benches/real_gpu.sh prerecord   # batches recorded ahead on and off (same binary):
 #                                        # hybrid_step's GPU tables, hm1's and its core's steps
 #   bash benches/real_gpu.sh next        # what the 2026-11-28 sessions built without a GPU, in
-#                                        # one call: the GPU tests, one round of prerecord, hm1
-#                                        # and its core with nothing awake (t = 8), hm1_exact's
-#                                        # round trips without the tangent forces
+#                                        # one call: the GPU tests, one round of prerecord, the
+#                                        # contact + sph_stress fusion (PALPATE_GPU_FUSION=all)
+#                                        # against the default, hm1 and its core with nothing
+#                                        # awake (t = 8), hm1_exact's round trips without the
+#                                        # tangent forces
 #   bash benches/real_gpu.sh hang        # the GPU tests, then gpu_vs_cpu on 8 threads with one
 #                                        # device per binary and with one per test, 6 runs each
 # (calls of about five minutes each; each writes $OUT/log.txt).
@@ -107,7 +109,7 @@ design_8() {
 # hm1's GPU stages, two rounds alternating.
 fusion() {
   for round in 1 2; do
-    for f in 0 1; do
+    for f in 0 1 all; do
       section "round $round, PALPATE_GPU_FUSION=$f: hybrid_step GPU ratio tables"
       PALPATE_GPU_FUSION=$f PALPATE_BENCH_BACKENDS=gpu timeout 120 "$B/hybrid_step" --bench no_criterion_group_matches 2>&1 | grep "|"
       section "round $round, PALPATE_GPU_FUSION=$f: hm1 GPU stages"
@@ -216,6 +218,10 @@ next_checks() {
     for s in hm1 /tmp/hm1core.toml; do
       echo "$s: $(PALPATE_GPU_PRERECORD=$v timeout 60 "$B/profile_stages" $s 3.5 200 gpu 2>&1 | grep whole)"
     done
+  done
+  for f in 1 all 1 all; do
+    section "PALPATE_GPU_FUSION=$f: hm1 whole steps and GPU stages, t = 3.5"
+    PALPATE_GPU_FUSION=$f timeout 60 "$B/profile_stages" hm1 3.5 100 gpu 2>&1 | grep -E "whole|Contact|SphStress|total"
   done
   for s in hm1 /tmp/hm1core.toml; do
     section "$s GPU stages, tool gone (t = 8)"

@@ -5,8 +5,11 @@
 //                    the stress set S and the force set F
 //   [a prefix sum over each mark array]
 //   compact_scatter  per particle: its slot in each list it belongs to
-//   compact_args     one thread: particle_counts = (|D|, |S|, |F|, 0) and three
-//                    DispatchIndirectArgs (64 threads per workgroup) for D, S, F
+//   compact_args     one thread: particle_counts = (|D|, |S|, |F|, 0) and four
+//                    DispatchIndirectArgs (64 items per workgroup) for D, S, F and the
+//                    larger of S and the tool's surface vertices (the grid of the fused
+//                    contact + sph_stress dispatch, contact.wgsl; no CPU twin: no CPU stage
+//                    dispatches, and the GPU sets it to the surface's alone before the first)
 // CPU twin: src/cpu/compact.rs.
 #import index
 #import particles
@@ -86,4 +89,5 @@ fn compact_args() {
     write_args(0u, counts.x);
     write_args(1u, counts.y);
     write_args(2u, counts.z);
+    write_args(3u, max(counts.y, particle_params.n_surface));
 }

@@ -3,9 +3,17 @@
 // x = X + u the vertex position, A its share of the rest surface area, n = (x - c)/|x - c|
 // (src/contact.rs). The tool moves at v_tool = (end - start)/(steps dt) during the batch.
 // Writes contact_forces[s]; gather adds it to the vertex. CPU twin: src/cpu/contact.rs.
+// `contact_sph_stress` does the same per surface vertex (lane 0 of each of a 256-thread
+// workgroup's 64 slots) and, on the same grid, sph_stress.wgsl's work over the stress set S
+// (shared/sph_stress_particle.wgsl, 64 entries a workgroup with 4 lanes each): the two read
+// nothing the other writes, so the GPU records this one dispatch in place of the sph_stress
+// and contact passes when the plan allows (`StepPlan::gpu_fusions`). Its grid is indirect,
+// the larger of S's and the surface's (compact.wgsl's fourth arguments), so S takes one
+// round; the loop takes more only on a grid that does not cover it.
 #import params
 #import tool
 #import index
+#import sph_stress_particle
 
 @group(0) @binding(0) var<uniform> params: StepParams;
 @group(0) @binding(1) var<uniform> tool_params: ToolParams;
@@ -25,6 +33,8 @@
 override PARTICLES: bool = false;
 
 const WORKGROUP: u32 = 64u;
+// Surface vertices a workgroup takes (`contact_sph_stress` has 4 threads for each).
+const ITEMS_PER_WORKGROUP: u32 = 64u;
 
 fn position(i: u32) -> vec3<f32> {
     return vec3<f32>(rest_positions[3u * i], rest_positions[3u * i + 1u], rest_positions[3u * i + 2u])
@@ -38,9 +48,31 @@ fn velocity(i: u32) -> vec3<f32> {
 @compute @workgroup_size(64)
 fn contact(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let s = linear_index(gid, nwg, WORKGROUP);
-    if s >= tool_params.n_surface {
-        return;
+    if s < tool_params.n_surface {
+        contact_at(s);
     }
+}
+
+@compute @workgroup_size(256)
+fn contact_sph_stress(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>, @builtin(local_invocation_index) local: u32) {
+    let first = workgroup_index(wid, nwg);
+    let s = first * ITEMS_PER_WORKGROUP + local % ITEMS_PER_WORKGROUP;
+    if local < ITEMS_PER_WORKGROUP && s < tool_params.n_surface {
+        contact_at(s);
+    }
+    let groups = nwg.x * nwg.y;
+    let per_round = groups * SPH_STRESS_ITEMS;
+    let rounds = (particle_counts[1] + per_round - 1u) / per_round;
+    for (var r = 0u; r < rounds; r++) {
+        if r > 0u {
+            workgroupBarrier();
+        }
+        sph_stress_entry((r * groups + first) * SPH_STRESS_ITEMS + local % SPH_STRESS_ITEMS, local);
+    }
+}
+
+// The contact force of surface vertex s.
+fn contact_at(s: u32) {
     let i = surface_vertices[s];
     let x = position(i);
     let v = velocity(i);

@@ -538,7 +538,8 @@ impl Model {
                 blend: s.blend as f32,
                 interval: 0.0,
                 sub_dt: 0.0,
-                _pad: [0; 3],
+                n_surface: self.tool_params().n_surface,
+                _pad: [0; 2],
             }
             .at_core_dt(params.dt, s.activation_interval),
         )

@@ -487,12 +487,48 @@ pub struct Fusion {
     pub host: Stage,
     /// The stage whose work rides on it.
     pub rider: Stage,
-    /// The fused kernel entry (over [`Domain::CoveringParticles`] of the host's domain).
+    /// The fused kernel entry (over [`Domain::CoveringParticles`] of the host's domain, or
+    /// an indirect grid the activation sizes for both).
     pub entry: Entry,
     /// Plan position where the fused dispatch is recorded.
     pub at: usize,
     /// Plan position whose pass is then not recorded.
     pub skipped: usize,
+    /// Measured to pay on a real GPU, so built by default ([`Fusions::Measured`]); the others
+    /// only with [`Fusions::All`].
+    pub measured: bool,
+}
+
+/// Which of a plan's fused dispatches ([`StepPlan::gpu_fusions`]) a GPU stepper builds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Fusions {
+    /// None: every stage its own passes.
+    None,
+    /// Those measured to pay on a real GPU (follow on fem_forces, integrate_particles on
+    /// gather_coupled; NVIDIA H200, BENCHMARKS.md): the default.
+    Measured,
+    /// Also those not measured on a real GPU yet (sph_stress on contact).
+    All,
+}
+
+impl Fusions {
+    /// From `PALPATE_GPU_FUSION`: `0` none, `all` all, anything else or unset the measured.
+    pub fn from_env() -> Fusions {
+        match std::env::var("PALPATE_GPU_FUSION").as_deref() {
+            Ok("0") => Fusions::None,
+            Ok("all") => Fusions::All,
+            _ => Fusions::Measured,
+        }
+    }
+
+    /// Whether fusion `f` is built under this choice.
+    pub fn builds(self, f: &Fusion) -> bool {
+        match self {
+            Fusions::None => false,
+            Fusions::Measured => f.measured,
+            Fusions::All => true,
+        }
+    }
 }
 
 /// A pair of stages the GPU may record as one dispatch ([`StepPlan::gpu_fusions`]).
@@ -506,10 +542,12 @@ struct FusionRule {
     at_rider: bool,
     /// The stages that may lie between that rider and the host.
     between: &'static [Stage],
+    /// [`Fusion::measured`].
+    measured: bool,
 }
 
 /// The pairs the GPU fuses where the plan allows.
-const FUSION_RULES: [FusionRule; 2] = [
+const FUSION_RULES: [FusionRule; 3] = [
     // `follow` on `fem_forces`' grid, at the first follow's place: the element forces move
     // ahead of the particle sub-steps, which neither read nor write their arrays.
     FusionRule {
@@ -530,6 +568,7 @@ const FUSION_RULES: [FusionRule; 2] = [
             Stage::IntegrateParticles,
             Stage::Follow,
         ],
+        measured: true,
     },
     // The last `integrate_particles` on `gather_coupled`'s grid, at the gather's place: the
     // element forces and the contact between read no particle position or velocity.
@@ -545,6 +584,35 @@ const FUSION_RULES: [FusionRule; 2] = [
         last_rider: true,
         at_rider: false,
         between: &[Stage::FemForces, Stage::Contact],
+        measured: true,
+    },
+    // The first `sph_stress` on `contact`'s grid, at its place: the contact moves ahead of
+    // the particle sub-steps and the element forces, which neither read nor write what it
+    // does (the vertices' state, the tool's, the contact weights; its contact forces are
+    // read by the gather and the tool's force, after).
+    FusionRule {
+        host: Stage::Contact,
+        rider: Stage::SphStress,
+        entry: Entry {
+            file: "contact",
+            entry: "contact_sph_stress",
+            // The larger of the stress set's grid and the surface's (`compact_args`).
+            domain: Domain::Indirect("particle_dispatch", 36),
+            aliases: &[],
+        },
+        last_rider: false,
+        at_rider: true,
+        between: &[
+            Stage::SphForces,
+            Stage::SphForcesAccumulate,
+            Stage::IntegrateParticles,
+            Stage::Follow,
+            Stage::SphStress,
+            Stage::FemForces,
+        ],
+        // On lavapipe the fused pass costs about twice the two it replaces (its 256-thread
+        // workgroups and barrier over the larger of the two grids); not measured on a GPU.
+        measured: false,
     },
 ];
 
@@ -695,9 +763,10 @@ impl StepPlan {
 
     /// The pairs of stages the GPU records as one dispatch ([`Fusion`]) in a plan of the
     /// blend (design 8 and the split laws keep their passes): the first `follow` with
-    /// `fem_forces`, when only the particle sub-steps lie between them, and the last
+    /// `fem_forces`, when only the particle sub-steps lie between them; the last
     /// `integrate_particles` with `gather_coupled`, when only the element forces and the
-    /// contact lie between them. Empty otherwise.
+    /// contact lie between them; and the first `sph_stress` with `contact`, when only the
+    /// particle sub-steps and the element forces lie between them. Empty otherwise.
     pub fn gpu_fusions(&self) -> Vec<Fusion> {
         let every = |stage: Stage| {
             self.stages
@@ -724,6 +793,7 @@ impl StepPlan {
                     entry: r.entry,
                     at: if r.at_rider { rider } else { host },
                     skipped: if r.at_rider { host } else { rider },
+                    measured: r.measured,
                 })
             })
             .collect()
@@ -755,11 +825,16 @@ impl StepPlan {
             })
             .chain(self.gpu_fusions().iter().map(|f| {
                 format!(
-                    "{:<12} {:<22} {}::{} (on a GPU that builds it, unless PALPATE_GPU_FUSION=0: one dispatch for both, at {}'s place)",
+                    "{:<12} {:<22} {}::{} (on a GPU that builds it, {}: one dispatch for both, at {}'s place)",
                     format!("{}+{}", f.host.name(), f.rider.name()),
                     "fused",
                     f.entry.file,
                     f.entry.entry,
+                    if f.measured {
+                        "unless PALPATE_GPU_FUSION=0"
+                    } else {
+                        "with PALPATE_GPU_FUSION=all"
+                    },
                     self.stages[f.at].stage.name()
                 )
             }))

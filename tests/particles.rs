@@ -2402,14 +2402,15 @@ fn gated_against_full(scene: &Scene, per_leg: u32) -> GateRun {
     }
 }
 
-/// The GPU records `follow` on `fem_forces`' grid and `integrate_particles` on
-/// `gather_coupled`'s (`StepPlan::gpu_fusions`): two passes fewer a step. A stepper that
+/// The GPU records `follow` on `fem_forces`' grid, `sph_stress` on `contact`'s (built with
+/// `Fusions::All` only) and `integrate_particles` on `gather_coupled`'s
+/// (`StepPlan::gpu_fusions`): three passes fewer a step. A stepper that
 /// records them and one that records every stage's own passes, through a press, hold,
 /// withdrawal (particles released and blending back) and wait, hold the same bits after every
 /// interval: the fused kernels do the same arithmetic, and nothing the moved stages read is
-/// written in between. With one particle sub-step, and with two (the first follow and the
-/// last integration fused); and with every particle dynamic, more than the host grids have
-/// threads (the fused grids grow, and the rider loops take several rounds).
+/// written in between. With one particle sub-step, and with two (the first follow, the first
+/// stress and the last integration fused); and with every particle dynamic, more than the host
+/// grids have threads (the fused grids grow, and the rider loops take several rounds).
 #[test]
 fn fused_gpu_passes_equal_the_plan_s() {
     let m = Arc::new(Model::from_scene(&pressed_block()));
@@ -2417,6 +2418,22 @@ fn fused_gpu_passes_equal_the_plan_s() {
     // The block's own sub-stepped step, then a quarter of its bound, which the particles take
     // in one sub-step; the same simulated time a batch.
     let half = 0.5 * m.bounds.dt_bound;
+    // By default only the fusions measured to pay on a GPU are built.
+    let measured = GpuStepper::with_fusions(
+        gpu(),
+        &m,
+        m.step_params(half, 50.0),
+        palpate::plan::Fusions::Measured,
+    )
+    .unwrap();
+    assert_eq!(
+        measured.fused_passes(),
+        [
+            (Stage::FemForces, Stage::Follow),
+            (Stage::GatherCoupled, Stage::IntegrateParticles)
+        ]
+    );
+    drop(measured);
     assert_eq!(m.particle_substeps(half), 2);
     assert_eq!(m.particle_substeps(0.5 * half), 1);
     for (dt, steps) in [(half, k), (0.5 * half, 2 * k)] {
@@ -2534,7 +2551,8 @@ fn fused_against_plain(
     steps: u32,
     n: u32,
 ) -> (u32, bool) {
-    let mut fused = GpuStepper::new(gpu(), m, params).unwrap();
+    let mut fused =
+        GpuStepper::with_fusions(gpu(), m, params, palpate::plan::Fusions::All).unwrap();
     fused.set_fusion(true);
     let mut plain = GpuStepper::new(gpu(), m, params).unwrap();
     plain.set_fusion(false);
@@ -2542,6 +2560,7 @@ fn fused_against_plain(
         fused.fused_passes(),
         [
             (Stage::FemForces, Stage::Follow),
+            (Stage::Contact, Stage::SphStress),
             (Stage::GatherCoupled, Stage::IntegrateParticles)
         ]
     );
@@ -2589,4 +2608,54 @@ fn fused_against_plain(
         params.dt
     );
     (dynamic, blending)
+}
+
+/// The fused contact + sph_stress dispatch runs over the larger of the surface's grid and the
+/// stress set's: with the tool pressing the block from below, where every particle within
+/// reach is pinned by the fixed base (none wakes, S stays empty), the contact forces and the
+/// reports equal those of the own passes bit for bit, and are not zero.
+#[test]
+fn the_fused_contact_runs_with_no_particle_awake() {
+    let text = PRESSED_BLOCK.replace(
+        "activation_radius = 0.003\n",
+        "activation_radius = 0.0005\n",
+    );
+    let m = Arc::new(Model::from_scene(
+        &Scene::from_toml(&text, "below", "below", None).unwrap(),
+    ));
+    let params = m.step_params(0.5 * m.bounds.dt_bound, 50.0);
+    let mut fused =
+        GpuStepper::with_fusions(gpu(), &m, params, palpate::plan::Fusions::All).unwrap();
+    assert!(fused
+        .fused_passes()
+        .contains(&(Stage::Contact, Stage::SphStress)));
+    let mut plain = GpuStepper::new(gpu(), &m, params).unwrap();
+    plain.set_fusion(false);
+    // The sphere's top 0.5 mm above the fixed base z = 0, under the block's middle.
+    let below = BatchInput::moving(
+        DVec3::new(0.01, 0.01, -0.0025),
+        DVec3::new(0.01, 0.01, -0.0025),
+    );
+    for batch in 0..3 {
+        let reports: Vec<String> = [&mut fused, &mut plain]
+            .into_iter()
+            .map(|s| {
+                s.submit(10, &below).unwrap();
+                format!("{:?}", s.wait().unwrap())
+            })
+            .collect();
+        assert_eq!(reports[0], reports[1], "reports after batch {batch}");
+        assert_same_buffers(
+            &fused,
+            &plain,
+            &["contact_forces", "displacements", "particle_counts"],
+            &format!("after batch {batch}"),
+        );
+        assert_eq!(bits_u32(&fused, "particle_counts")[..3], [0, 0, 0]);
+    }
+    let contact = bits_u32(&fused, "contact_forces");
+    assert!(
+        contact.iter().any(|&b| f32::from_bits(b) != 0.0),
+        "the tool touches nothing"
+    );
 }

@@ -497,9 +497,10 @@ fn indirect_dispatch_runs_exactly_the_workgroups_a_kernel_counted() {
 }
 
 /// Where the GPU fuses two passes into one dispatch (`StepPlan::gpu_fusions`): on hm1's plan
-/// `follow` rides on `fem_forces`, recorded at follow's place, and `integrate_particles` on
-/// `gather_coupled`, at the gather's; with particle sub-steps the first follow and the last
-/// integration; design 8's plan and one without particles fuse nothing.
+/// `follow` rides on `fem_forces`, recorded at follow's place, `integrate_particles` on
+/// `gather_coupled`, at the gather's, and `sph_stress` on `contact`, at the stress's; with
+/// particle sub-steps the first follow, the last integration and the first stress; design 8's
+/// plan and one without particles fuse nothing.
 #[test]
 fn the_gpu_fuses_only_passes_whose_order_the_plan_leaves_free() {
     let hm1 = scene_model("hm1");
@@ -525,15 +526,26 @@ fn the_gpu_fuses_only_passes_whose_order_the_plan_leaves_free() {
                 at(Stage::GatherCoupled),
                 at(Stage::IntegrateParticles)
             ),
+            (
+                Stage::Contact,
+                Stage::SphStress,
+                at(Stage::SphStress),
+                at(Stage::Contact)
+            ),
         ]
     );
-    // Each over its host's domain, grown to cover every particle.
+    // Built by default: the two measured on a GPU.
+    let measured: Vec<bool> = plan.gpu_fusions().iter().map(|f| f.measured).collect();
+    assert_eq!(measured, [true, true, false]);
+    // Each over its host's domain, grown to cover every particle; contact + sph_stress over
+    // the grid the activation sizes for the larger of the two (compact_args' fourth).
     for f in plan.gpu_fusions() {
-        assert_eq!(
-            f.entry.domain,
-            palpate::plan::Domain::CoveringParticles(&f.host.entries()[0].domain),
-            "{f:?}"
-        );
+        let host = &f.host.entries()[0].domain;
+        let grid = match f.rider {
+            Stage::SphStress => palpate::plan::Domain::Indirect("particle_dispatch", 36),
+            _ => palpate::plan::Domain::CoveringParticles(host),
+        };
+        assert_eq!(f.entry.domain, grid, "{f:?}");
     }
     // With two particle sub-steps: the first follow and the last integration.
     let sub = StepPlan::for_model_at(&hm1, 2);
@@ -561,6 +573,11 @@ fn the_gpu_fuses_only_passes_whose_order_the_plan_leaves_free() {
                 all(Stage::GatherCoupled)[0],
                 all(Stage::IntegrateParticles)[1]
             ),
+            (
+                Stage::SphStress,
+                all(Stage::SphStress)[0],
+                all(Stage::Contact)[0]
+            ),
         ]
     );
     let exact = scene_model("hm1_exact");
@@ -568,7 +585,7 @@ fn the_gpu_fuses_only_passes_whose_order_the_plan_leaves_free() {
     assert!(StepPlan::for_model(&scene_model("lv"))
         .gpu_fusions()
         .is_empty());
-    // The hybrid LV, the default haptic scene, at one sub-step: both.
+    // The hybrid LV, the default haptic scene, at one sub-step: all three.
     let lv_touch = StepPlan::for_model_at(&scene_model("lv_touch"), 1);
-    assert_eq!(lv_touch.gpu_fusions().len(), 2);
+    assert_eq!(lv_touch.gpu_fusions().len(), 3);
 }

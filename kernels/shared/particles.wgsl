@@ -32,7 +32,7 @@ struct ParticleParams {
     blend: f32,           // s
     interval: f32,        // s between activation updates
     sub_dt: f32,          // s, particle sub-step
-    _pad0: u32,
+    n_surface: u32,       // surface vertices of the tool's contact (0 without a tool)
     _pad1: u32,
     _pad2: u32,
 }

@@ -47,12 +47,17 @@ pub fn counts_and_dispatch(
     let counts = lists.map(|l| l.len() as u32);
     *particle_counts = [counts[0], counts[1], counts[2], 0];
     for (k, &count) in counts.iter().enumerate() {
-        let groups = count.div_ceil(PARTICLE_WORKGROUP);
-        let (x, y) = if groups > MAX_GROUPS {
-            (MAX_GROUPS, groups.div_ceil(MAX_GROUPS))
-        } else {
-            (groups, 1)
-        };
+        let (x, y) = grid(count.div_ceil(PARTICLE_WORKGROUP));
         particle_dispatch[3 * k..3 * k + 3].copy_from_slice(&[x, y, 1]);
+    }
+}
+
+/// `groups` workgroups as a grid every adapter allows: (x, y) with x ≤ 65,535 and x·y ≥
+/// groups (twin of compact.wgsl's `write_args`).
+pub fn grid(groups: u32) -> (u32, u32) {
+    if groups > MAX_GROUPS {
+        (MAX_GROUPS, groups.div_ceil(MAX_GROUPS))
+    } else {
+        (groups, 1)
     }
 }

@@ -158,8 +158,9 @@ pub struct ParticleTables {
     pub ones_tets: Vec<f32>,
     /// All-1 per vertex.
     pub ones_vertices: Vec<f32>,
-    /// Initial indirect arguments: no work.
-    pub no_dispatch: [u32; 9],
+    /// Initial indirect arguments: no work for the three lists; the fused contact +
+    /// sph_stress dispatch over the tool's surface vertices.
+    pub no_dispatch: [u32; 12],
     /// The activation gate's first contents: raised, so that the first update is a full one
     /// (`activate_gate`: raised, last verdict, full updates, skipped updates).
     pub gate: [u32; 4],
@@ -183,7 +184,15 @@ impl ParticleTables {
             node_fixed: model.inv_mass.iter().map(|&w| (w == 0.0) as u32).collect(),
             ones_tets: vec![1.0; model.n_tets()],
             ones_vertices: vec![1.0; model.n_vertices()],
-            no_dispatch: [0, 1, 1, 0, 1, 1, 0, 1, 1],
+            no_dispatch: {
+                // The three lists' grids empty, the fused contact + sph_stress dispatch's
+                // the contact's (compact.wgsl's `write_args`).
+                let groups = pp
+                    .n_surface
+                    .div_ceil(crate::cpu::compact::PARTICLE_WORKGROUP);
+                let (x, y) = crate::cpu::compact::grid(groups);
+                [0, 1, 1, 0, 1, 1, 0, 1, 1, x, y, 1]
+            },
             gate: [1, 0, 0, 0],
             activation_interval: p.settings.activation_interval,
         })

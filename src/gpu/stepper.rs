@@ -11,7 +11,7 @@ use crate::gpu::kernel::{ComputeKernel, Dispatch};
 use crate::gpu::GpuContext;
 use crate::model::Model;
 use crate::params::{stat, StepParams};
-use crate::plan::{Domain, Entry, StepPlan};
+use crate::plan::{Domain, Entry, Fusions, StepPlan};
 use crate::stepper::{BatchInput, BatchReport, State, Stepper, RING};
 use std::collections::VecDeque;
 use std::sync::atomic::{AtomicU8, Ordering};
@@ -102,18 +102,29 @@ pub struct StagePipelines {
 impl StagePipelines {
     /// Build the stage's pipelines for `model`.
     pub fn new(ctx: &GpuContext, stage: Stage, model: &Model) -> Result<Self> {
-        StagePipelines::with_entries(ctx, stage, stage.entries(), model)
+        StagePipelines::build(ctx, stage, stage.entries(), &stage_constants(stage, model))
     }
 
-    /// Pipelines for `entries`, with the constants of `stage` (a fused dispatch takes its
-    /// host's).
-    pub fn with_entries(
+    /// The pipeline of fused dispatch `f`, with its host's constants and its rider's (the
+    /// host's where both set one), under the host's stage.
+    pub fn fused(ctx: &GpuContext, f: &crate::plan::Fusion, model: &Model) -> Result<Self> {
+        let mut constants = stage_constants(f.host, model);
+        for c in stage_constants(f.rider, model) {
+            if !constants.iter().any(|(name, _)| *name == c.0) {
+                constants.push(c);
+            }
+        }
+        StagePipelines::build(ctx, f.host, &[f.entry], &constants)
+    }
+
+    /// Pipelines for `entries` under `stage`, each with those of `constants` its shader
+    /// declares.
+    fn build(
         ctx: &GpuContext,
         stage: Stage,
         entries: &[Entry],
-        model: &Model,
+        constants: &[(&'static str, f64)],
     ) -> Result<Self> {
-        let constants = stage_constants(stage, model);
         let kernels = entries
             .iter()
             .map(|e| {
@@ -239,7 +250,7 @@ pub struct GpuStepper {
     /// index in `stages` (a fused dispatch's at the fusion's `at`), None where the pass
     /// rides on another.
     fused_stage: Vec<Option<usize>>,
-    /// Whether batches record the fused dispatches (`PALPATE_GPU_FUSION=0` turns them off).
+    /// Whether batches record the fused dispatches that were built (`set_fusion`).
     fusion: bool,
     /// Whether `submit` records the next batch while the GPU runs the one it submitted
     /// ([`Ahead`]; `PALPATE_GPU_PRERECORD=0` turns it off).
@@ -337,8 +348,19 @@ impl RoundTrip {
 const ROUND_TRIPS_KEPT: usize = 4096;
 
 impl GpuStepper {
-    /// Upload `model`, build its plan's pipelines and bind groups and the readback ring.
+    /// Upload `model`, build its plan's pipelines and bind groups and the readback ring, with
+    /// the fused dispatches `PALPATE_GPU_FUSION` asks for ([`Fusions::from_env`]).
     pub fn new(ctx: Arc<GpuContext>, model: &Model, params: StepParams) -> Result<GpuStepper> {
+        GpuStepper::with_fusions(ctx, model, params, Fusions::from_env())
+    }
+
+    /// [`Self::new`] with the fused dispatches `fusions` builds.
+    pub fn with_fusions(
+        ctx: Arc<GpuContext>,
+        model: &Model,
+        params: StepParams,
+        fusions: Fusions,
+    ) -> Result<GpuStepper> {
         let n = model.n_vertices() as u64;
         let m = model.n_tets() as u64;
         if n > u32::MAX as u64 / 4 || m > u32::MAX as u64 / 4 {
@@ -387,13 +409,12 @@ impl GpuStepper {
             plan_stage.push(stages.len());
             stages.push(BoundStage::bind(&ctx, &buffers, pipelines, None)?);
         }
-        // The fused dispatches (none with PALPATE_GPU_FUSION=0). A fused kernel binds both
-        // stages' arrays: where the adapter cannot build it (fewer storage buffers per stage
-        // than it binds, a driver that refuses it), the two keep their own passes.
-        let fusion = std::env::var("PALPATE_GPU_FUSION").map_or(true, |v| v != "0");
+        // The fused dispatches `fusions` asks for. A fused kernel binds both stages' arrays:
+        // where the adapter cannot build it (fewer storage buffers per stage than it binds, a
+        // driver that refuses it), the two keep their own passes.
         let mut fused_stage: Vec<Option<usize>> = plan_stage.iter().map(|&k| Some(k)).collect();
-        for f in plan.gpu_fusions().into_iter().filter(|_| fusion) {
-            let built = StagePipelines::with_entries(&ctx, f.host, &[f.entry], model)
+        for f in plan.gpu_fusions().into_iter().filter(|f| fusions.builds(f)) {
+            let built = StagePipelines::fused(&ctx, &f, model)
                 .and_then(|p| BoundStage::bind(&ctx, &buffers, p, Some(f.rider)));
             if let Ok(bound) = built {
                 fused_stage[f.at] = Some(stages.len());
@@ -425,7 +446,7 @@ impl GpuStepper {
             stages,
             plan_stage,
             fused_stage,
-            fusion,
+            fusion: fusions != Fusions::None,
             n_particles: tool_params.n_particles,
             model_particles: tables,
             follower_load: model

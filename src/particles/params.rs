@@ -142,8 +142,11 @@ pub struct ParticleParams {
     pub interval: f32,
     /// Particle sub-step, s.
     pub sub_dt: f32,
+    /// Surface vertices the tool's contact runs over (0 without a tool): the fused
+    /// contact + sph_stress dispatch covers them and the stress set (`compact_args`).
+    pub n_surface: u32,
     /// Padding.
-    pub _pad: [u32; 3],
+    pub _pad: [u32; 2],
 }
 
 impl ParticleParams {
