@@ -6,8 +6,8 @@
 //          S = lambda tr(E) I + 2 mu E for E = eps/2 doubled; Psi = mu E:E + lambda/2 tr(E)^2.
 // Writes A_p = P G_p^T (so that P g_pb = A_p grad W_pb), H_p (for the hourglass penalty) and
 // V Psi (shared/sph_stress_particle.wgsl, which contact.wgsl's `contact_sph_stress` runs on
-// the contact's grid). CPU twin: src/cpu/sph_stress.rs. Each particle has LANES threads: lane j sums the
-// neighbours j, j + LANES, … and the lanes' sums are added in lane order (the twin sums in list
+// the contact's grid). CPU twin: src/cpu/sph_stress.rs. Each particle has SPH_STRESS_LANES threads:
+// lane j sums the neighbours j, j + 4, … and the lanes' sums are added in lane order (the twin sums in list
 // order: the two agree to rounding). One thread walking ~26 neighbours is a chain of dependent
 // loads whose latency bounds the stage when S holds a few hundred particles (NVIDIA H200,
 // 2026-11-27: BENCHMARKS.md).

@@ -458,6 +458,11 @@ fn particle_kernels_match_their_cpu_twins() {
     );
     assert_eq!(&bits_u32(&g, "particle_counts")[..4], &counts[..]);
     assert_eq!(&bits_u32(&g, "particle_dispatch")[..9], &dispatch[..]);
+    // The fourth grid (the fused contact + sph_stress dispatch's): the larger of S's and the
+    // tool's surface's.
+    let items = counts[1].max(tp.n_surface);
+    let (x, y) = cpu::compact::grid(items.div_ceil(cpu::compact::PARTICLE_WORKGROUP));
+    assert_eq!(&bits_u32(&g, "particle_dispatch")[9..12], &[x, y, 1]);
     assert_eq!(&bits_u32(&g, "dynamic_list")[..dl.len()], &dl[..]);
     assert_eq!(&bits_u32(&g, "stress_list")[..sl.len()], &sl[..]);
     assert_eq!(&bits_u32(&g, "force_list")[..fl.len()], &fl[..]);
@@ -2410,7 +2415,8 @@ fn gated_against_full(scene: &Scene, per_leg: u32) -> GateRun {
 /// interval: the fused kernels do the same arithmetic, and nothing the moved stages read is
 /// written in between. With one particle sub-step, and with two (the first follow, the first
 /// stress and the last integration fused); and with every particle dynamic, more than the host
-/// grids have threads (the fused grids grow, and the rider loops take several rounds).
+/// grids have threads (the first two's fused grids grow and their rider loops take several
+/// rounds; contact + sph_stress's indirect grid grows with S).
 #[test]
 fn fused_gpu_passes_equal_the_plan_s() {
     let m = Arc::new(Model::from_scene(&pressed_block()));
@@ -2657,5 +2663,60 @@ fn the_fused_contact_runs_with_no_particle_awake() {
     assert!(
         contact.iter().any(|&b| f32::from_bits(b) != 0.0),
         "the tool touches nothing"
+    );
+}
+
+/// The fused contact + sph_stress dispatch takes the stress set in several rounds where its
+/// grid does not cover it (its own grid always does: this one is narrowed to the surface's
+/// after the batches that end between two activations, until the next activation sizes it
+/// again): through the press, hold, withdrawal and wait in half-intervals, the same bits and
+/// reports as the own passes, with S larger than the narrowed grid's 64-entry slots at times.
+#[test]
+fn the_fused_stress_takes_several_rounds_on_a_narrow_grid() {
+    let (m, params) = pressed_block_model();
+    let k = m.particles.as_ref().unwrap().settings.activation_interval;
+    assert!(k % 2 == 0, "activation interval {k}");
+    let mut fused =
+        GpuStepper::with_fusions(gpu(), &m, params, palpate::plan::Fusions::All).unwrap();
+    let mut plain = GpuStepper::new(gpu(), &m, params).unwrap();
+    plain.set_fusion(false);
+    let groups = m.tool_params().n_surface.div_ceil(64);
+    let mut most_rounds = 0;
+    for (i, input) in press_hold_withdraw_wait(4).iter().enumerate() {
+        let reports: Vec<String> = [&mut fused, &mut plain]
+            .into_iter()
+            .map(|s| {
+                s.submit(k / 2, input).unwrap();
+                format!("{:?}", s.wait().unwrap())
+            })
+            .collect();
+        assert_eq!(reports[0], reports[1], "reports after batch {i}");
+        assert_same_buffers(
+            &fused,
+            &plain,
+            &[
+                "displacements",
+                "velocities",
+                "contact_forces",
+                "particle_displacements",
+                "particle_stress",
+            ],
+            &format!("after batch {i}"),
+        );
+        if i % 2 == 0 {
+            // The next batch runs between two activations: narrow its grid.
+            let stress = bits_u32(&fused, "particle_counts")[1];
+            most_rounds = most_rounds.max(stress.div_ceil(64 * groups));
+            for s in [&fused, &plain] {
+                let mut args = bits_u32(s, "particle_dispatch");
+                args[9..12].copy_from_slice(&[groups, 1, 1]);
+                let args: Vec<f32> = args.into_iter().map(f32::from_bits).collect();
+                s.write_f32("particle_dispatch", &args).unwrap();
+            }
+        }
+    }
+    assert!(
+        most_rounds >= 2,
+        "the stress set never outgrew {groups} workgroups: at most {most_rounds} rounds"
     );
 }

@@ -8,7 +8,8 @@ pub const PARTICLE_WORKGROUP: u32 = 64;
 const MAX_GROUPS: u32 = 65535;
 
 /// The lists and counts (twin of compact_mark + the three scans + compact_scatter +
-/// compact_args).
+/// compact_args, but for compact_args' fourth grid, the fused contact + sph_stress
+/// dispatch's, which no CPU stage dispatches: [`grid`] of it is checked in the tests).
 pub fn compact(
     particle_mode: &[u32],
     dynamic_list: &mut Vec<u32>,
@@ -38,7 +39,8 @@ pub fn compact(
     );
 }
 
-/// The lists' counts and indirect dispatch arguments (twin of compact_args).
+/// The lists' counts and their three indirect dispatch arguments (twin of compact_args but
+/// for its fourth grid).
 pub fn counts_and_dispatch(
     lists: [&[u32]; 3],
     particle_counts: &mut [u32; 4],

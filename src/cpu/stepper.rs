@@ -1837,8 +1837,8 @@ impl CpuStepper {
 
     /// Overwrite design 8's per-step array `name` (`exact_delta`, `exact_host_force` or
     /// `exact_tangent`, as [`Self::array`] names them) from its start with `data` (tests,
-    /// debugging; `GpuStepper::write_f32` does the same there). False when the model has no
-    /// such array or `data` is longer than it.
+    /// debugging; `GpuStepper::write_f32` writes the GPU's, and also raises its activation
+    /// gate). False when the model has no such array or `data` is longer than it.
     pub fn write_exact_array(&mut self, name: &str, data: &[f32]) -> bool {
         let Some(x) = self.exact.as_mut() else {
             return false;

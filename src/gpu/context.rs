@@ -233,9 +233,10 @@ impl GpuContext {
         )
     }
 
-    /// Return the first wgpu error captured since the last check, if any. One raised by
-    /// another thread's call (threads sharing the device: the test binaries) names that
-    /// thread, so the report points at the code that caused it.
+    /// Return the first wgpu error captured since the last check, if any (and drop the
+    /// rest). One that wgpu reported on another thread (threads sharing the device: the test
+    /// binaries) names that thread: the one whose call raised it for a validation error, the
+    /// polling one for an error found while polling.
     pub fn check_errors(&self) -> Result<()> {
         let mut v = self
             .errors
