@@ -3,7 +3,7 @@
 // x = X + u the vertex position, A its share of the rest surface area, n = (x - c)/|x - c|
 // (src/contact.rs). The tool moves at v_tool = (end - start)/(steps dt) during the batch.
 // Writes contact_forces[s]; gather adds it to the vertex. CPU twin: src/cpu/contact.rs.
-// `contact_sph_stress` does the same per surface vertex (lane 0 of each of a 256-thread
+// `contact_sph_stress` does the same per surface vertex (lane 1 of each of a 256-thread
 // workgroup's 64 slots) and, on the same grid, sph_stress.wgsl's work over the stress set S
 // (shared/sph_stress_particle.wgsl, 64 entries a workgroup with 4 lanes each): the two read
 // nothing the other writes, so the GPU records this one dispatch in place of the sph_stress
@@ -56,8 +56,9 @@ fn contact(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
 @compute @workgroup_size(256)
 fn contact_sph_stress(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>, @builtin(local_invocation_index) local: u32) {
     let first = workgroup_index(wid, nwg);
+    // The second 64 threads (lane 1: lane 0 also ends each stress entry).
     let s = first * ITEMS_PER_WORKGROUP + local % ITEMS_PER_WORKGROUP;
-    if local < ITEMS_PER_WORKGROUP && s < tool_params.n_surface {
+    if local / ITEMS_PER_WORKGROUP == 1u && s < tool_params.n_surface {
         contact_at(s);
     }
     let groups = nwg.x * nwg.y;
@@ -67,7 +68,7 @@ fn contact_sph_stress(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgr
         if r > 0u {
             workgroupBarrier();
         }
-        sph_stress_entry((r * groups + first) * SPH_STRESS_ITEMS + local % SPH_STRESS_ITEMS, local);
+        sph_stress_entry((r * groups + first) * SPH_STRESS_ITEMS + local % SPH_STRESS_ITEMS, local, params.lambda, params.mu);
     }
 }
 

@@ -8,7 +8,7 @@
 // Writes A_p = P G_p^T (so that P g_pb = A_p grad W_pb), H_p (for the hourglass penalty) and
 // V Psi. Each particle has LANES threads of a 256-thread workgroup that takes 64 entries:
 // lane j sums the neighbours j, j + LANES, ... and the lanes' sums are added in lane order.
-// The caller declares `params` (StepParams). The arrays are declared here (bound by name).
+// The arrays are declared here (bound by name); the Lame constants come as arguments.
 #import particles
 #import material
 
@@ -63,11 +63,11 @@ fn store9(a: u32, p: u32, m: mat3x3<f32>) {
     }
 }
 
-// The stress of entry k of S (nothing where k is past its end), by the thread `local` of the
-// workgroup (lane local / 64 of slot local % 64). Every thread of the workgroup calls it, for
+// The stress of entry k of S (nothing where k is past its end) for Lame constants lambda and
+// mu, by the thread `local` of the workgroup (lane local / 64 of slot local % 64). Every thread of the workgroup calls it, for
 // the same 64 entries (it has a workgroup barrier); a caller that calls it again must put a
 // workgroup barrier between the calls (lane 0 reads `lane_sums` after the first).
-fn sph_stress_entry(k: u32, local: u32) {
+fn sph_stress_entry(k: u32, local: u32, lambda: f32, mu: f32) {
     let slot = local % SPH_STRESS_ITEMS;
     let lane = local / SPH_STRESS_ITEMS;
     let live = k < particle_counts[1];
@@ -104,11 +104,11 @@ fn sph_stress_entry(k: u32, local: u32) {
             let eps = transpose(f) * f - identity3();
             let tr = trace3(eps);
             se = StressEnergy(
-                identity3() * (params.lambda * tr) + eps * (2.0 * params.mu),
-                0.25 * params.mu * ddot(eps, eps) + 0.125 * params.lambda * tr * tr,
+                identity3() * (lambda * tr) + eps * (2.0 * mu),
+                0.25 * mu * ddot(eps, eps) + 0.125 * lambda * tr * tr,
             );
         } else {
-            se = material_stress_energy(MATERIAL, h, params.lambda, params.mu);
+            se = material_stress_energy(MATERIAL, h, lambda, mu);
         }
         store9(0u, p, se.p * transpose(g));
         store9(1u, p, h);
