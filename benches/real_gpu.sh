@@ -186,18 +186,23 @@ round_trip_ab() {
       timeout 60 "$d/profile_stages" hm1_exact 3.5 200 gpu 2>&1 | tail -30
     done
   done
-  awk '/^\[particles\]/{skip=1;next} /^\[/{skip=0} !skip' scenes/hm1.toml > /tmp/hm1core.toml
+  hm1_core
   for s in hm1 /tmp/hm1core.toml; do
     section "$s GPU stages, tool gone (t = 8)"
     timeout 60 "$B/profile_stages" $s 8 100 gpu 2>&1 | tail -17
   done
 }
 
-# Batches recorded ahead on and off in the same binary (PALPATE_GPU_PRERECORD): hybrid_step's
-# GPU ratio tables and the whole steps of hm1 and its core alone, two rounds alternating.
-prerecord() {
+# hm1 without its particle layer (the same tets and tool): /tmp/hm1core.toml.
+hm1_core() {
   awk '/^\[particles\]/{skip=1;next} /^\[/{skip=0} !skip' scenes/hm1.toml > /tmp/hm1core.toml
-  for round in 1 2; do
+}
+
+# Batches recorded ahead on and off in the same binary (PALPATE_GPU_PRERECORD): hybrid_step's
+# GPU ratio tables and the whole steps of hm1 and its core alone, $1 rounds alternating.
+prerecord() {
+  hm1_core
+  for round in $(seq "$1"); do
     for v in 0 1; do
       section "round $round, PALPATE_GPU_PRERECORD=$v: hybrid_step GPU ratio tables"
       PALPATE_GPU_PRERECORD=$v PALPATE_BENCH_BACKENDS=gpu timeout 120 "$B/hybrid_step" --bench no_criterion_group_matches 2>&1 | grep "|"
@@ -211,14 +216,7 @@ prerecord() {
 # The checks left for a GPU by the sessions of 2026-11-28 (no GPU lent to the second).
 next_checks() {
   gpu_tests
-  awk '/^\[particles\]/{skip=1;next} /^\[/{skip=0} !skip' scenes/hm1.toml > /tmp/hm1core.toml
-  for v in 0 1; do
-    section "PALPATE_GPU_PRERECORD=$v: hybrid_step GPU ratio tables"
-    PALPATE_GPU_PRERECORD=$v PALPATE_BENCH_BACKENDS=gpu timeout 120 "$B/hybrid_step" --bench no_criterion_group_matches 2>&1 | grep "|"
-    for s in hm1 /tmp/hm1core.toml; do
-      echo "$s: $(PALPATE_GPU_PRERECORD=$v timeout 60 "$B/profile_stages" $s 3.5 200 gpu 2>&1 | grep whole)"
-    done
-  done
+  prerecord 1
   for f in 1 all 1 all; do
     section "PALPATE_GPU_FUSION=$f: hm1 whole steps and GPU stages, t = 3.5"
     PALPATE_GPU_FUSION=$f timeout 60 "$B/profile_stages" hm1 3.5 100 gpu 2>&1 | grep -E "whole|Contact|SphStress|total"
@@ -237,7 +235,7 @@ if [ "${1:-}" = "next" ]; then
 fi
 
 if [ "${1:-}" = "prerecord" ]; then
-  { prerecord; section "done"; } 2>&1 | tee -a "$log"
+  { prerecord 2; section "done"; } 2>&1 | tee -a "$log"
   exit 0
 fi
 

@@ -942,13 +942,7 @@ fn hm1_exact_follows_the_tool_and_switches_without_pops() {
     let (mut particle_jump, mut vertex_jump) = (0.0f32, 0.0f32);
     let mut t = 0.0;
     while t < 10.0 {
-        let (a, b) = (
-            tool.position_at(t),
-            tool.position_at(t + interval as f64 * dt),
-        );
-        s.submit(interval, &palpate::stepper::BatchInput::moving(a, b))
-            .unwrap();
-        let r = s.wait().unwrap();
+        let r = common::batch_along_path(&mut s, &tool, t, interval, dt);
         assert!(r.stats.non_finite_vertex.is_none(), "diverged at t = {t}");
         t += interval as f64 * dt;
         most = most.max(r.particles.unwrap().dynamic);
@@ -1039,13 +1033,7 @@ fn particles_leaving_the_stress_set_keep_no_tangent_force() {
         let (mut poisoned, mut witnessed) = (Vec::<bool>::new(), 0usize);
         let mut t = 0.0;
         while t < 8.0 {
-            let (a, b) = (
-                tool.position_at(t),
-                tool.position_at(t + interval as f64 * dt),
-            );
-            s.submit(interval, &palpate::stepper::BatchInput::moving(a, b))
-                .unwrap();
-            s.wait().unwrap();
+            common::batch_along_path(&mut s, &tool, t, interval, dt);
             t += interval as f64 * dt;
             let mut tangent = s.array("exact_tangent").unwrap().to_vec();
             let modes = s.particle_modes().unwrap().to_vec();

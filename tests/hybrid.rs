@@ -518,13 +518,7 @@ fn hm1_activates_a_few_hundred_particles_under_the_tool_and_releases_them_withou
     let mut t = 0.0;
     // 10 time units (1430 steps at the paper's dt), batches of one activation interval.
     while t < 10.0 {
-        let (a, b) = (
-            tool.position_at(t),
-            tool.position_at(t + interval as f64 * dt),
-        );
-        s.submit(interval, &palpate::stepper::BatchInput::moving(a, b))
-            .unwrap();
-        let r = s.wait().unwrap();
+        let r = common::batch_along_path(&mut s, &tool, t, interval, dt);
         assert!(
             r.stats.non_finite_vertex.is_none(),
             "hm1 diverged at t = {t}"

@@ -164,3 +164,18 @@ fn base64_decode(s: &str) -> Vec<u8> {
     }
     out
 }
+
+/// One batch of `steps` steps of `dt` from time `t`, the tool moving along its path over it;
+/// the batch's report.
+pub fn batch_along_path(
+    s: &mut dyn palpate::stepper::Stepper,
+    tool: &palpate::scene::Tool,
+    t: f64,
+    steps: u32,
+    dt: f64,
+) -> palpate::stepper::BatchReport {
+    let (a, b) = (tool.position_at(t), tool.position_at(t + steps as f64 * dt));
+    s.submit(steps, &palpate::stepper::BatchInput::moving(a, b))
+        .unwrap();
+    s.wait().unwrap()
+}
