@@ -512,12 +512,21 @@ pub enum Fusions {
 }
 
 impl Fusions {
-    /// From `PALPATE_GPU_FUSION`: `0` none, `all` all, anything else or unset the measured.
-    pub fn from_env() -> Fusions {
-        match std::env::var("PALPATE_GPU_FUSION").as_deref() {
-            Ok("0") => Fusions::None,
-            Ok("all") => Fusions::All,
-            _ => Fusions::Measured,
+    /// From `PALPATE_GPU_FUSION`: `0` none, `1` (or unset, or empty) the measured, `all`
+    /// all; any other value is an error naming the variable.
+    pub fn from_env() -> crate::error::Result<Fusions> {
+        Fusions::parse(std::env::var("PALPATE_GPU_FUSION").ok().as_deref())
+    }
+
+    /// [`Self::from_env`] of the variable's value (None: unset).
+    pub fn parse(value: Option<&str>) -> crate::error::Result<Fusions> {
+        match value {
+            Some("0") => Ok(Fusions::None),
+            None | Some("") | Some("1") => Ok(Fusions::Measured),
+            Some("all") => Ok(Fusions::All),
+            Some(other) => Err(crate::error::PalpateError::Usage(format!(
+                "PALPATE_GPU_FUSION='{other}' is not one of 0 (no fused passes), 1 (the measured ones, the default), all"
+            ))),
         }
     }
 

@@ -667,6 +667,41 @@ fn threads_are_recorded_and_bad_counts_or_missing_adapters_are_one_line_errors()
     );
 }
 
+/// The GPU stepper's switches (`PALPATE_GPU_FUSION`, `PALPATE_GPU_PRERECORD`) take only the
+/// values they document: a typo is a one-line error naming the variable, not the default.
+#[test]
+fn unknown_gpu_switch_values_are_one_line_errors() {
+    let d = tmp("gpu_switches");
+    let out = d.to_str().unwrap();
+    for (var, value, want) in [
+        ("PALPATE_GPU_FUSION", "al", "0 (no fused passes)"),
+        ("PALPATE_GPU_PRERECORD", "yes", "1 (record ahead"),
+    ] {
+        let o = Command::new(env!("CARGO_BIN_EXE_palpate"))
+            .args([
+                "run",
+                "beam",
+                "--steps",
+                "2",
+                "--backend",
+                "gpu",
+                "--out",
+                out,
+            ])
+            .env(var, value)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{var}={value} ran: {err}");
+        assert!(!err.contains("panicked"), "{err}");
+        let lines = error_lines(&err);
+        assert_eq!(lines.len(), 1, "{err}");
+        for w in [var, &format!("'{value}'"), want] {
+            assert!(lines[0].contains(w), "{var}: no {w:?} in {}", lines[0]);
+        }
+    }
+}
+
 #[test]
 fn command_line_errors_are_one_line_with_exit_status_1() {
     let cases: &[(&[&str], &[&str])] = &[

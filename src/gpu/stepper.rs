@@ -33,6 +33,24 @@ pub fn exact_activates_on_cpu(model: &Model) -> bool {
             .is_some_and(|p| !p.settings.all_active)
 }
 
+/// `PALPATE_GPU_PRERECORD`: `0` records each batch when it is submitted, `1` (or unset, or
+/// empty) records the next batch while the GPU runs this one; any other value is an error
+/// naming the variable.
+pub fn prerecord_from_env() -> Result<bool> {
+    parse_prerecord(std::env::var("PALPATE_GPU_PRERECORD").ok().as_deref())
+}
+
+/// [`prerecord_from_env`] of the variable's value (None: unset).
+pub fn parse_prerecord(value: Option<&str>) -> Result<bool> {
+    match value {
+        Some("0") => Ok(false),
+        None | Some("") | Some("1") => Ok(true),
+        Some(other) => Err(PalpateError::Usage(format!(
+            "PALPATE_GPU_PRERECORD='{other}' is not one of 0 (record each batch at its submission), 1 (record ahead, the default)"
+        ))),
+    }
+}
+
 /// The pipeline-overridable constants a stage's kernels are built with for `model`.
 pub fn stage_constants(stage: Stage, model: &Model) -> Vec<(&'static str, f64)> {
     match stage {
@@ -351,7 +369,7 @@ impl GpuStepper {
     /// Upload `model`, build its plan's pipelines and bind groups and the readback ring, with
     /// the fused dispatches `PALPATE_GPU_FUSION` asks for ([`Fusions::from_env`]).
     pub fn new(ctx: Arc<GpuContext>, model: &Model, params: StepParams) -> Result<GpuStepper> {
-        GpuStepper::with_fusions(ctx, model, params, Fusions::from_env())
+        GpuStepper::with_fusions(ctx, model, params, Fusions::from_env()?)
     }
 
     /// [`Self::new`] with the fused dispatches `fusions` builds.
@@ -474,7 +492,7 @@ impl GpuStepper {
             readback_state: None,
             exact_twin: None,
             staging: None,
-            prerecord: std::env::var("PALPATE_GPU_PRERECORD").map_or(true, |v| v != "0"),
+            prerecord: prerecord_from_env()?,
             ahead: None,
             ahead_used: 0,
             ctx,
