@@ -1191,6 +1191,10 @@ fn bad_particle_sections_are_one_line_errors_naming_the_key() {
             &["particles.spacing", "> 0"],
         ),
         (
+            "region = 0\nspacing = inf\nactivation_radius = 0.004",
+            &["particles.spacing", "finite", "inf"],
+        ),
+        (
             "region = 0\nspacing = 0.5\nactivation_radius = 0.004",
             &["particles.spacing", "too coarse"],
         ),

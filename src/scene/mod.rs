@@ -280,6 +280,7 @@ pub(crate) fn positive(bad: &Bad, item: &str, v: f64, unit: &str) -> Result<f64>
     if v.is_finite() && v > 0.0 {
         Ok(v)
     } else {
-        Err(bad(item, format!("must be > 0 {unit}, got {v}")))
+        let what = if v.is_infinite() { "finite and " } else { "" };
+        Err(bad(item, format!("must be {what}> 0 {unit}, got {v}")))
     }
 }
