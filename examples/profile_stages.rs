@@ -106,6 +106,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let whole = start.elapsed().as_secs_f64() * 1e6 / steps as f64;
         println!("whole steps, stages overlapped as the stepper runs them: {whole:.1} µs per step");
         let modes = c.particle_modes().map(|m| m.to_vec());
+        if let (Some(m), Some(l)) = (&modes, c.neighbour_lists()) {
+            println!(
+                "pairs that carry a force (both in the force set, one in the stress set), each once: {}",
+                force_pairs(m, &l.neighbour_offsets, &l.neighbours)
+            );
+        }
         (times, modes, format!("{threads} threads"))
     };
     let total: f64 = times.per_stage.iter().map(|(_, ns)| ns).sum();
@@ -166,4 +172,22 @@ fn print_round_trips(when: &str, trips: &[palpate::gpu::stepper::RoundTrip]) {
     ] {
         println!("  {name:<38} {median:>9.1} {largest:>9.1}");
     }
+}
+
+/// The neighbour pairs whose ends are both in the force set and at least one in the stress
+/// set, each counted once (what the CPU's pair forces evaluate a step).
+fn force_pairs(modes: &[u32], offsets: &[u32], neighbours: &[u32]) -> usize {
+    use palpate::particles::params::mode;
+    let has = |p: usize, bit: u32| modes[p] & bit != 0;
+    (0..modes.len())
+        .flat_map(|c| {
+            (offsets[c]..offsets[c + 1]).map(move |k| (c, neighbours[k as usize] as usize))
+        })
+        .filter(|&(c, b)| {
+            c < b
+                && has(c, mode::IN_F)
+                && has(b, mode::IN_F)
+                && (has(c, mode::IN_S) || has(b, mode::IN_S))
+        })
+        .count()
 }
