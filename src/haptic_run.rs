@@ -312,7 +312,7 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
     };
     let config = ServoConfig::new(spec).with_duration(seconds);
     if opts.announce {
-        println!(
+        crate::say!(
             "{}: {} tets, {} vertices{}; device {} ({}); backend {} on {} ({}); {seconds} s",
             scene.name,
             model.n_tets(),
@@ -350,7 +350,7 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
         }
     };
     if opts.announce && removed > 0 {
-        eprintln!(
+        crate::say_err!(
             "note: removed {removed} output files of an earlier run from {}",
             opts.out.display()
         );

@@ -8,6 +8,7 @@
 
 pub mod bench;
 pub mod compliance;
+pub mod console;
 pub mod contact;
 pub mod cpu;
 pub mod error;

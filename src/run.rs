@@ -303,13 +303,13 @@ pub fn run_with_state(
     let model = sim.model.clone();
     let removed = crate::output::remove_earlier_outputs(&opts.out)?;
     if opts.announce && removed > 0 {
-        eprintln!(
+        crate::say_err!(
             "note: removed {removed} output files of an earlier run from {}",
             opts.out.display()
         );
     }
     if opts.announce {
-        println!(
+        crate::say!(
             "{}: {} tets, {} vertices{}; backend {} on {} ({})",
             scene.name,
             model.n_tets(),
@@ -396,7 +396,7 @@ pub fn run_with_state(
                 target_steps = sim.steps_done + (remaining / dt).ceil() as u64;
                 target_time = sim.time + remaining;
                 let what = diverged_status(&sim, step, vertex, 2.0 * dt);
-                eprintln!(
+                crate::say_err!(
                     "warning: {}; retrying from step {} at dt = {dt:.3e} s",
                     what.divergence().unwrap_or_default(),
                     sim.steps_done

@@ -667,6 +667,61 @@ fn threads_are_recorded_and_bad_counts_or_missing_adapters_are_one_line_errors()
     );
 }
 
+/// Standard output that cannot be written does not stop a run or panic: a closed pipe
+/// (`palpate … | head -1`) is silent, and a full device (`> /dev/full`) is the command's
+/// one-line error after its files are written.
+#[test]
+fn unwritable_standard_output_loses_no_files_and_never_panics() {
+    let d = tmp("stdout");
+    let out = d.to_str().unwrap();
+    let args = [
+        "run",
+        "beam",
+        "--steps",
+        "2",
+        "--backend",
+        "cpu",
+        "--out",
+        out,
+    ];
+    // A pipe whose reader is gone before the first line.
+    let (reader, writer) = std::io::pipe().unwrap();
+    drop(reader);
+    let o = Command::new(env!("CARGO_BIN_EXE_palpate"))
+        .args(args)
+        .stdout(writer)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "closed pipe: {err}");
+    assert!(!err.contains("panicked"), "{err}");
+    assert!(d.join("summary.json").is_file() && d.join("final.vtu").is_file());
+    // A full device: the files are written, then one error line.
+    std::fs::remove_dir_all(&d).unwrap();
+    for args in [&args[..], &["scenes"][..]] {
+        let full = std::fs::OpenOptions::new()
+            .write(true)
+            .open("/dev/full")
+            .unwrap();
+        let o = Command::new(env!("CARGO_BIN_EXE_palpate"))
+            .args(args)
+            .stdout(full)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{args:?}: {err}");
+        assert!(!err.contains("panicked"), "{err}");
+        let lines = error_lines(&err);
+        assert_eq!(lines.len(), 1, "{err}");
+        assert!(
+            lines[0].contains("could not write to standard output"),
+            "{}",
+            lines[0]
+        );
+    }
+    assert!(d.join("summary.json").is_file() && d.join("final.vtu").is_file());
+}
+
 /// The GPU stepper's switches (`PALPATE_GPU_FUSION`, `PALPATE_GPU_PRERECORD`) take only the
 /// values they document: a typo is a one-line error naming the variable, not the default.
 #[test]

@@ -190,13 +190,22 @@ fn main() -> ExitCode {
         Ok(cli) => cli,
         Err(e) => return command_line_error(e),
     };
-    match execute(cli) {
+    let result = execute(cli);
+    // Output files are written by now; a standard output that could not be written (not a
+    // closed pipe) is the run's error when it had none of its own.
+    let result = match (result, palpate::console::stdout_failure()) {
+        (Ok(()), Some(why)) => Err(PalpateError::Usage(format!(
+            "could not write to standard output: {why}"
+        ))),
+        (r, _) => r,
+    };
+    match result {
         Ok(()) if STOPPED_BY_SIGNAL.load(std::sync::atomic::Ordering::SeqCst) => {
             ExitCode::from(palpate::interrupt::EXIT_STATUS)
         }
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {e}");
+            palpate::say_err!("error: {e}");
             ExitCode::FAILURE
         }
     }
@@ -218,7 +227,7 @@ fn command_line_error(e: clap::Error) -> ExitCode {
         }
         _ => {}
     }
-    eprintln!("error: {}", one_line(&e.render().to_string()));
+    palpate::say_err!("error: {}", one_line(&e.render().to_string()));
     ExitCode::FAILURE
 }
 
@@ -265,13 +274,13 @@ fn execute(cli: Cli) -> Result<()> {
             let scene = Scene::load(&scene)?;
             palpate::interrupt::install();
             for t in scene.mesh_report.reoriented.iter().take(3) {
-                eprintln!(
+                palpate::say_err!(
                     "warning: {}: tet {t} was inverted and has been reoriented",
                     scene.origin
                 );
             }
             if scene.mesh_report.reoriented.len() > 3 {
-                eprintln!(
+                palpate::say_err!(
                     "warning: {}: {} tets reoriented in all",
                     scene.origin,
                     scene.mesh_report.reoriented.len()
@@ -312,11 +321,15 @@ fn execute(cli: Cli) -> Result<()> {
             };
             let s = palpate::run::run(&scene, &opts)?;
             warn_inverted(&scene, &s);
-            println!(
+            palpate::say!(
                 "{} steps of {:.3e} s ({:.3e} s simulated) in {:.2} s = {:.0} steps/s",
-                s.steps, s.dt, s.sim_seconds, s.wall_seconds, s.steps_per_second
+                s.steps,
+                s.dt,
+                s.sim_seconds,
+                s.wall_seconds,
+                s.steps_per_second
             );
-            println!(
+            palpate::say!(
                 "max displacement {:.4e} m, kinetic {:.3e} J, elastic {:.3e} J{}; status: {}",
                 s.max_displacement,
                 s.kinetic_energy,
@@ -341,14 +354,14 @@ fn execute(cli: Cli) -> Result<()> {
                 .iter()
                 .map(|f| format!("{}/{f}", out.display()))
                 .collect();
-            println!(
+            palpate::say!(
                 "wrote {}; realtime factor {:.3} (simulated / wall seconds)",
                 wrote.join(", "),
                 s.realtime_factor
             );
             if let RunStatus::Interrupted { .. } = s.status {
                 STOPPED_BY_SIGNAL.store(true, std::sync::atomic::Ordering::SeqCst);
-                eprintln!("{}; outputs written", s.status);
+                palpate::say_err!("{}; outputs written", s.status);
             } else if !s.status.is_ok() {
                 return Err(PalpateError::Usage(format!(
                     "run did not finish cleanly: {}",
@@ -387,15 +400,15 @@ fn execute(cli: Cli) -> Result<()> {
             let h = &s.haptic;
             let l = &h.servo.lateness_us;
             let a = &h.servo.model_age_ms;
-            println!(
+            palpate::say!(
                 "servo: {} ticks at {:.1} Hz; lateness p50 {:.1} / p99 {:.1} / p99.9 {:.1} / max {:.1} us; {} missed deadlines",
                 h.servo.ticks, h.servo.rate_hz, l.p50, l.p99, l.p99_9, l.max, h.servo.missed_deadlines
             );
-            println!(
+            palpate::say!(
                 "model age p50 {:.2} / p99 {:.2} / max {:.2} ms; {} force clamps; passivity observer min {:.2e} J; max force {:.3} N",
                 a.p50, a.p99, a.max, h.servo.force_clamps, h.servo.passivity_min_energy_j, h.servo.max_force_n
             );
-            println!(
+            palpate::say!(
                 "physics: {} steps ({:.3} s simulated, {:.3} s of it asleep at rest) in {:.2} s = {:.0} steps/s, realtime factor {:.3}; stiffness {}",
                 s.run.steps,
                 s.run.sim_seconds,
@@ -406,7 +419,7 @@ fn execute(cli: Cli) -> Result<()> {
                 h.physics.stiffness_model
             );
             if h.servo.unlogged_ticks > 0 {
-                eprintln!(
+                palpate::say_err!(
                     "warning: haptic.csv holds the session's first {} ticks; the {} after them were not logged (the log holds at most {} ticks)",
                     h.servo.ticks.saturating_sub(h.servo.unlogged_ticks),
                     h.servo.unlogged_ticks,
@@ -416,12 +429,12 @@ fn execute(cli: Cli) -> Result<()> {
             warn_inverted(&scene, &s.run);
             warn_inverted_in_contact(&scene, h);
             if h.physics.realtime_capacity < 0.95 {
-                eprintln!(
+                palpate::say_err!(
                     "warning: the physics kept up with only {:.2}x real time: the simulated tissue lags the hand, and contact can chatter (make and break) instead of settling; use a coarser mesh, a larger [solver] mass_scaling (statics unchanged) or a GPU",
                     h.physics.realtime_capacity
                 );
             }
-            println!(
+            palpate::say!(
                 "wrote {0}/haptic.csv, {0}/final.vtu, {1}{0}/summary.json; status: {2}",
                 out.display(),
                 if s.run.particles > 0 {
@@ -433,7 +446,7 @@ fn execute(cli: Cli) -> Result<()> {
             );
             if let RunStatus::Interrupted { .. } = s.run.status {
                 STOPPED_BY_SIGNAL.store(true, std::sync::atomic::Ordering::SeqCst);
-                eprintln!("{}; outputs written", s.run.status);
+                palpate::say_err!("{}; outputs written", s.run.status);
             } else if !s.run.status.is_ok() {
                 return Err(PalpateError::Usage(format!(
                     "haptic session did not finish cleanly: {}",
@@ -445,10 +458,10 @@ fn execute(cli: Cli) -> Result<()> {
         Command::Mesh { scene, out } => {
             let scene = Scene::load(&scene)?;
             let report = palpate::mesh::quality::report(&scene);
-            print!("{report}");
+            palpate::console::write_out(format_args!("{report}"));
             if let Some(path) = out {
                 palpate::mesh::io::write(&path, &scene.mesh)?;
-                println!("wrote {}", path.display());
+                palpate::say!("wrote {}", path.display());
             }
             Ok(())
         }
@@ -458,36 +471,40 @@ fn execute(cli: Cli) -> Result<()> {
         }
         Command::Scenes => {
             for (name, desc) in scene::builtin_list() {
-                println!("{name:<10} {desc}");
+                palpate::say!("{name:<10} {desc}");
             }
             Ok(())
         }
         Command::Info => {
             let adapters = palpate::gpu::context::list_adapters()?;
             if adapters.is_empty() {
-                println!("no compute-capable adapter found");
+                palpate::say!("no compute-capable adapter found");
             }
             for a in &adapters {
                 let i = a.get_info();
-                println!(
+                palpate::say!(
                     "adapter: {} ({:?}, {:?}, driver {} {})",
-                    i.name, i.backend, i.device_type, i.driver, i.driver_info
+                    i.name,
+                    i.backend,
+                    i.device_type,
+                    i.driver,
+                    i.driver_info
                 );
             }
             let (auto, reason, _) = palpate::sim::pick_auto();
-            println!(
+            palpate::say!(
                 "--backend auto picks: {} ({reason})",
                 if auto == Backend::Gpu { "gpu" } else { "cpu" }
             );
-            println!(
+            palpate::say!(
                 "cpu backend: {} cores (--threads defaults to all of them)",
                 palpate::cpu::stepper::available_cores()
             );
             if !adapters.is_empty() {
                 let ctx = palpate::gpu::GpuContext::new()?;
                 let l = &ctx.limits;
-                println!("chosen: {} (what --backend gpu takes)", ctx.describe());
-                println!(
+                palpate::say!("chosen: {} (what --backend gpu takes)", ctx.describe());
+                palpate::say!(
                     "timestamp queries: {}",
                     if ctx
                         .device
@@ -499,16 +516,16 @@ fn execute(cli: Cli) -> Result<()> {
                         "no"
                     }
                 );
-                println!(
+                palpate::say!(
                     "limits: max_buffer_size {} B, max_storage_buffer_binding_size {} B, storage buffers per stage {}, workgroups per dimension {}",
                     l.max_buffer_size, l.max_storage_buffer_binding_size, l.max_storage_buffers_per_shader_stage, l.max_compute_workgroups_per_dimension
                 );
             }
             let scene = Scene::load(scene::DEFAULT_SCENE)?;
             let model = palpate::model::Model::from_scene(&scene);
-            println!("step plan of the default scene '{}':", scene.name);
+            palpate::say!("step plan of the default scene '{}':", scene.name);
             for line in palpate::plan::StepPlan::for_model(&model).describe() {
-                println!("  {line}");
+                palpate::say!("  {line}");
             }
             Ok(())
         }
@@ -543,7 +560,7 @@ fn bench(study: BenchStudy) -> Result<()> {
                 quick,
                 ed0_steps,
             };
-            let rows = stability::study(&opts, &mut |s| eprintln!("bench stability: {s}"))?;
+            let rows = stability::study(&opts, &mut |s| palpate::say_err!("bench stability: {s}"))?;
             let header = format!(
                 "Written by `palpate bench stability --backend {}{}{}` on {}. Case letters follow issue 4: (a) critical dt, (b) squash to 10 % and release, (c) random inversion, (d) probe at 10x a {} N device, (e) long ED0 run, (f) Table 1 scenes at the paper's dt.",
                 clap::ValueEnum::to_possible_value(&backend)
@@ -559,7 +576,7 @@ fn bench(study: BenchStudy) -> Result<()> {
             );
             stability::write(&out, &rows, &header)?;
             for r in &rows {
-                println!(
+                palpate::say!(
                     "({}) {:<18} {:<18} {:<60} {:>12.4} {}",
                     r.case,
                     r.material,
@@ -569,7 +586,7 @@ fn bench(study: BenchStudy) -> Result<()> {
                     if r.ok { "ok" } else { "FAILED" }
                 );
             }
-            println!("wrote {0}/stability.csv, {0}/stability.md", out.display());
+            palpate::say!("wrote {0}/stability.csv, {0}/stability.md", out.display());
             Ok(())
         }
         BenchStudy::Contact {
@@ -578,7 +595,9 @@ fn bench(study: BenchStudy) -> Result<()> {
             out,
         } => {
             use palpate::bench::contact;
-            let rows = contact::study(backend, quick, &mut |s| eprintln!("bench contact: {s}"))?;
+            let rows = contact::study(backend, quick, &mut |s| {
+                palpate::say_err!("bench contact: {s}")
+            })?;
             let header = format!(
                 "Written by `palpate bench contact{}` on {}. A sphere of radius {} mm pressed into a block of E = {} kPa, nu = {} (bottom held, half-width and depth {} contact radii), relaxed to a static state; error = (F - F_Hertz)/F_Hertz. In the hybrid blocks the particles within 2a of the tool are awake (dynamic) unless the label says otherwise; the rest move with the coarse core, which stiffens the contact the less the more are awake (compare the a/2 rows with 1a, 2a, 4a and all awake).",
                 if quick { " --quick" } else { "" },
@@ -589,7 +608,7 @@ fn bench(study: BenchStudy) -> Result<()> {
                 contact::HertzCase::default().block
             );
             contact::write(&out, &rows, &header)?;
-            println!("wrote {0}/contact.csv, {0}/contact.md", out.display());
+            palpate::say!("wrote {0}/contact.csv, {0}/contact.md", out.display());
             Ok(())
         }
         BenchStudy::Haptic { seconds, out } => {
@@ -610,9 +629,11 @@ fn bench(study: BenchStudy) -> Result<()> {
             let scratch =
                 std::env::temp_dir().join(format!("palpate-bench-haptic-{}", std::process::id()));
             let mut rows = haptic::study(&runs, seconds, &scratch, &mut |s| {
-                eprintln!("bench haptic: {s}")
+                palpate::say_err!("bench haptic: {s}")
             })?;
-            eprintln!("bench haptic: lv_touch with the hand away half the time, sleep on and off");
+            palpate::say_err!(
+                "bench haptic: lv_touch with the hand away half the time, sleep on and off"
+            );
             rows.extend(haptic::sleep_study(
                 cores.saturating_sub(1).max(1),
                 seconds,
@@ -623,7 +644,7 @@ fn bench(study: BenchStudy) -> Result<()> {
                 adapter_name(Backend::Gpu)
             );
             haptic::write(&out, &rows, &header)?;
-            println!(
+            palpate::say!(
                 "wrote {0}/haptic_bench.csv, {0}/haptic_bench.md",
                 out.display()
             );
@@ -635,7 +656,9 @@ fn bench(study: BenchStudy) -> Result<()> {
             out,
         } => {
             use palpate::bench::land;
-            let rows = land::study(backend, quick, &mut |s| eprintln!("bench land: {s}"))?;
+            let rows = land::study(backend, quick, &mut |s| {
+                palpate::say_err!("bench land: {s}")
+            })?;
             let header = format!(
                 "Written by `palpate bench land{}` on {} ({} cores). Each row is one `--until-static` solve (relative residual 1e-3, ramped follower pressure, dynamic relaxation with critical mass damping at the Rayleigh-quotient frequency); monitored values are the deformed z of the benchmark's points, interpolated in the containing tet. κ/C is the bulk modulus over Guccione's C (the penalty for incompressibility).",
                 if quick { " --quick" } else { "" },
@@ -643,7 +666,7 @@ fn bench(study: BenchStudy) -> Result<()> {
                 palpate::cpu::stepper::available_cores()
             );
             land::write(&out, &rows, &header)?;
-            println!(
+            palpate::say!(
                 "wrote {0}/land.csv, {0}/land.md, {0}/land.png",
                 out.display()
             );
@@ -659,13 +682,13 @@ fn bench(study: BenchStudy) -> Result<()> {
             let mut studies = Vec::new();
             for problem in [Problem::Beam, Problem::Lv] {
                 studies.push(accuracy::study(problem, &opts, &mut |s| {
-                    eprintln!("bench accuracy: {s}")
+                    palpate::say_err!("bench accuracy: {s}")
                 })?);
             }
             let fronts = accuracy::write(&out, &studies, &adapter_name(backend))?;
             for (study, front) in studies.iter().zip(&fronts) {
                 let p = study.problem;
-                println!(
+                palpate::say!(
                     "{}: reference {} at {} x bound: changes {:.2e} against the next-coarser mesh, {:.2e} against 2x dt",
                     p.name(),
                     p.label(study.reference.0),
@@ -674,7 +697,7 @@ fn bench(study: BenchStudy) -> Result<()> {
                     study.reference_dt_change
                 );
                 for (i, r) in study.runs.iter().enumerate() {
-                    println!(
+                    palpate::say!(
                         "  {:<8} {:>7} tets  dt {:.2} x bound  {:>7} steps  {:>8.3} s  error {:.3e}{}",
                         p.label(r.cells),
                         r.tets,
@@ -686,10 +709,10 @@ fn bench(study: BenchStudy) -> Result<()> {
                     );
                 }
                 for (c, s) in &study.diverged {
-                    println!("  {} at {s} x bound: diverged", p.label(*c));
+                    palpate::say!("  {} at {s} x bound: diverged", p.label(*c));
                 }
             }
-            println!(
+            palpate::say!(
                 "wrote {0}/accuracy.csv, {0}/accuracy.png, {0}/accuracy_lv.png",
                 out.display()
             );
@@ -709,7 +732,7 @@ fn warn_inverted(scene: &Scene, s: &palpate::output::summary::RunSummary) {
         Some(n) => format!("{} tets and {n} particles are", s.inverted_tets),
         None => format!("{} tets are", s.inverted_tets),
     };
-    eprintln!(
+    palpate::say_err!(
         "warning: {}: {what} inverted (det F <= 0) at the end{}",
         scene.origin,
         inversion_advice(scene, particles > 0)
@@ -728,7 +751,7 @@ fn warn_inverted_in_contact(scene: &Scene, h: &palpate::haptic_run::HapticStats)
     } else {
         format!("{} tets were", peak.tets)
     };
-    eprintln!(
+    palpate::say_err!(
         "warning: {}: while the tool touched the tissue, up to {what} inverted (det F <= 0; the most at t = {t:.3} s, of {} counts){}",
         scene.origin,
         h.physics.inversion_checks,
@@ -760,7 +783,7 @@ fn warn_tool_overlap(scene: &Scene, centre: glam::DVec3, when: &str) {
         .as_ref()
         .and_then(|t| t.overlap(&scene.mesh, centre))
     {
-        eprintln!(
+        palpate::say_err!(
             "warning: {}: {when} the tool overlaps the tissue at rest: {overlap}; its contact shoves the tissue out at once (start the tool clear of the surface)",
             scene.origin
         );
