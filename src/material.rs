@@ -659,8 +659,7 @@ impl HyperelasticParams {
 
     /// Check a constant fibre (`fibre = [x, y, z]`): finite and non-zero.
     pub fn check_constant_fibre(fibre: [f64; 3]) -> Result<(), String> {
-        let len2: f64 = fibre.iter().map(|c| c * c).sum();
-        if !(len2.is_finite() && len2 > 0.0) {
+        if crate::scene::unit_direction(fibre).is_none() {
             return Err(format!(
                 "material.fibre must be a finite non-zero vector (got {fibre:?})"
             ));

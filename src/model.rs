@@ -213,7 +213,8 @@ impl Model {
     pub fn with_hyperelastic(mut self, h: HyperelasticParams, fibre: Option<[f64; 3]>) -> Model {
         self.hyperelastic = Some(h);
         if let Some(f) = fibre {
-            let f = glam::DVec3::from_array(f).normalize();
+            // Checked by the scene (`check_constant_fibre`); a zero one stays zero.
+            let f = crate::scene::unit_direction(f).unwrap_or(glam::DVec3::ZERO);
             self.fibres = (0..self.n_tets())
                 .flat_map(|_| f.to_array().map(|c| c as f32))
                 .collect();

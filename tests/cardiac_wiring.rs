@@ -66,6 +66,53 @@ fn refuses(text: &str, key: &str) {
     assert!(err.contains(key), "'{err}' does not name {key}");
 }
 
+/// A direction given with components whose length over- or underflows (1e200, 1e-200) is
+/// still that direction: the fixed plane, the follower pressure's plane and the fibre select
+/// and orient exactly as the unit vector does (a normal of 1e200 used to normalise to zero
+/// and fix every vertex; one of 1e-200 was refused as zero).
+#[test]
+fn directions_of_any_finite_magnitude_mean_their_direction() {
+    let unit = load(&cardiac_beam(GOOD_MATERIAL, "")).unwrap();
+    for scale in ["1e200", "1e-200"] {
+        let text = cardiac_beam(
+            &format!(
+                "bulk_modulus = 2.0e5\nfibre = [{scale}, 0.3{}, 0.0]",
+                &scale[1..]
+            ),
+            "",
+        )
+        .replace(
+            "normal = [1.0, 0.0, 0.0]",
+            &format!("normal = [{scale}, 0.0, 0.0]"),
+        )
+        .replace(
+            "normal = [0.0, 0.0, 1.0]",
+            &format!("normal = [0.0, 0.0, {scale}]"),
+        );
+        let scaled = load(&text).unwrap();
+        assert_eq!(scaled.fixed, unit.fixed, "fixed vertices at {scale}");
+        assert!(unit.fixed.iter().any(|&f| f) && !unit.fixed.iter().all(|&f| f));
+        let faces = |s: &Scene| s.follower.as_ref().unwrap().faces.clone();
+        assert_eq!(faces(&scaled), faces(&unit), "loaded faces at {scale}");
+        let fibre = |s: &Scene| {
+            let m = Model::from_scene(s);
+            m.fibres[..3].to_vec()
+        };
+        let (a, b) = (fibre(&scaled), fibre(&unit));
+        for k in 0..3 {
+            assert!(
+                (a[k] - b[k]).abs() < 1e-6,
+                "fibre at {scale}: {a:?} against {b:?}"
+            );
+        }
+    }
+    refuses(
+        &cardiac_beam(GOOD_MATERIAL, "")
+            .replace("normal = [1.0, 0.0, 0.0]", "normal = [0.0, 0.0, 0.0]"),
+        "fixed",
+    );
+}
+
 #[test]
 fn bad_cardiac_input_is_one_line_naming_the_key() {
     refuses(

@@ -56,14 +56,12 @@ pub(super) fn bounding_diagonal(mesh: &TetMesh) -> f64 {
 /// The unit normal of `plane`; a zero or non-finite normal is an error naming
 /// `{item}.plane.normal`.
 pub(super) fn unit_normal(plane: &PlaneSpec, item: &str, bad: &Bad) -> Result<DVec3> {
-    let n = DVec3::from_array(plane.normal);
-    if !(n.is_finite() && n.length() > 0.0) {
-        return Err(bad(
+    super::unit_direction(plane.normal).ok_or_else(|| {
+        bad(
             &format!("{item}.plane.normal"),
-            "must be a non-zero vector".into(),
-        ));
-    }
-    Ok(n.normalize())
+            "must be a finite non-zero vector".into(),
+        )
+    })
 }
 
 /// The vertex-tag bit of surface tag `name`; an unknown tag, or a mesh without vertex tags,

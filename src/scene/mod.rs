@@ -274,6 +274,18 @@ impl Scene {
     }
 }
 
+/// The unit vector along `v`, or None when `v` is zero or not finite. Scaled by its largest
+/// component first, so that a finite vector whose length over- or underflows (1e200, 1e-200)
+/// still has its direction.
+pub fn unit_direction(v: [f64; 3]) -> Option<glam::DVec3> {
+    let v = glam::DVec3::from_array(v);
+    let scale = v.abs().max_element();
+    if !(v.is_finite() && scale > 0.0) {
+        return None;
+    }
+    Some((v / scale).normalize())
+}
+
 pub(crate) type Bad<'a> = dyn Fn(&str, String) -> PalpateError + 'a;
 
 pub(crate) fn positive(bad: &Bad, item: &str, v: f64, unit: &str) -> Result<f64> {
