@@ -16,14 +16,17 @@ fn unit() -> Vec<DVec3> {
 
 #[test]
 fn inverted_tets_are_reoriented_and_reported() {
+    let mut p = unit();
+    p.push(DVec3::new(0.3, 0.3, -1.0));
     let (mesh, report) = TetMesh::new(
-        "two tets",
-        unit(),
-        vec![[0, 1, 2, 3], [1, 2, 3, 4], [0, 2, 1, 3]],
+        "three tets",
+        p,
+        vec![[0, 1, 2, 3], [1, 2, 3, 4], [0, 1, 2, 5]],
         None,
     )
     .unwrap();
-    // [1, 2, 3, 4] is positive (det = 2); [0, 2, 1, 3] swaps two nodes of the unit tet.
+    // [1, 2, 3, 4] is positive (det = 2); [0, 1, 2, 5] has its apex below the face that the
+    // unit tet has its apex above.
     assert_eq!(report.reoriented, vec![2]);
     for t in 0..mesh.n_tets() {
         assert!(mesh.tet_volume(t) > 0.0, "tet {t} still inverted");
@@ -65,4 +68,41 @@ fn degenerate_tets_and_bad_indices_are_named() {
         .unwrap_err()
         .to_string();
     assert!(err.contains("no tetrahedra"), "{err}");
+}
+
+/// A tet given twice (in any vertex order) and a face shared by three tets are refused with
+/// an error naming the tets: either leaves a mesh whose boundary silently loses faces, so a
+/// tool passed through it and a follower pressure found no face.
+#[test]
+fn repeated_tets_and_overshared_faces_are_named() {
+    let mut p = unit();
+    p.push(DVec3::new(0.3, 0.3, -1.0));
+    let err = TetMesh::new(
+        "dup",
+        p.clone(),
+        vec![[0, 1, 2, 3], [1, 2, 3, 4], [3, 1, 0, 2]],
+        None,
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        err.contains("dup") && err.contains("tets 0 and 2") && err.contains("same tetrahedron"),
+        "{err}"
+    );
+    // Face [0, 1, 2] in the unit tet, in [0, 1, 2, 5] below it, and in a third tet that
+    // overlaps the unit tet: three tets on one face.
+    let err = TetMesh::new(
+        "three",
+        p.clone(),
+        vec![[0, 1, 2, 3], [0, 1, 2, 5], [0, 1, 2, 4]],
+        None,
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        err.contains("three") && err.contains("[0, 1, 2]") && err.contains("3 tets [0, 1, 2]"),
+        "{err}"
+    );
+    // Two tets on each side of a face are fine.
+    TetMesh::new("pair", p, vec![[0, 1, 2, 3], [0, 1, 2, 5]], None).unwrap();
 }

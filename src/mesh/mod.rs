@@ -219,8 +219,55 @@ impl TetMesh {
                 report.reoriented.push(t);
             }
         }
+        self.check_connectivity().map_err(err)?;
         report.unused_vertices = used.iter().filter(|u| !**u).count();
         Ok(report)
+    }
+
+    /// No tet twice (the same four vertices) and no face in more than two tets: either makes
+    /// a mesh whose boundary (the contact and load surface) silently loses faces. An error
+    /// naming the tets.
+    fn check_connectivity(&self) -> std::result::Result<(), String> {
+        let sorted = |mut v: [u32; 4]| {
+            v.sort_unstable();
+            v
+        };
+        let mut tets: Vec<([u32; 4], u32)> = (0..self.tets.len())
+            .map(|t| (sorted(self.tets[t]), t as u32))
+            .collect();
+        tets.sort_unstable();
+        if let Some(w) = tets.windows(2).find(|w| w[0].0 == w[1].0) {
+            return Err(format!(
+                "tets {} and {} are the same tetrahedron (vertices {:?})",
+                w[0].1, w[1].1, w[0].0
+            ));
+        }
+        // Each face once per tet, as (sorted vertices, tet), sorted: a run of three or more
+        // is a face in more than two tets.
+        let mut faces: Vec<([u32; 3], u32)> = Vec::with_capacity(4 * tets.len());
+        for (v, t) in tets {
+            faces.extend([
+                ([v[0], v[1], v[2]], t),
+                ([v[0], v[1], v[3]], t),
+                ([v[0], v[2], v[3]], t),
+                ([v[1], v[2], v[3]], t),
+            ]);
+        }
+        faces.sort_unstable();
+        if let Some(w) = faces.windows(3).find(|w| w[0].0 == w[2].0) {
+            let mut sharing: Vec<u32> = faces
+                .iter()
+                .filter(|f| f.0 == w[0].0)
+                .map(|f| f.1)
+                .collect();
+            sharing.sort_unstable();
+            return Err(format!(
+                "face {:?} belongs to {} tets {sharing:?}; a face of a tetrahedral mesh belongs to at most two",
+                w[0].0,
+                sharing.len()
+            ));
+        }
+        Ok(())
     }
 
     /// Boundary triangles: faces that belong to exactly one tet, oriented outward.
