@@ -33,7 +33,8 @@
 override PARTICLES: bool = false;
 
 const WORKGROUP: u32 = 64u;
-// Surface vertices a workgroup takes (`contact_sph_stress` has 4 threads for each).
+// Surface vertices a workgroup takes (`contact_sph_stress` also 64: one thread each, lane 1
+// of its 256 threads).
 const ITEMS_PER_WORKGROUP: u32 = 64u;
 
 fn position(i: u32) -> vec3<f32> {

@@ -431,7 +431,9 @@ impl Model {
             ("psi", m.psi),
         ] {
             if !(v as f32).is_finite() {
-                return Err(bad(format!("material {name} = {v:e}")));
+                return Err(bad(format!(
+                    "material {name} = {v:e} (as the scene's [material] moduli and viscosity give it)"
+                )));
             }
         }
         if (m.mu as f32) <= 0.0 || !(m.p_wave_speed() as f32).is_finite() {
@@ -466,7 +468,56 @@ impl Model {
         if let Some(k) = self.external_forces.iter().position(|v| !v.is_finite()) {
             return Err(bad(format!("vertex {} has a non-finite load", k / 3)));
         }
+        if !self.gravity.iter().all(|g| g.is_finite()) {
+            return Err(bad(format!(
+                "loads.gravity has a component beyond ±3.4e38 m/s² (in f32: {:?})",
+                self.gravity
+            )));
+        }
+        if let Some(f) = &self.follower {
+            if let Some(k) = f.face_pressure.iter().position(|p| !p.is_finite()) {
+                return Err(bad(format!(
+                    "loads.follower_pressure: face {k} has pressure {:e} Pa in f32",
+                    f.face_pressure[k]
+                )));
+            }
+        }
+        if let Some(t) = &self.tool {
+            let tool = &t.tool;
+            let fits = |v: f64| (v as f32).is_finite();
+            for (key, v) in [
+                ("tool.radius", tool.radius),
+                ("tool.stiffness", tool.stiffness),
+                ("tool.damping", tool.damping),
+            ] {
+                if !fits(v) {
+                    return Err(bad(format!("{key} = {v:e}")));
+                }
+            }
+            let far = std::iter::once(tool.home)
+                .chain(tool.path.iter().map(|(_, x)| *x))
+                .find(|x| !x.to_array().into_iter().all(fits));
+            if let Some(x) = far {
+                let x = x.to_array().map(|c| format!("{c:e}"));
+                return Err(bad(format!(
+                    "tool.path or tool.home has the point [{}] m",
+                    x.join(", ")
+                )));
+            }
+        }
         if let Some(p) = &self.particles {
+            // The hourglass penalty's weight, ½ α E V² (as `cpu::sph::PairTable` forms it).
+            let youngs = {
+                let m = &self.material;
+                m.mu * (3.0 * m.lambda + 2.0 * m.mu) / (m.lambda + m.mu)
+            };
+            let weight = 0.5 * p.settings.hourglass as f32 * youngs as f32 * (p.volume * p.volume);
+            if !weight.is_finite() {
+                return Err(bad(format!(
+                    "particles.hourglass = {:e} gives a penalty weight ½·hourglass·E·V² = {weight:e}",
+                    p.settings.hourglass
+                )));
+            }
             if !(p.mass > 0.0
                 && p.mass.is_finite()
                 && (1.0 / p.mass).is_finite()

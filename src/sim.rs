@@ -204,15 +204,28 @@ pub fn choose_dt(
     let bound = model.bounds.dt_bound;
     match override_dt.or(scene.solver.dt) {
         None => Ok(scene.solver.safety * bound),
-        Some(dt) if !(dt.is_finite() && dt > 0.0) => {
-            Err(PalpateError::Usage(format!("--dt must be > 0 s, got {dt}")))
-        }
+        Some(dt) if !(dt.is_finite() && dt > 0.0) => Err(PalpateError::Usage(format!(
+            "{} must be > 0 s, got {dt:e}",
+            dt_source(scene, override_dt)
+        ))),
         Some(dt) if dt > bound && !allow_unstable => Err(PalpateError::UnstableTimeStep {
             dt,
             bound,
             detail: model.bounds.describe(),
         }),
         Some(dt) => Ok(dt),
+    }
+}
+
+/// Where a run's dt comes from, as the user wrote it: `--dt`, `solver.dt`, or the automatic
+/// step (`solver.safety` × the stable bound of the material and mesh).
+fn dt_source(scene: &Scene, override_dt: Option<f64>) -> &'static str {
+    if override_dt.is_some() {
+        "--dt"
+    } else if scene.solver.dt.is_some() {
+        "solver.dt"
+    } else {
+        "the automatic dt (solver.safety × the stable bound of the material's density and moduli and the mesh)"
     }
 }
 
@@ -224,6 +237,13 @@ impl Simulation {
             .check_f32()
             .map_err(|e| PalpateError::Usage(format!("{}: {e}", scene.origin)))?;
         let dt = choose_dt(scene, &model, opts.dt, opts.allow_unstable)?;
+        if !(dt as f32 > 0.0 && (dt as f32).is_finite()) {
+            return Err(PalpateError::Usage(format!(
+                "{}: {} = {dt:e} s is not a positive single-precision number",
+                scene.origin,
+                dt_source(scene, opts.dt)
+            )));
+        }
         Simulation::from_model(model, backend, dt, scene.solver.damping, opts)
     }
 

@@ -732,27 +732,34 @@ fn unknown_gpu_switch_values_are_one_line_errors() {
         ("PALPATE_GPU_FUSION", "al", "0 (no fused passes)"),
         ("PALPATE_GPU_PRERECORD", "yes", "1 (record ahead"),
     ] {
-        let o = Command::new(env!("CARGO_BIN_EXE_palpate"))
-            .args([
-                "run",
-                "beam",
-                "--steps",
-                "2",
-                "--backend",
-                "gpu",
-                "--out",
-                out,
-            ])
-            .env(var, value)
-            .output()
-            .unwrap();
-        let err = String::from_utf8_lossy(&o.stderr);
-        assert!(!o.status.success(), "{var}={value} ran: {err}");
-        assert!(!err.contains("panicked"), "{err}");
-        let lines = error_lines(&err);
-        assert_eq!(lines.len(), 1, "{err}");
-        for w in [var, &format!("'{value}'"), want] {
-            assert!(lines[0].contains(w), "{var}: no {w:?} in {}", lines[0]);
+        // Whichever backend the run is on.
+        for backend in ["gpu", "cpu"] {
+            let o = Command::new(env!("CARGO_BIN_EXE_palpate"))
+                .args([
+                    "run",
+                    "beam",
+                    "--steps",
+                    "2",
+                    "--backend",
+                    backend,
+                    "--out",
+                    out,
+                ])
+                .env(var, value)
+                .output()
+                .unwrap();
+            let err = String::from_utf8_lossy(&o.stderr);
+            assert!(!o.status.success(), "{var}={value}, {backend} ran: {err}");
+            assert!(!err.contains("panicked"), "{err}");
+            let lines = error_lines(&err);
+            assert_eq!(lines.len(), 1, "{err}");
+            for w in [var, &format!("'{value}'"), want] {
+                assert!(
+                    lines[0].contains(w),
+                    "{var}, {backend}: no {w:?} in {}",
+                    lines[0]
+                );
+            }
         }
     }
 }
@@ -1220,6 +1227,57 @@ fn bad_tool_sections_are_one_line_errors_naming_the_key() {
             &[
                 "run",
                 &path,
+                "--steps",
+                "1",
+                "--backend",
+                "cpu",
+                "--out",
+                d.to_str().unwrap(),
+            ],
+            &must,
+        );
+    }
+}
+
+/// Values that are finite in the scene (f64) but not in the kernels' f32, and time steps that
+/// are not positive in f32, are one-line errors naming the scene file and the key the user
+/// wrote (they used to pass validation and "diverge" at step 1, blaming dt, or name no file).
+#[test]
+fn values_beyond_single_precision_name_the_scene_and_key() {
+    let d = tmp("f32");
+    let tool = "[tool]\nradius = 0.01\nstiffness = 2e7\npath = [[0.0, 0.08, 0.01, 0.035], [0.01, 0.08, 0.01, 0.027]]";
+    let cases: Vec<(String, &[&str])> = vec![
+        (
+            BEAM.replacen("gravity = [0.0, 0.0, -9.81]", "gravity = [0.0, 0.0, -1e39]", 1),
+            &["loads.gravity", "single precision"],
+        ),
+        (
+            beam_with(&tool.replace("radius = 0.01", "radius = 1e300")),
+            &["tool.radius", "single precision"],
+        ),
+        (
+            beam_with(&format!(
+                "[particles]\nregion = 0\nspacing = 0.002\nactivation_radius = 0.004\nhourglass = 1e300\n\n{tool}"
+            )),
+            &["particles.hourglass", "single precision"],
+        ),
+        (
+            BEAM.replacen("dt = \"auto\"", "dt = 1e-300", 1),
+            &["solver.dt", "single-precision"],
+        ),
+        (
+            BEAM.replacen("safety = 0.5", "safety = 1e-300", 1),
+            &["automatic dt", "solver.safety", "single-precision"],
+        ),
+    ];
+    for (i, (text, must)) in cases.iter().enumerate() {
+        let file = scene_file(&d, &format!("f32_{i}.toml"), text);
+        let mut must: Vec<&str> = must.to_vec();
+        must.push(&file);
+        assert_one_line_error(
+            &[
+                "run",
+                &file,
                 "--steps",
                 "1",
                 "--backend",

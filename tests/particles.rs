@@ -1294,11 +1294,18 @@ fn particle_substeps_are_planned_run_and_match_between_backends() {
 fn contact_damping_shortens_the_particle_sub_step() {
     // Particle mass ρΔx³ = 1e-6 kg, area 1e-6 m², k = 1e6: ω = 1000 /s, ζ = b/2000.
     let (k, b) = (1.0e6, 3.0e3);
-    let text = PRESSED_BLOCK.replace(
-        "stiffness = 1.0e8\n",
-        &format!("stiffness = {k:e}\ndamping = {b:e}\n"),
+    // Without hourglass control, whose springs (in the bound too) would shift both bounds
+    // past the sub-step count that tells them apart.
+    let text = PRESSED_BLOCK
+        .replace(
+            "stiffness = 1.0e8\n",
+            &format!("stiffness = {k:e}\ndamping = {b:e}\n"),
+        )
+        .replace("[particles]\n", "[particles]\nhourglass = 0.0\n");
+    assert!(
+        text.contains("damping = 3e3") && text.contains("hourglass = 0.0"),
+        "{text}"
     );
-    assert!(text.contains("damping = 3e3"), "{text}");
     let scene = Scene::from_toml(&text, "damped block", "damped_block", None).unwrap();
     let m = Model::from_scene(&scene);
     let p = m.particles.as_ref().unwrap();
@@ -1308,7 +1315,10 @@ fn contact_damping_shortens_the_particle_sub_step() {
     assert!((zeta - 1.5).abs() < 1e-3, "ζ = {zeta}");
     let contact = 2.0 / omega * ((1.0 + zeta * zeta).sqrt() - zeta);
     let elastic = dx / m.material.p_wave_speed();
-    let want = 1.0 / (1.0 / (elastic * elastic) + 1.0 / (contact * contact)).sqrt();
+    // With the hourglass penalty's springs in quadrature (Particles::hourglass_omega).
+    let omega_h = p.hourglass_omega(&m.material);
+    let want = 1.0
+        / (1.0 / (elastic * elastic) + 1.0 / (contact * contact) + 0.25 * omega_h * omega_h).sqrt();
     let bound = p.dt_bound(&m.material, Some((k, b)));
     assert!(
         (bound / want - 1.0).abs() < 1e-9,
@@ -2678,6 +2688,11 @@ fn the_fused_stress_takes_several_rounds_on_a_narrow_grid() {
     assert!(k % 2 == 0, "activation interval {k}");
     let mut fused =
         GpuStepper::with_fusions(gpu(), &m, params, palpate::plan::Fusions::All).unwrap();
+    // Built (where it fell back to the own passes, the comparison below would be of a
+    // stepper with itself).
+    assert!(fused
+        .fused_passes()
+        .contains(&(Stage::Contact, Stage::SphStress)));
     let mut plain = GpuStepper::new(gpu(), &m, params).unwrap();
     plain.set_fusion(false);
     let groups = m.tool_params().n_surface.div_ceil(64);
@@ -2719,4 +2734,55 @@ fn the_fused_stress_takes_several_rounds_on_a_narrow_grid() {
         most_rounds >= 2,
         "the stress set never outgrew {groups} workgroups: at most {most_rounds} rounds"
     );
+}
+
+/// The particles' stable step counts the hourglass penalty's springs: at the default
+/// coefficient (0.1) it moves lv_touch's particle bound by well under 1 % (no scene's step
+/// or sub-steps change), and at 1,000 it shrinks it several times, so the run sub-steps the
+/// particles instead of diverging (it diverged at step 11 with the bound that ignored it).
+#[test]
+fn the_particle_step_bound_counts_the_hourglass_penalty() {
+    let with = |hourglass: f64| {
+        let text = Scene::builtin_text("lv_touch").unwrap().replacen(
+            "[particles]\n",
+            &format!("[particles]\nhourglass = {hourglass}\nactivation = \"all\"\n"),
+            1,
+        );
+        Scene::from_toml(&text, "lv_touch variant", "lv_touch", None).unwrap()
+    };
+    let bound = |scene: &Scene| {
+        let m = Model::from_scene(scene);
+        let p = m.particles.as_ref().unwrap();
+        let contact = m.tool.as_ref().map(|t| (t.tool.stiffness, t.tool.damping));
+        (
+            p.dt_bound(&m.material, contact),
+            p.hourglass_omega(&m.material),
+        )
+    };
+    let (none, omega_none) = bound(&with(0.0));
+    let (default, omega_default) = bound(&with(0.1));
+    let (stiff, omega_stiff) = bound(&with(1000.0));
+    assert_eq!(omega_none, 0.0);
+    assert!(
+        omega_default > 0.0 && default < none && default > 0.99 * none,
+        "{default:e} against {none:e}"
+    );
+    // ω_h grows as sqrt(α).
+    let ratio = omega_stiff / omega_default;
+    assert!((ratio / 100.0 - 1.0).abs() < 1e-9, "ω_h ratio {ratio}");
+    assert!(
+        stiff < 0.3 * none,
+        "α = 1000: bound {stiff:e} against {none:e}"
+    );
+    // The run at α = 1000 sub-steps its particles and stays finite.
+    let scene = with(1000.0);
+    let mut sim = palpate::sim::Simulation::new(
+        &scene,
+        palpate::sim::Backend::Cpu,
+        palpate::sim::SimOptions::default(),
+    )
+    .unwrap();
+    let substeps = sim.model.particle_substeps(sim.dt);
+    assert!(substeps > 1, "{substeps} sub-steps");
+    sim.advance(60).expect("α = 1000 stays finite for 60 steps");
 }

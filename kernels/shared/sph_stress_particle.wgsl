@@ -6,8 +6,9 @@
 //   paper: the paper's eq. (1)-(2) stress with strain eps = F^T F - I (no 1/2), which is
 //          S = lambda tr(E) I + 2 mu E for E = eps/2 doubled; Psi = mu E:E + lambda/2 tr(E)^2.
 // Writes A_p = P G_p^T (so that P g_pb = A_p grad W_pb), H_p (for the hourglass penalty) and
-// V Psi. Each particle has LANES threads of a 256-thread workgroup that takes 64 entries:
-// lane j sums the neighbours j, j + LANES, ... and the lanes' sums are added in lane order.
+// V Psi. Each particle has SPH_STRESS_LANES threads of a 256-thread workgroup that takes 64
+// entries: lane j sums the neighbours j, j + SPH_STRESS_LANES, ... and the lanes' sums are
+// added in lane order.
 // The arrays are declared here (bound by name); the Lame constants come as arguments.
 #import particles
 #import material

@@ -256,6 +256,10 @@ fn one_line(rendered: &str) -> String {
 }
 
 fn execute(cli: Cli) -> Result<()> {
+    // The GPU stepper's switches are read when a GPU stepper is built; a typo in one is an
+    // error whichever backend this command ends up on.
+    palpate::plan::Fusions::from_env()?;
+    palpate::gpu::stepper::prerecord_from_env()?;
     match cli.command {
         Command::Run {
             scene,

@@ -209,7 +209,7 @@ impl GpuContext {
             if let Ok(mut v) = sink.lock() {
                 let here = std::thread::current();
                 v.push(CapturedError {
-                    message: e.to_string().lines().next().unwrap_or("").to_string(),
+                    message: one_line(&e),
                     thread: here.id(),
                     thread_name: here.name().map(str::to_string),
                 });
@@ -233,24 +233,46 @@ impl GpuContext {
         )
     }
 
-    /// Return the first wgpu error captured since the last check, if any (and drop the
-    /// rest). One that wgpu reported on another thread (threads sharing the device: the test
-    /// binaries) names that thread: the one whose call raised it for a validation error, the
-    /// polling one for an error found while polling.
+    /// Return the first wgpu error this thread raised since its last check, if any (and drop
+    /// this thread's others); other threads' errors stay for them to find. With none of its
+    /// own, the thread reports (and takes) the oldest error of another thread, naming it, so
+    /// that an error raised where nobody checks again (the polling thread for an error found
+    /// while polling, a thread that has finished) is still reported once.
     pub fn check_errors(&self) -> Result<()> {
         let mut v = self
             .errors
             .lock()
             .map_err(|_| PalpateError::Gpu("error sink poisoned".into()))?;
-        let first = v.drain(..).next();
-        match first {
-            Some(e) if e.thread == std::thread::current().id() => Err(PalpateError::Gpu(e.message)),
-            Some(e) => Err(PalpateError::Gpu(format!(
-                "{} (raised on thread '{}')",
-                e.message,
-                e.thread_name.as_deref().unwrap_or("unnamed")
-            ))),
-            None => Ok(()),
+        let me = std::thread::current().id();
+        if let Some(i) = v.iter().position(|e| e.thread == me) {
+            let e = v.remove(i);
+            v.retain(|e| e.thread != me);
+            return Err(PalpateError::Gpu(e.message));
+        }
+        if v.is_empty() {
+            return Ok(());
+        }
+        let e = v.remove(0);
+        Err(PalpateError::Gpu(format!(
+            "{} (raised on thread '{}')",
+            e.message,
+            e.thread_name.as_deref().unwrap_or("unnamed")
+        )))
+    }
+
+    /// Run `make` (device calls that create objects) inside this thread's own validation and
+    /// internal error scopes and return its result, or the first error it raised, prefixed
+    /// with `what`. Scopes are per thread in wgpu, so another thread's pending errors are
+    /// neither taken nor blamed here.
+    pub fn scoped<T>(&self, what: &str, make: impl FnOnce() -> T) -> Result<T> {
+        let internal = self.device.push_error_scope(wgpu::ErrorFilter::Internal);
+        let validation = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let made = make();
+        let validation = pollster::block_on(validation.pop());
+        let internal = pollster::block_on(internal.pop());
+        match validation.or(internal) {
+            Some(e) => Err(PalpateError::Gpu(format!("{what}: {}", one_line(&e)))),
+            None => Ok(made),
         }
     }
 
@@ -280,6 +302,18 @@ impl GpuContext {
         buffer.unmap();
         Ok(data)
     }
+}
+
+/// A wgpu error on one line: its lines trimmed and joined with ": ", without the "Caused
+/// by:" headings (wgpu's Display puts the kind on the first line and the call, label and
+/// reason on the next ones).
+fn one_line(e: &wgpu::Error) -> String {
+    e.to_string()
+        .lines()
+        .map(str::trim)
+        .filter(|l| !l.is_empty() && *l != "Caused by:")
+        .collect::<Vec<_>>()
+        .join(": ")
 }
 
 #[cfg(test)]

@@ -118,10 +118,11 @@ impl Particles {
     }
 
     /// The largest stable particle step: the lattice's highest frequency, ω ≈ 2 c_p/Δx, as
-    /// for a tet of altitude Δx, and the tool's contact springs on surface particles of area
+    /// for a tet of altitude Δx, the tool's contact springs on surface particles of area
     /// Δx², ω_c² = k Δx²/m with damping ratio ζ = b Δx²/(2 m ω_c), whose bound
-    /// (2/ω_c)(sqrt(1 + ζ²) − ζ) is the vertices' one; combined in quadrature (see
-    /// [`crate::timestep`]). `contact` is the tool's (stiffness k, damping b per unit area).
+    /// (2/ω_c)(sqrt(1 + ζ²) − ζ) is the vertices' one, and the hourglass penalty's
+    /// [`Self::hourglass_omega`]; combined in quadrature (see [`crate::timestep`]).
+    /// `contact` is the tool's (stiffness k, damping b per unit area).
     pub fn dt_bound(
         &self,
         material: &crate::material::MaterialParams,
@@ -129,16 +130,48 @@ impl Particles {
     ) -> f64 {
         let dx = self.settings.spacing;
         let elastic = dx / material.p_wave_speed();
-        match contact {
-            Some((k, b)) => {
-                let (area, m) = (dx * dx, self.mass as f64);
-                let omega = (k * area / m).sqrt();
-                let zeta = b * area / (2.0 * m * omega);
-                let contact = 2.0 / omega * crate::timestep::damped_step_factor(zeta);
-                1.0 / (1.0 / (elastic * elastic) + 1.0 / (contact * contact)).sqrt()
-            }
-            None => elastic,
+        // 1/dt² summed over the springs, each dt = 2/ω (quadrature, as the vertices').
+        let mut inv2 = 1.0 / (elastic * elastic);
+        if let Some((k, b)) = contact {
+            let (area, m) = (dx * dx, self.mass as f64);
+            let omega = (k * area / m).sqrt();
+            let zeta = b * area / (2.0 * m * omega);
+            let contact = 2.0 / omega * crate::timestep::damped_step_factor(zeta);
+            inv2 += 1.0 / (contact * contact);
         }
+        let omega_h = self.hourglass_omega(material);
+        inv2 += 0.25 * omega_h * omega_h;
+        1.0 / inv2.sqrt()
+    }
+
+    /// The highest frequency of tlsph's hourglass penalty: each pair is a spring of stiffness
+    /// k_b = 2·½αEV²·W(r_b)/r_b² along it (the penalty's linearisation), and in the zig-zag
+    /// mode a particle's neighbours move opposite to it, so ω_h² = 4 Σ_b k_b / m, summed over
+    /// the lattice points within the kernel support. 0 without hourglass control or for the
+    /// paper model.
+    pub fn hourglass_omega(&self, material: &crate::material::MaterialParams) -> f64 {
+        let s = &self.settings;
+        if s.hourglass <= 0.0 || s.model != crate::scene::ParticleModel::Tlsph {
+            return 0.0;
+        }
+        let (dx, support) = (s.spacing, self.support as f64);
+        let (lambda, mu) = (material.lambda, material.mu);
+        let youngs = mu * (3.0 * lambda + 2.0 * mu) / (lambda + mu);
+        let v = self.volume as f64;
+        let h = 0.5 * s.hourglass * youngs * v * v;
+        let reach = (support / dx).ceil() as i32;
+        let mut sum = 0.0;
+        for i in -reach..=reach {
+            for j in -reach..=reach {
+                for k in -reach..=reach {
+                    let r = dx * ((i * i + j * j + k * k) as f64).sqrt();
+                    if r > 0.0 && r < support {
+                        sum += wendland(r, support) / (r * r);
+                    }
+                }
+            }
+        }
+        (4.0 * 2.0 * h * sum / self.mass as f64).sqrt()
     }
 
     /// Sample the particle zone of `mesh` (see [`sampling::sample`]).
@@ -150,4 +183,16 @@ impl Particles {
     ) -> crate::error::Result<Particles> {
         sampling::sample(mesh, settings, density, origin)
     }
+}
+
+/// W of the Wendland C2 kernel in f64 (as `cpu::sph::wendland`): 21/(16π h³) (1 − q/2)⁴
+/// (2q + 1), q = r/h, h = support/2; zero beyond the support.
+fn wendland(r: f64, support: f64) -> f64 {
+    let h = 0.5 * support;
+    let q = r / h;
+    if q >= 2.0 {
+        return 0.0;
+    }
+    let t = 1.0 - 0.5 * q;
+    21.0 / (16.0 * std::f64::consts::PI * h * h * h) * t * t * t * t * (2.0 * q + 1.0)
 }
