@@ -267,8 +267,9 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
         None => match device.duration() {
             Some(d) if d.is_nan() || d < MIN_SECONDS => {
                 return Err(PalpateError::Usage(format!(
-                    "{}: the trajectory lasts {d} s, less than a session's {MIN_SECONDS} s; give it a later last time, or --seconds",
-                    device.describe()
+                    "{}: the trajectory lasts {} s, less than a session's {MIN_SECONDS} s; give it a later last time, or --seconds",
+                    device.describe(),
+                    crate::scene::Num(d)
                 )))
             }
             d => d.unwrap_or(DEFAULT_SECONDS),

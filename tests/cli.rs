@@ -1304,6 +1304,11 @@ fn bad_particle_sections_are_one_line_errors_naming_the_key() {
             &["particles.spacing", "> 0"],
         ),
         (
+            // An extreme value in exponent form, not 300 digits.
+            "region = 0\nspacing = 1e-300\nactivation_radius = 0.004",
+            &["particles.spacing", "1e-300 m would make"],
+        ),
+        (
             "region = 0\nspacing = inf\nactivation_radius = 0.004",
             &["particles.spacing", "finite", "inf"],
         ),

@@ -126,7 +126,7 @@ pub(super) fn select_fixed(specs: &[FixedSpec], mesh: &TetMesh, bad: &Bad) -> Re
             if !(t.is_finite() && t >= 0.0) {
                 return Err(bad(
                     &format!("{item}.tolerance"),
-                    format!("must be >= 0 m, got {t}"),
+                    format!("must be >= 0 m, got {}", super::Num(t)),
                 ));
             }
         }

@@ -83,7 +83,7 @@ pub(super) fn follower_loads(
             if !(r.is_finite() && r > 0.0) {
                 return Err(bad(
                     &format!("{item}.ramp_seconds"),
-                    format!("must be > 0 s, got {r}"),
+                    format!("must be > 0 s, got {}", super::Num(r)),
                 ));
             }
             out.ramp_seconds = out.ramp_seconds.max(r);
@@ -105,7 +105,7 @@ pub(super) fn follower_loads(
                 if !(tol.is_finite() && tol >= 0.0) {
                     return Err(bad(
                         &format!("{item}.tolerance"),
-                        format!("must be >= 0 m, got {tol}"),
+                        format!("must be >= 0 m, got {}", super::Num(tol)),
                     ));
                 }
                 let offset = plane.offset;

@@ -215,7 +215,7 @@ fn check_nu(bad: &Bad, nu: f64) -> Result<()> {
     } else {
         Err(bad(
             "material.poisson_ratio",
-            format!("must be in (-1, 0.5), got {nu}"),
+            format!("must be in (-1, 0.5), got {}", super::Num(nu)),
         ))
     }
 }
@@ -292,7 +292,7 @@ fn resolve_lame(m: &MaterialSpec, bad: &Bad) -> Result<(f64, f64)> {
             if !(nu > -1.0 && nu < 0.5) {
                 return Err(bad(
                     "material.poisson_ratio",
-                    format!("must be in (-1, 0.5), got {nu}"),
+                    format!("must be in (-1, 0.5), got {}", super::Num(nu)),
                 ));
             }
             MaterialParams::lame_from_young(e, nu)

@@ -286,6 +286,21 @@ pub fn unit_direction(v: [f64; 3]) -> Option<glam::DVec3> {
     Some((v / scale).normalize())
 }
 
+/// A scene value in an error message: as written for everyday magnitudes, in exponent form
+/// beyond them (1e-300 is not printed as 300 digits).
+pub struct Num(pub f64);
+
+impl std::fmt::Display for Num {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let a = self.0.abs();
+        if a == 0.0 || !a.is_finite() || (1e-4..1e6).contains(&a) {
+            write!(f, "{}", self.0)
+        } else {
+            write!(f, "{:e}", self.0)
+        }
+    }
+}
+
 pub(crate) type Bad<'a> = dyn Fn(&str, String) -> PalpateError + 'a;
 
 pub(crate) fn positive(bad: &Bad, item: &str, v: f64, unit: &str) -> Result<f64> {
@@ -293,6 +308,9 @@ pub(crate) fn positive(bad: &Bad, item: &str, v: f64, unit: &str) -> Result<f64>
         Ok(v)
     } else {
         let what = if v.is_infinite() { "finite and " } else { "" };
-        Err(bad(item, format!("must be {what}> 0 {unit}, got {v}")))
+        Err(bad(
+            item,
+            format!("must be {what}> 0 {unit}, got {}", Num(v)),
+        ))
     }
 }

@@ -141,7 +141,8 @@ pub(super) fn resolve_particles(
         return Err(bad(
             "particles.spacing",
             format!(
-                "{spacing} m would make about {estimate:.3e} particles in a zone of {zone_volume:.3e} m³ (limit {MAX_PARTICLES:.0e})"
+                "{} m would make about {estimate:.3e} particles in a zone of {zone_volume:.3e} m³ (limit {MAX_PARTICLES:.0e})",
+                super::Num(spacing)
             ),
         ));
     }
@@ -167,7 +168,10 @@ pub(super) fn resolve_particles(
     if !(kernel_radius.is_finite() && (1.5..=4.0).contains(&kernel_radius)) {
         return Err(bad(
             "particles.kernel_radius",
-            format!("must be in [1.5, 4] spacings, got {kernel_radius}"),
+            format!(
+                "must be in [1.5, 4] spacings, got {}",
+                super::Num(kernel_radius)
+            ),
         ));
     }
     if let Some(k) = lattice_shell_on_support(kernel_radius) {
@@ -184,21 +188,21 @@ pub(super) fn resolve_particles(
     if !(hourglass.is_finite() && hourglass >= 0.0) {
         return Err(bad(
             "particles.hourglass",
-            format!("must be >= 0, got {hourglass}"),
+            format!("must be >= 0, got {}", super::Num(hourglass)),
         ));
     }
     let hysteresis = spec.hysteresis.unwrap_or(1.5);
     if !(hysteresis.is_finite() && hysteresis >= 1.0) {
         return Err(bad(
             "particles.hysteresis",
-            format!("must be >= 1, got {hysteresis}"),
+            format!("must be >= 1, got {}", super::Num(hysteresis)),
         ));
     }
     let dwell = spec.dwell.unwrap_or(0.01);
     let blend = spec.blend.unwrap_or(0.01);
     for (item, v) in [("particles.dwell", dwell), ("particles.blend", blend)] {
         if !(v.is_finite() && v >= 0.0) {
-            return Err(bad(item, format!("must be >= 0 s, got {v}")));
+            return Err(bad(item, format!("must be >= 0 s, got {}", super::Num(v))));
         }
     }
     let activation_interval = spec.activation_interval.unwrap_or(10);

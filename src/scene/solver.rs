@@ -68,14 +68,14 @@ pub(super) fn resolve_solver(s: &SolverSpec, bad: &Bad) -> Result<SolverSettings
     if !(safety > 0.0 && safety <= 1.0) {
         return Err(bad(
             "solver.safety",
-            format!("must be in (0, 1], got {safety}"),
+            format!("must be in (0, 1], got {}", super::Num(safety)),
         ));
     }
     let damping = s.damping.unwrap_or(0.0);
     if !(damping.is_finite() && damping >= 0.0) {
         return Err(bad(
             "solver.damping",
-            format!("must be >= 0 1/s, got {damping}"),
+            format!("must be >= 0 1/s, got {}", super::Num(damping)),
         ));
     }
     let static_tolerance = s.static_tolerance.unwrap_or(1e-3);
@@ -88,7 +88,7 @@ pub(super) fn resolve_solver(s: &SolverSpec, bad: &Bad) -> Result<SolverSettings
     if !(mass_scaling.is_finite() && (1.0..=1.0e6).contains(&mass_scaling)) {
         return Err(bad(
             "solver.mass_scaling",
-            format!("must be in [1, 1e6], got {mass_scaling}"),
+            format!("must be in [1, 1e6], got {}", super::Num(mass_scaling)),
         ));
     }
     Ok(SolverSettings {

@@ -142,7 +142,7 @@ pub(super) fn resolve_tool(spec: &ToolSpec, bad: &Bad) -> Result<Tool> {
     if !(damping.is_finite() && damping >= 0.0) {
         return Err(bad(
             "tool.damping",
-            format!("must be >= 0 Pa s/m, got {damping}"),
+            format!("must be >= 0 Pa s/m, got {}", super::Num(damping)),
         ));
     }
     let mut path = Vec::new();

@@ -32,8 +32,8 @@ impl Trajectory {
                 return Err(PalpateError::Usage(format!(
                     "trajectory: keyframe {}: time {} s is not after {} s",
                     i + 1,
-                    w[1].0,
-                    w[0].0
+                    crate::scene::Num(w[1].0),
+                    crate::scene::Num(w[0].0)
                 )));
             }
         }
@@ -112,8 +112,9 @@ impl Trajectory {
                     return Err(err(
                         line_no,
                         format!(
-                            "time {} s is not after the previous row's {last} s (time must strictly increase)",
-                            row[0]
+                            "time {} s is not after the previous row's {} s (time must strictly increase)",
+                            crate::scene::Num(row[0]),
+                            crate::scene::Num(last)
                         ),
                     ));
                 }
