@@ -311,3 +311,24 @@ fn one_million_tet_lv_steps_on_the_gpu() {
     let umax = u.iter().fold(0.0f32, |a, x| a.max(x.abs()));
     assert!(umax > 0.0 && umax.is_finite(), "{umax}");
 }
+
+/// The lv generator's smallest disk is 2 cells: 1 is refused naming `mesh.cells` (it made
+/// flat tets, reported as a degenerate tet the user never wrote); 2 makes a valid mesh.
+#[test]
+fn lv_with_one_disk_cell_is_refused_naming_the_key() {
+    let scene = |cells: &str| {
+        palpate::Scene::from_toml(
+            &format!("[mesh]\ngenerator = \"lv\"\ncells = {cells}\n[material]\nyoungs_modulus = 3.0e4\npoisson_ratio = 0.3\ndensity = 1000.0\n"),
+            "lv cells",
+            "lv",
+            None,
+        )
+    };
+    let err = scene("[100, 1]").unwrap_err().to_string();
+    assert!(
+        err.contains("mesh.cells") && err.contains("at least 2"),
+        "{err}"
+    );
+    assert!(!err.contains('\n'), "{err}");
+    scene("[1, 2]").unwrap();
+}

@@ -195,6 +195,14 @@ pub(super) fn build_mesh(
                             .into(),
                     )),
                 };
+                // With one disk cell the generator's first tets are flat (a degenerate-tet
+                // error that would not name the key).
+                if disk < 2 {
+                    return Err(bad(
+                        "mesh.cells",
+                        format!("lv needs at least 2 disk cells, got {disk}"),
+                    ));
+                }
                 check_count(&[6, layers, disk, disk], bad)?;
                 generators::lv(geo, layers, disk)
             }
