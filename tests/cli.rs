@@ -670,6 +670,7 @@ fn threads_are_recorded_and_bad_counts_or_missing_adapters_are_one_line_errors()
 /// Standard output that cannot be written does not stop a run or panic: a closed pipe
 /// (`palpate … | head -1`) is silent, and a full device (`> /dev/full`) is the command's
 /// one-line error after its files are written.
+#[cfg(target_os = "linux")] // /dev/full
 #[test]
 fn unwritable_standard_output_loses_no_files_and_never_panics() {
     let d = tmp("stdout");

@@ -58,7 +58,12 @@ fn an_error_raised_on_another_thread_names_that_thread() {
 fn a_thread_finds_its_own_error_before_another_threads() {
     let _turn = one_at_a_time();
     let ctx = common::gpu();
-    while ctx.check_errors().is_err() {}
+    // Each check takes one error: a bounded drain of what earlier tests left.
+    for _ in 0..64 {
+        if ctx.check_errors().is_ok() {
+            break;
+        }
+    }
     let other_thread = |ctx: &std::sync::Arc<palpate::gpu::GpuContext>| {
         let raiser = ctx.clone();
         std::thread::Builder::new()

@@ -193,8 +193,9 @@ fn main() -> ExitCode {
     let result = execute(cli);
     // Output files are written by now; a standard output that could not be written (not a
     // closed pipe) is the run's error when it had none of its own.
+    let stopped = STOPPED_BY_SIGNAL.load(std::sync::atomic::Ordering::SeqCst);
     let result = match (result, palpate::console::stdout_failure()) {
-        (Ok(()), Some(why)) => Err(PalpateError::Usage(format!(
+        (Ok(()), Some(why)) if !stopped => Err(PalpateError::Usage(format!(
             "could not write to standard output: {why}"
         ))),
         (r, _) => r,

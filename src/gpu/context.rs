@@ -260,17 +260,19 @@ impl GpuContext {
         )))
     }
 
-    /// Run `make` (device calls that create objects) inside this thread's own validation and
-    /// internal error scopes and return its result, or the first error it raised, prefixed
+    /// Run `make` (device calls that create objects) inside this thread's own validation,
+    /// internal and out-of-memory error scopes and return its result, or the first error it raised, prefixed
     /// with `what`. Scopes are per thread in wgpu, so another thread's pending errors are
     /// neither taken nor blamed here.
     pub fn scoped<T>(&self, what: &str, make: impl FnOnce() -> T) -> Result<T> {
+        let memory = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
         let internal = self.device.push_error_scope(wgpu::ErrorFilter::Internal);
         let validation = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let made = make();
         let validation = pollster::block_on(validation.pop());
         let internal = pollster::block_on(internal.pop());
-        match validation.or(internal) {
+        let memory = pollster::block_on(memory.pop());
+        match validation.or(internal).or(memory) {
             Some(e) => Err(PalpateError::Gpu(format!("{what}: {}", one_line(&e)))),
             None => Ok(made),
         }

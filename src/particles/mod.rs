@@ -144,11 +144,12 @@ impl Particles {
         1.0 / inv2.sqrt()
     }
 
-    /// The highest frequency of tlsph's hourglass penalty: each pair is a spring of stiffness
-    /// k_b = 2·½αEV²·W(r_b)/r_b² along it (the penalty's linearisation), and in the zig-zag
-    /// mode a particle's neighbours move opposite to it, so ω_h² = 4 Σ_b k_b / m, summed over
-    /// the lattice points within the kernel support. 0 without hourglass control or for the
-    /// paper model.
+    /// A bound on the highest frequency of tlsph's hourglass penalty: each pair is a spring
+    /// of stiffness k_b = 2·½αEV²·W(r_b)/r_b² along it (the penalty's linearisation), and a
+    /// network of springs on equal masses has ω² ≤ 2 Σ_b k_b / m (the zig-zag mode of a chain
+    /// reaches it; on the cubic lattice the highest mode is about a third of it), summed
+    /// over the lattice points within the kernel support. 0 without hourglass control or for
+    /// the paper model.
     pub fn hourglass_omega(&self, material: &crate::material::MaterialParams) -> f64 {
         let s = &self.settings;
         if s.hourglass <= 0.0 || s.model != crate::scene::ParticleModel::Tlsph {
@@ -171,7 +172,7 @@ impl Particles {
                 }
             }
         }
-        (4.0 * 2.0 * h * sum / self.mass as f64).sqrt()
+        (2.0 * 2.0 * h * sum / self.mass as f64).sqrt()
     }
 
     /// Sample the particle zone of `mesh` (see [`sampling::sample`]).
