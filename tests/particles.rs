@@ -2738,17 +2738,20 @@ fn the_fused_stress_takes_several_rounds_on_a_narrow_grid() {
 
 /// The particles' stable step counts the hourglass penalty's springs: at the default
 /// coefficient (0.1) it moves lv_touch's particle bound by well under 1 % (no scene's step
-/// or sub-steps change), and at 1,000 it shrinks it several times, so the run sub-steps the
-/// particles instead of diverging (it diverged at step 11 with the bound that ignored it).
+/// or sub-steps change), and at the largest allowed (100) it shrinks it enough that the run
+/// sub-steps the particles; above that the scene is refused (the penalty then drives the
+/// mode it damps whatever the step).
 #[test]
 fn the_particle_step_bound_counts_the_hourglass_penalty() {
-    let with = |hourglass: f64| {
-        let text = Scene::builtin_text("lv_touch").unwrap().replacen(
+    let text = |hourglass: f64| {
+        Scene::builtin_text("lv_touch").unwrap().replacen(
             "[particles]\n",
             &format!("[particles]\nhourglass = {hourglass}\nactivation = \"all\"\n"),
             1,
-        );
-        Scene::from_toml(&text, "lv_touch variant", "lv_touch", None).unwrap()
+        )
+    };
+    let with = |hourglass: f64| {
+        Scene::from_toml(&text(hourglass), "lv_touch variant", "lv_touch", None).unwrap()
     };
     let bound = |scene: &Scene| {
         let m = Model::from_scene(scene);
@@ -2761,7 +2764,7 @@ fn the_particle_step_bound_counts_the_hourglass_penalty() {
     };
     let (none, omega_none) = bound(&with(0.0));
     let (default, omega_default) = bound(&with(0.1));
-    let (stiff, omega_stiff) = bound(&with(1000.0));
+    let (stiff, omega_stiff) = bound(&with(100.0));
     assert_eq!(omega_none, 0.0);
     assert!(
         omega_default > 0.0 && default < none && default > 0.99 * none,
@@ -2769,13 +2772,23 @@ fn the_particle_step_bound_counts_the_hourglass_penalty() {
     );
     // ω_h grows as sqrt(α).
     let ratio = omega_stiff / omega_default;
-    assert!((ratio / 100.0 - 1.0).abs() < 1e-9, "ω_h ratio {ratio}");
     assert!(
-        stiff < 0.3 * none,
-        "α = 1000: bound {stiff:e} against {none:e}"
+        (ratio / 1000f64.sqrt() - 1.0).abs() < 1e-9,
+        "ω_h ratio {ratio}"
     );
-    // The run at α = 1000 sub-steps its particles and stays finite.
-    let scene = with(1000.0);
+    assert!(
+        stiff < 0.8 * none,
+        "α = 100: bound {stiff:e} against {none:e}"
+    );
+    let err = Scene::from_toml(&text(1000.0), "lv_touch variant", "lv_touch", None)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("particles.hourglass") && err.contains("[0, 100]"),
+        "{err}"
+    );
+    // The run at α = 100 sub-steps its particles and stays quiet.
+    let scene = with(100.0);
     let mut sim = palpate::sim::Simulation::new(
         &scene,
         palpate::sim::Backend::Cpu,
@@ -2784,5 +2797,6 @@ fn the_particle_step_bound_counts_the_hourglass_penalty() {
     .unwrap();
     let substeps = sim.model.particle_substeps(sim.dt);
     assert!(substeps > 1, "{substeps} sub-steps");
-    sim.advance(60).expect("α = 1000 stays finite for 60 steps");
+    sim.advance(300)
+        .expect("α = 100 stays finite for 300 steps");
 }
