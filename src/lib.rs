@@ -15,6 +15,7 @@ pub mod error;
 pub mod gpu;
 pub mod haptic_run;
 pub mod haptics;
+pub mod input;
 pub mod interrupt;
 pub mod inversion;
 pub mod material;

@@ -723,6 +723,34 @@ fn unwritable_standard_output_loses_no_files_and_never_panics() {
     assert!(d.join("summary.json").is_file() && d.join("final.vtu").is_file());
 }
 
+/// An input path that is not a regular file (a device that never ends, a directory) is a
+/// one-line error naming it, not a read that grows without end.
+#[cfg(target_os = "linux")] // /dev/zero
+#[test]
+fn inputs_that_are_not_regular_files_are_refused() {
+    let d = tmp("not_regular");
+    std::fs::create_dir_all(&d).unwrap();
+    let link = d.join("zero.msh");
+    let _ = std::fs::remove_file(&link);
+    std::os::unix::fs::symlink("/dev/zero", &link).unwrap();
+    let scene = scene_file(
+        &d,
+        "zero.toml",
+        "[mesh]\nfile = \"zero.msh\"\n[material]\nyoungs_modulus = 3.0e4\npoisson_ratio = 0.3\ndensity = 1000.0\n",
+    );
+    let out = d.join("out");
+    let out = out.to_str().unwrap();
+    assert_one_line_error(&["mesh", &scene], &["zero.msh", "not a regular file"]);
+    assert_one_line_error(
+        &["run", "/dev/zero", "--out", out],
+        &["/dev/zero", "not a regular file"],
+    );
+    assert_one_line_error(
+        &["haptic", "--device", "scripted:/dev/zero", "--out", out],
+        &["/dev/zero", "not a regular file"],
+    );
+}
+
 /// The GPU stepper's switches (`PALPATE_GPU_FUSION`, `PALPATE_GPU_PRERECORD`) take only the
 /// values they document: a typo is a one-line error naming the variable, not the default.
 #[test]

@@ -147,10 +147,12 @@ impl Scene {
                 ),
             });
         }
-        let text = std::fs::read_to_string(path).map_err(|source| PalpateError::SceneIo {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        let text = crate::input::read_regular_text(path, crate::input::MAX_SCENE_BYTES).map_err(
+            |source| PalpateError::SceneIo {
+                path: path.to_path_buf(),
+                source,
+            },
+        )?;
         let stem = path
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())

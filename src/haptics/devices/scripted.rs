@@ -45,9 +45,10 @@ impl Trajectory {
 
     /// Read a trajectory CSV; errors name the file and the line.
     pub fn from_file(path: &Path) -> Result<Trajectory> {
-        let text = std::fs::read_to_string(path).map_err(|e| {
-            PalpateError::Usage(format!("{}: cannot read trajectory: {e}", path.display()))
-        })?;
+        let text = crate::input::read_regular_text(path, crate::input::MAX_TRAJECTORY_BYTES)
+            .map_err(|e| {
+                PalpateError::Usage(format!("{}: cannot read trajectory: {e}", path.display()))
+            })?;
         Self::parse(&text, &path.display().to_string())
     }
 

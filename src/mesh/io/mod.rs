@@ -91,7 +91,8 @@ fn file_err(path: &Path, message: String) -> PalpateError {
 
 /// The bytes of a file.
 fn read_bytes(path: &Path) -> Result<Vec<u8>> {
-    let bytes = std::fs::read(path).map_err(|e| file_err(path, format!("cannot read: {e}")))?;
+    let bytes = crate::input::read_regular(path, crate::input::MAX_MESH_BYTES)
+        .map_err(|e| file_err(path, format!("cannot read: {e}")))?;
     if bytes.iter().all(u8::is_ascii_whitespace) {
         return Err(file_err(path, "empty file".into()));
     }
