@@ -82,10 +82,7 @@ fn mat(p: u32, which: u32) -> mat3x3<f32> {
 }
 
 fn kernel_gradient(d: vec3<f32>) -> vec3<f32> {
-    if particle_params.model == 1u {
-        return paper_gradient(d, particle_params.spacing, particle_params.support);
-    }
-    return wendland_gradient(d, particle_params.support);
+    return model_kernel_gradient(particle_params.model, d, particle_params.spacing, particle_params.support);
 }
 
 fn store3(p: u32, which: u32, v: vec3<f32>) {

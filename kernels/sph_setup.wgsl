@@ -19,10 +19,7 @@ fn rest(p: u32) -> vec3<f32> {
 }
 
 fn kernel_gradient(d: vec3<f32>) -> vec3<f32> {
-    if particle_params.model == 1u {
-        return paper_gradient(d, particle_params.spacing, particle_params.support);
-    }
-    return wendland_gradient(d, particle_params.support);
+    return model_kernel_gradient(particle_params.model, d, particle_params.spacing, particle_params.support);
 }
 
 @compute @workgroup_size(64)

@@ -52,6 +52,27 @@ fn assert_one_line_error(args: &[&str], must_contain: &[&str]) {
     }
 }
 
+/// Write `text` as scene file `name` in `dir`, run it one step on the CPU, and expect one
+/// error line holding each of `want` and the file's path.
+fn assert_scene_refused(dir: &Path, name: &str, text: &str, want: &[&str]) {
+    let path = scene_file(dir, name, text);
+    let mut must: Vec<&str> = want.to_vec();
+    must.push(&path);
+    assert_one_line_error(
+        &[
+            "run",
+            &path,
+            "--steps",
+            "1",
+            "--backend",
+            "cpu",
+            "--out",
+            dir.to_str().unwrap(),
+        ],
+        &must,
+    );
+}
+
 const BEAM: &str = include_str!("../scenes/beam.toml");
 
 /// The beam scene with `sections` (TOML) added before its `[solver]`.
@@ -300,21 +321,11 @@ fn bad_scene_values_give_one_line_errors_naming_file_and_key() {
     ];
     for (i, (from, to, want)) in cases.iter().enumerate() {
         assert!(BEAM.contains(from), "fixture: {from}");
-        let path = scene_file(&d, &format!("case{i}.toml"), &BEAM.replacen(from, to, 1));
-        let mut must: Vec<&str> = want.to_vec();
-        must.push(&path);
-        assert_one_line_error(
-            &[
-                "run",
-                &path,
-                "--steps",
-                "1",
-                "--backend",
-                "cpu",
-                "--out",
-                d.to_str().unwrap(),
-            ],
-            &must,
+        assert_scene_refused(
+            &d,
+            &format!("case{i}.toml"),
+            &BEAM.replacen(from, to, 1),
+            want,
         );
     }
 }
@@ -1249,22 +1260,7 @@ fn bad_tool_sections_are_one_line_errors_naming_the_key() {
         ),
     ];
     for (i, (body, want)) in cases.iter().enumerate() {
-        let path = scene_file(&d, &format!("tool{i}.toml"), &tool(body));
-        let mut must: Vec<&str> = want.to_vec();
-        must.push(&path);
-        assert_one_line_error(
-            &[
-                "run",
-                &path,
-                "--steps",
-                "1",
-                "--backend",
-                "cpu",
-                "--out",
-                d.to_str().unwrap(),
-            ],
-            &must,
-        );
+        assert_scene_refused(&d, &format!("tool{i}.toml"), &tool(body), want);
     }
 }
 
@@ -1298,22 +1294,7 @@ fn values_beyond_single_precision_name_the_scene_and_key() {
         ),
     ];
     for (i, (text, must)) in cases.iter().enumerate() {
-        let file = scene_file(&d, &format!("f32_{i}.toml"), text);
-        let mut must: Vec<&str> = must.to_vec();
-        must.push(&file);
-        assert_one_line_error(
-            &[
-                "run",
-                &file,
-                "--steps",
-                "1",
-                "--backend",
-                "cpu",
-                "--out",
-                d.to_str().unwrap(),
-            ],
-            &must,
-        );
+        assert_scene_refused(&d, &format!("f32_{i}.toml"), text, must);
     }
 }
 
@@ -1393,22 +1374,7 @@ fn bad_particle_sections_are_one_line_errors_naming_the_key() {
         &["single precision", "particle has mass", &light],
     );
     for (i, (body, want)) in cases.iter().enumerate() {
-        let path = scene_file(&d, &format!("p{i}.toml"), &with(body));
-        let mut must: Vec<&str> = want.to_vec();
-        must.push(&path);
-        assert_one_line_error(
-            &[
-                "run",
-                &path,
-                "--steps",
-                "1",
-                "--backend",
-                "cpu",
-                "--out",
-                d.to_str().unwrap(),
-            ],
-            &must,
-        );
+        assert_scene_refused(&d, &format!("p{i}.toml"), &with(body), want);
     }
 }
 

@@ -87,3 +87,12 @@ fn paper_gradient(d: vec3<f32>, spacing: f32, support: f32) -> vec3<f32> {
     let dw = -3.0 / (s * s * s * s) + 1.0 / (s * s);
     return d * (dw / (spacing * r));
 }
+
+// The kernel gradient of particle model `model` (0 tlsph: Wendland C2, 1 paper: eq. 8) at
+// offset d (twin: cpu::sph::kernel_gradient).
+fn model_kernel_gradient(model: u32, d: vec3<f32>, spacing: f32, support: f32) -> vec3<f32> {
+    if model == 1u {
+        return paper_gradient(d, spacing, support);
+    }
+    return wendland_gradient(d, support);
+}

@@ -43,10 +43,7 @@ fn sph_disp(p: u32) -> vec3<f32> {
 }
 
 fn sph_kernel_gradient(d: vec3<f32>) -> vec3<f32> {
-    if particle_params.model == 1u {
-        return paper_gradient(d, particle_params.spacing, particle_params.support);
-    }
-    return wendland_gradient(d, particle_params.support);
+    return model_kernel_gradient(particle_params.model, d, particle_params.spacing, particle_params.support);
 }
 
 fn store9(a: u32, p: u32, m: mat3x3<f32>) {

@@ -167,7 +167,8 @@ impl Particles {
                 for k in -reach..=reach {
                     let r = dx * ((i * i + j * j + k * k) as f64).sqrt();
                     if r > 0.0 && r < support {
-                        sum += wendland(r, support) / (r * r);
+                        let w = crate::cpu::sph::wendland(r as f32, support as f32) as f64;
+                        sum += w / (r * r);
                     }
                 }
             }
@@ -184,16 +185,4 @@ impl Particles {
     ) -> crate::error::Result<Particles> {
         sampling::sample(mesh, settings, density, origin)
     }
-}
-
-/// W of the Wendland C2 kernel in f64 (as `cpu::sph::wendland`): 21/(16π h³) (1 − q/2)⁴
-/// (2q + 1), q = r/h, h = support/2; zero beyond the support.
-fn wendland(r: f64, support: f64) -> f64 {
-    let h = 0.5 * support;
-    let q = r / h;
-    if q >= 2.0 {
-        return 0.0;
-    }
-    let t = 1.0 - 0.5 * q;
-    21.0 / (16.0 * std::f64::consts::PI * h * h * h) * t * t * t * t * (2.0 * q + 1.0)
 }
