@@ -560,6 +560,105 @@ fn hm1_activates_a_few_hundred_particles_under_the_tool_and_releases_them_withou
     );
 }
 
+/// A checkpoint copies only the particles written since the one before (`cpu/touched.rs`:
+/// the force set between activations, what each activation visits). On hm1's press, hold and
+/// release and on lv_touch pressed, held and withdrawn, in batches of uneven length (so a batch
+/// holds none, one or two activations) and with every fourth batch restored and run again,
+/// each checkpoint equals the whole particle state and activation products, and each restore
+/// brings back the whole particle state of its checkpoint, bit for bit.
+#[test]
+fn checkpoints_of_the_touched_particles_equal_the_whole_state() {
+    // hm1 along its path; lv_touch pressed along its path for 1 s, then withdrawn over 0.5 s
+    // (its path ends held) and left to release its particles.
+    let hm1 = |tool: &palpate::scene::Tool, t: f64| tool.position_at(t);
+    let lv_touch = |tool: &palpate::scene::Tool, t: f64| {
+        // Its home is within the activation radius of the surface: withdraw 10 mm past it.
+        let away = tool.position_at(0.0) + DVec3::new(0.01, 0.0, 0.0);
+        if t < 1.0 {
+            tool.position_at(t)
+        } else {
+            tool.position_at(1.0).lerp(away, ((t - 1.0) / 0.5).min(1.0))
+        }
+    };
+    type ToolAt<'a> = &'a dyn Fn(&palpate::scene::Tool, f64) -> DVec3;
+    let cases: [(&str, f64, ToolAt); 2] = [("hm1", 8.0, &hm1), ("lv_touch", 2.0, &lv_touch)];
+    for (name, end, at) in cases {
+        let scene = Scene::load(name).unwrap();
+        // The step and damping a run of the scene takes (automatic dt, mass scaling).
+        let sim = palpate::sim::Simulation::new(
+            &scene,
+            palpate::sim::Backend::Cpu,
+            palpate::sim::SimOptions::default(),
+        )
+        .unwrap();
+        let (m, dt) = (sim.model.clone(), sim.dt);
+        let mut s = CpuStepper::new(m.clone(), m.step_params(dt, sim.damping));
+        let tool = scene.tool.clone().unwrap();
+        let bits = |a: &[f32]| a.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
+        let whole = |s: &CpuStepper| {
+            let p = s.particle_state().unwrap();
+            (
+                bits(&p.displacements),
+                bits(&p.velocities),
+                bits(&p.offsets),
+                bits(&p.timers),
+                p.modes,
+            )
+        };
+        // Activations every 10 steps: some batches hold one or two, some none.
+        let lengths = [4u32, 3, 13, 2, 9, 5, 17];
+        let (mut t, mut batch, mut restores, mut most_dynamic) = (0.0, 0usize, 0, 0);
+        while t < end {
+            s.checkpoint().unwrap();
+            assert!(
+                s.checkpoint_matches_state(),
+                "{name}: the checkpoint at t = {t:.4} (batch {batch}) is not the whole state"
+            );
+            let saved = whole(&s);
+            let n = lengths[batch % lengths.len()];
+            let input =
+                palpate::stepper::BatchInput::moving(at(&tool, t), at(&tool, t + n as f64 * dt));
+            s.submit(n, &input).unwrap();
+            let r = s.wait().unwrap();
+            assert!(
+                r.stats.non_finite_vertex.is_none(),
+                "{name} diverged at t = {t}"
+            );
+            most_dynamic = most_dynamic.max(r.particles.unwrap().dynamic);
+            if batch % 4 == 3 {
+                s.restore().unwrap();
+                assert!(
+                    whole(&s) == saved,
+                    "{name}: the restore at t = {t:.4} (batch {batch}) did not bring back the particle state"
+                );
+                assert!(s.checkpoint_matches_state());
+                s.submit(n, &input).unwrap();
+                s.wait().unwrap();
+                restores += 1;
+            }
+            t += n as f64 * dt;
+            batch += 1;
+        }
+        let c = s.activation_counts().unwrap();
+        let left = s
+            .particle_modes()
+            .unwrap()
+            .iter()
+            .filter(|&&q| q & (mode::DYNAMIC | mode::BLENDING) != 0)
+            .count();
+        eprintln!("{name}: {batch} batches, {restores} restores, at most {most_dynamic} dynamic, {left} left at the end; activations {c:?}");
+        assert!(
+            most_dynamic > 50,
+            "{name}: {most_dynamic} dynamic particles: the tool never pressed"
+        );
+        assert_eq!(left, 0, "{name}: the withdrawn tool left particles awake");
+        assert!(
+            c.region > 10 && c.unchanged > 10 && c.full > restores,
+            "{name}: activations {c:?}: the press should change sets, hold them unchanged and restart full after each restore"
+        );
+    }
+}
+
 /// Released particles fade back onto their hosts step by step: on hm1, as the tool withdraws,
 /// particles leave the press up to 1.5 spacings off their hosts' field and blend back over
 /// `blend`. Where the SPH sees them (in the force set), the offset's change from one step to

@@ -136,7 +136,7 @@ pub fn gather_coupled(
 /// and not dynamic, built once per activation. Modes change only at an activation, so until
 /// the particle state is replaced the filter in [`gather_coupled`] passes exactly these
 /// slots, in the same order: summing over them gives the same bits as walking every slot.
-#[derive(Debug, Default)]
+#[derive(Debug, Default, PartialEq)]
 pub(crate) struct CoupledSlots {
     /// CSR offsets per vertex (n_vertices + 1).
     pub offsets: Vec<u32>,

@@ -36,6 +36,7 @@ pub mod stepper;
 pub mod tet_volume_change;
 pub mod tool_force;
 pub mod tool_motion;
+pub mod touched;
 
 pub use contact::contact;
 pub use fem_forces::fem_forces;

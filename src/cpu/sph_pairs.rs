@@ -45,7 +45,7 @@ pub fn transpose_slots(neighbour_offsets: &[u32], neighbours: &[u32]) -> Vec<u32
 /// The pairs an activation's modes make carry a force, each once, and per particle of the
 /// force set the pairs it owns and those it is the other end of. Built from the stress and
 /// force lists it is used with; `valid` is false until the first build.
-#[derive(Default)]
+#[derive(Default, PartialEq)]
 pub struct PairPlan {
     /// Per particle of the stress list, the start of its owned pairs in `slots`
     /// (stress-list length + 1 entries).

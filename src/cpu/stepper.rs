@@ -174,7 +174,7 @@ impl Clone for ParticleState {
 /// arguments, tet weights, vertex flags and contact weights, the weighted tets and the coupled
 /// vertices' slots. Saved with a checkpoint, so that a restore resumes with the ones its
 /// modes were built with (the modes change only at an activation).
-#[derive(Default)]
+#[derive(Default, PartialEq)]
 struct ActivationProducts {
     dynamic_list: Vec<u32>,
     stress_list: Vec<u32>,
@@ -592,9 +592,40 @@ pub struct ActivationCounts {
 
 /// A saved state: the vertices', the particles' with their activation's products, the step
 /// count (which steps activate) and where the tool is.
+/// A new version number for an [`ActivationProducts`], unique in the process.
+fn next_act_version() -> u64 {
+    use std::sync::atomic::{AtomicU64, Ordering};
+    static NEXT: AtomicU64 = AtomicU64::new(1);
+    NEXT.fetch_add(1, Ordering::Relaxed)
+}
+
+/// Copy what a checkpoint or restore carries of the particle state from `src` into `dst`:
+/// the particles in `touched`'s blocks (those of the others are equal already) and the
+/// vertex masses whole.
+fn copy_particle_state(
+    touched: &super::touched::Touched,
+    src: &ParticleState,
+    dst: &mut ParticleState,
+) {
+    if touched.all() || dst.displacements.len() != src.displacements.len() {
+        dst.clone_from(src);
+        return;
+    }
+    let ranges = touched.ranges();
+    touched.copy(&ranges, 3, &src.displacements, &mut dst.displacements);
+    touched.copy(&ranges, 3, &src.velocities, &mut dst.velocities);
+    touched.copy(&ranges, 3, &src.offset, &mut dst.offset);
+    touched.copy(&ranges, 1, &src.mode, &mut dst.mode);
+    touched.copy(&ranges, 1, &src.timer, &mut dst.timer);
+    dst.mass.clone_from(&src.mass);
+    dst.inv_mass.clone_from(&src.inv_mass);
+}
+
 struct Checkpoint {
     state: State,
-    particles: Option<(ParticleState, ActivationProducts)>,
+    /// The particle state, the activation's products and their version
+    /// ([`ParticleArrays::act_version`]).
+    particles: Option<(ParticleState, ActivationProducts, u64)>,
     /// Design 8's slaving and offsets (they change with each activation under the tool).
     exact: Option<super::exact_stages::ExactArrays>,
     steps_done: u64,
@@ -616,6 +647,12 @@ struct ParticleArrays {
     contact: Vec<f32>,
     /// What the last activation left (checkpointed).
     act: ActivationProducts,
+    /// Changes whenever `act` does ([`next_act_version`]): a checkpoint or restore whose
+    /// copy has the same version skips copying it.
+    act_version: u64,
+    /// The blocks of particles whose state (displacement, velocity, offset, mode, blend
+    /// clock) may have changed since the last checkpoint (see `CpuStepper::checkpoint`).
+    touched: super::touched::Touched,
     node_fixed: Vec<u32>,
     partials: Vec<f32>,
     stats: Vec<f32>,
@@ -641,6 +678,7 @@ impl ParticleArrays {
     fn forget_region(&mut self) {
         self.region.forget();
         self.act.coupled_slots.valid = false;
+        self.act_version = next_act_version();
     }
 
     /// After an activation: the weighted tets among `reweighed` (every tet whose weight may
@@ -651,6 +689,7 @@ impl ParticleArrays {
         reweighed: impl Iterator<Item = u32>,
         pd: &crate::particles::Particles,
     ) {
+        self.act_version = next_act_version();
         if self.full_activation {
             self.act.weighted_tets = (0..self.act.tet_weight.len() as u32).collect();
             self.act.coupled_slots.valid = false;
@@ -670,6 +709,7 @@ impl ParticleArrays {
     /// neighbours) and the force set F (S and its neighbours) among the first `n` particles,
     /// then compact the dynamic, stress and force lists and their dispatch arguments.
     fn mark_sets_and_compact(&mut self, n: usize, moving: u32) {
+        self.act_version = next_act_version();
         let (noff, nbrs) = (&self.lists.neighbour_offsets, &self.lists.neighbours);
         mark_set(n, moving, mode::IN_S, noff, nbrs, &mut self.state.mode);
         mark_set(n, mode::IN_S, mode::IN_F, noff, nbrs, &mut self.state.mode);
@@ -686,6 +726,7 @@ impl ParticleArrays {
     /// After an activation has set the lists: list the force-carrying pairs once (tlsph;
     /// the paper model's one-sided eq. 13 is not antisymmetric and keeps the twin's gather).
     fn rebuild_pair_plan(&mut self) {
+        self.act_version = next_act_version();
         if self.params.model != 0 {
             self.act.pair_plan.valid = false;
             return;
@@ -738,6 +779,8 @@ impl ParticleArrays {
             force_sum: vec![0.0; 3 * n],
             contact: vec![0.0; 3 * n],
             act: ActivationProducts::at_rest(model.n_tets(), model.n_vertices()),
+            act_version: next_act_version(),
+            touched: super::touched::Touched::new(n),
             node_fixed,
             partials: vec![
                 0.0;
@@ -921,7 +964,7 @@ impl CpuStepper {
             state: state.clone(),
             particles: particles
                 .as_ref()
-                .map(|pa| (pa.state.clone(), pa.act.clone())),
+                .map(|pa| (pa.state.clone(), pa.act.clone(), pa.act_version)),
             steps_done: 0,
             tool_at: tool.at,
         };
@@ -1325,6 +1368,7 @@ impl CpuStepper {
         };
         let pp = pa.params;
         let n = pd.len();
+        pa.touched.mark_all();
         // The mode machine over the region the tool can change (the blend's, see
         // cpu/active_region.rs), or over everything.
         let over_region = {
@@ -1463,6 +1507,7 @@ impl CpuStepper {
         let n = pd.len();
         let inp = mode_inputs(m, &pp, &st, &self.tool, &self.state);
         pa.activations.full += 1;
+        pa.touched.mark_all();
         super::activate::activate(&inp, pa.state.mode_arrays());
         pa.mark_sets_and_compact(n, mode::DYNAMIC);
         super::activate::tet_weights(p, &pd.tet_offsets, &pa.state.mode, &mut pa.act.tet_weight);
@@ -1543,6 +1588,7 @@ impl CpuStepper {
                     return;
                 }
                 let candidates = pa.region.candidates(&inp, &pd.tet_offsets);
+                pa.touched.mark(&candidates);
                 let changed = ActiveRegion::update(&inp, &candidates, pa.state.mode_arrays());
                 if !changed {
                     // No particle became dynamic, was released or finished blending: the
@@ -1619,6 +1665,7 @@ impl CpuStepper {
                 pa.act.dynamic_list = dynamic;
                 pa.act.stress_list = stress;
                 pa.act.force_list = force;
+                pa.touched.mark(&pa.act.force_list);
                 pa.rebuild_pair_plan();
             }
             _ => run_chain_stage(
@@ -1863,12 +1910,37 @@ impl CpuStepper {
         self.particles.as_ref().map(|pa| pa.forces.as_slice())
     }
 
+    /// Whether the last checkpoint's particle state and activation products equal the
+    /// current ones, bit for bit (true without particles). Right after
+    /// [`Stepper::checkpoint`] they must, whatever ran before: a checkpoint copies only the
+    /// particles written since the one before (`cpu/touched.rs`), and this is how the tests
+    /// catch a write that was not marked.
+    pub fn checkpoint_matches_state(&self) -> bool {
+        let (Some((state, act, _)), Some(pa)) = (&self.checkpoint.particles, &self.particles)
+        else {
+            return true;
+        };
+        let bits = |a: &[f32], b: &[f32]| {
+            a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
+        };
+        let (s, c) = (&pa.state, state);
+        bits(&s.displacements, &c.displacements)
+            && bits(&s.velocities, &c.velocities)
+            && bits(&s.offset, &c.offset)
+            && bits(&s.timer, &c.timer)
+            && bits(&s.mass, &c.mass)
+            && bits(&s.inv_mass, &c.inv_mass)
+            && s.mode == c.mode
+            && pa.act == *act
+    }
+
     /// Overwrite the particles' displacements and velocities.
     pub fn set_particle_state(&mut self, state: &State) {
         // (modes, offsets and timers keep their values)
         if let Some(pa) = &mut self.particles {
             pa.state.displacements.clone_from(&state.displacements);
             pa.state.velocities.clone_from(&state.velocities);
+            pa.touched.mark_all();
             pa.forget_region();
         }
     }
@@ -1981,11 +2053,22 @@ impl Stepper for CpuStepper {
 
     fn checkpoint(&mut self) -> Result<()> {
         // Into the last checkpoint's buffers (a haptic session checkpoints every batch).
+        // Of the particles, only the blocks written since the last checkpoint (`Touched`;
+        // design 8 copies everything), and the activation's products when they changed.
         let cp = &mut self.checkpoint;
         cp.state.clone_from(&self.state);
-        if let (Some((state, act)), Some(pa)) = (&mut cp.particles, &self.particles) {
-            state.clone_from(&pa.state);
-            act.clone_from(&pa.act);
+        let exact = self.exact.is_some();
+        if let (Some((state, act, version)), Some(pa)) = (&mut cp.particles, &mut self.particles) {
+            if exact {
+                pa.touched.mark_all();
+            }
+            copy_particle_state(&pa.touched, &pa.state, state);
+            if exact || *version != pa.act_version {
+                act.clone_from(&pa.act);
+                *version = pa.act_version;
+            }
+            // The steps until the next activation write the force set (and its dynamic part).
+            pa.touched.reset_to(&pa.act.force_list);
         }
         if let (Some(saved), Some(x)) = (&mut cp.exact, &self.exact) {
             x.save_into(saved);
@@ -1999,12 +2082,20 @@ impl Stepper for CpuStepper {
         self.reports.clear();
         let cp = &self.checkpoint;
         self.state.clone_from(&cp.state);
-        if let (Some((state, act)), Some(pa)) = (&cp.particles, &mut self.particles) {
-            pa.state.clone_from(state);
+        let exact = self.exact.is_some();
+        if let (Some((state, act, version)), Some(pa)) = (&cp.particles, &mut self.particles) {
+            if exact {
+                pa.touched.mark_all();
+            }
+            copy_particle_state(&pa.touched, state, &mut pa.state);
             // The next activation visits everything; until then the restored lists, weights
             // and flags are those the restored modes were built with.
             pa.region.forget();
-            pa.act.clone_from(act);
+            if exact || *version != pa.act_version {
+                pa.act.clone_from(act);
+            }
+            pa.act_version = *version;
+            pa.touched.reset_to(&pa.act.force_list);
         }
         if let (Some(saved), Some(x)) = (&cp.exact, &mut self.exact) {
             x.restore_from(saved);

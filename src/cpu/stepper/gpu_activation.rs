@@ -102,6 +102,7 @@ impl CpuStepper {
             .displacements
             .copy_from_slice(input.displacements);
         self.state.velocities.copy_from_slice(input.velocities);
+        pa.touched.mark_all();
         let ps = &mut pa.state;
         ps.displacements
             .copy_from_slice(input.particle_displacements);
