@@ -590,8 +590,6 @@ pub struct ActivationCounts {
     pub unchanged: u64,
 }
 
-/// A saved state: the vertices', the particles' with their activation's products, the step
-/// count (which steps activate) and where the tool is.
 /// A new version number for an [`ActivationProducts`], unique in the process.
 fn next_act_version() -> u64 {
     use std::sync::atomic::{AtomicU64, Ordering};
@@ -621,6 +619,8 @@ fn copy_particle_state(
     dst.inv_mass.clone_from(&src.inv_mass);
 }
 
+/// A saved state: the vertices', the particles' with their activation's products, the step
+/// count (which steps activate) and where the tool is.
 struct Checkpoint {
     state: State,
     /// The particle state, the activation's products and their version
@@ -2067,8 +2067,11 @@ impl Stepper for CpuStepper {
                 act.clone_from(&pa.act);
                 *version = pa.act_version;
             }
-            // The steps until the next activation write the force set (and its dynamic part).
+            // The steps until the next activation write the force set and its dynamic part
+            // (marked too: it lies in the force set as the activations build them, and
+            // costs nothing to mark should that ever change).
             pa.touched.reset_to(&pa.act.force_list);
+            pa.touched.mark(&pa.act.dynamic_list);
         }
         if let (Some(saved), Some(x)) = (&mut cp.exact, &self.exact) {
             x.save_into(saved);
@@ -2096,6 +2099,7 @@ impl Stepper for CpuStepper {
             }
             pa.act_version = *version;
             pa.touched.reset_to(&pa.act.force_list);
+            pa.touched.mark(&pa.act.dynamic_list);
         }
         if let (Some(saved), Some(x)) = (&cp.exact, &mut self.exact) {
             x.restore_from(saved);
