@@ -1,5 +1,5 @@
 //! The `palpate haptic` job: the simulation on the calling (physics) thread and the 1 kHz
-//! servo loop on its own, joined by the latest-value slots of [`crate::haptics::link`]
+//! servo loop on its own, joined by the latest-value slots of [`crate::haptics::link`](mod@crate::haptics::link)
 //! (DESIGN §7).
 //!
 //! Each pass of the physics loop takes the newest tool command, places the simulated tool

@@ -356,14 +356,14 @@ pub fn elastic_stress_energy(model: MaterialModel, h: Mat3, lambda: f32, mu: f32
     }
 }
 
-/// The directional derivative ∂P(H)[dH] of [`elastic_stress_energy`]'s stress, d/dt P(H + t dH)
+/// The directional derivative ∂P(H)\[dH\] of [`elastic_stress_energy`]'s stress, d/dt P(H + t dH)
 /// at t = 0 (the tangent C(F):dF), for the laws the particle layer can have; None for the split
 /// laws. With F = I + H:
 ///
 /// * `stvk`: dP = dF S + F (λ tr(dE) I + 2μ dE), dE = ½(dFᵀF + FᵀdF);
 /// * `stable_neohookean`: dP = μ (dF − d cof F) + λ̂ [(cof F : dF) cof F + (J − 1) d cof F],
 ///   d cof F the cofactor's derivative (column by column, d(a × b) = da × b + a × db);
-/// * `corotational`: with S = RᵀF and dR = R [w]×, (tr S I − S) w = axial(RᵀdF − dFᵀR),
+/// * `corotational`: with S = RᵀF and dR = R \[w\]×, (tr S I − S) w = axial(RᵀdF − dFᵀR),
 ///   dP = 2μ (dF − dR) + λ tr(RᵀdF) R + λ (tr S − 3) dR.
 pub fn elastic_stress_differential(
     model: MaterialModel,

@@ -25,7 +25,7 @@
 //! * on the hosts of q, through δ_q: −w_aq f_q (so Σ f = 0 exactly, and the layer cannot slide
 //!   on its tets: moving a tet's vertices under still particles changes δ);
 //! * on the hosts of every p in S, through F̄_p: −V T_p ∇N_a, the tangent term
-//!   T_p = P(F̄_p + D_p) − P(F̄_p) − ∂P(F̄_p)[D_p] ([`crate::material::elastic_stress_differential`]);
+//!   T_p = P(F̄_p + D_p) − P(F̄_p) − ∂P(F̄_p)\[D_p\] ([`crate::material::elastic_stress_differential`]);
 //! * on every vertex, the tets' full FEM forces −V_t P(F_t) ∇N_a.
 //!
 //! Followers (particles that are not dynamic) have δ ≡ 0 whatever the vertices do, so they

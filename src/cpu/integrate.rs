@@ -17,7 +17,7 @@ pub fn is_finite3(v: Vec3) -> bool {
 
 /// Per vertex i: v ← (v + dt·f/m) / (1 + α·dt), u ← u + dt·v (u = x − X, the displacement);
 /// fixed vertices (inverse mass 0) keep v = 0; a negative inverse mass marks a vertex moved
-/// kinematically by its dynamic particles (u ← u + dt·v, v as given). `status[0]` becomes min(status[0], i) when u or
+/// kinematically by its dynamic particles (u ← u + dt·v, v as given). `status[0]` becomes `min(status[0], i)` when u or
 /// v is not finite or |v| exceeds `params.speed_limit`.
 pub fn integrate(
     params: &StepParams,

@@ -272,7 +272,7 @@ impl PairPlan {
     /// gravity and contact. A pair (c, b) adds V²(A_c + A_b)∇W(X_b − X_c) and, when c or b
     /// is dynamic, the hourglass term x_cb·w_h·((F_c + F_b)X_cb·x_cb / |x_cb|² − n_S), with
     /// A = 0, F = 0 outside S and n_S the pair's count of particles in S: the kernel's terms,
-    /// computed from each particle's quantities packed once per step ([`PairSide`]).
+    /// computed from each particle's quantities packed once per step (`PairSide`).
     /// `scratch` holds them, the owners' sums, each pair's terms and each pair's rest
     /// quantities from `inp.pairs` (rewritten when the plan is another build's). tlsph with
     /// a pair table only (the paper model's one-sided terms are not antisymmetric): otherwise

@@ -10,7 +10,7 @@ use crate::params::{stat, StepParams};
 
 /// Bytes of the stats buffer.
 pub const STATS_BYTES: u64 = (stat::LEN * 4) as u64;
-/// Bytes of the status buffer (status[0]: lowest non-finite vertex, or u32::MAX).
+/// Bytes of the status buffer (`status[0]`: lowest non-finite vertex, or `u32::MAX`).
 pub const STATUS_BYTES: u64 = 16;
 
 /// The FEM core: state, rest shape, CSR incidence, forces, reduction and status.

@@ -658,7 +658,7 @@ impl GpuStepper {
 
     /// Record each batch when it is submitted (`false`), or also the next one while the GPU
     /// runs it where nothing else is in flight (`true`, the default unless
-    /// `PALPATE_GPU_PRERECORD=0`: [`Ahead`]). The same commands either way.
+    /// `PALPATE_GPU_PRERECORD=0`: `Ahead`). The same commands either way.
     pub fn set_prerecord(&mut self, on: bool) {
         self.prerecord = on;
         self.ahead = None;

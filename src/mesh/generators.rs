@@ -216,7 +216,7 @@ pub fn ellipsoid_shell(inner: [f64; 3], outer: [f64; 3], layers: usize, n: usize
 
 /// Concentric (Shirley–Chiu) map of the square [−1,1]² onto the unit disk: squares of
 /// "radius" ρ go to circles of radius ρ, so rings keep uniform spacing and the centre has
-/// no singular fan. Returns (radius ∈ [0,1], angle).
+/// no singular fan. Returns (radius ∈ \[0,1\], angle).
 pub fn concentric_disk(a: f64, b: f64) -> (f64, f64) {
     if a == 0.0 && b == 0.0 {
         return (0.0, 0.0);
@@ -263,7 +263,7 @@ impl LvGeometry {
         v(self.short_radius[1], self.long_radius[1]) - v(self.short_radius[0], self.long_radius[0])
     }
 
-    /// Point at wall fraction t ∈ [0,1] (endo → epi), disk radius ρ ∈ [0,1] (apex → base)
+    /// Point at wall fraction t ∈ \[0,1\] (endo → epi), disk radius ρ ∈ \[0,1\] (apex → base)
     /// and angle v: x = r_s sin u cos v, y = r_s sin u sin v, z = r_l cos u with
     /// u = −π + ρ (π − arccos(z_base / r_l)).
     pub fn point(&self, t: f64, rho: f64, v: f64) -> DVec3 {

@@ -22,7 +22,7 @@ pub struct ParticleSpec {
     /// Kernel support radius in spacings (default 2.4).
     pub kernel_radius: Option<f64>,
     /// Hourglass-control coefficient α (Ganzenmüller 2015; default 0.1; 0 turns it off; at
-    /// most [`MAX_HOURGLASS`]).
+    /// most `MAX_HOURGLASS`, 100).
     pub hourglass: Option<f64>,
     /// Deactivation happens beyond `hysteresis` × the activation radius (default 1.5, ≥ 1).
     pub hysteresis: Option<f64>,

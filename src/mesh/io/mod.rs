@@ -1,4 +1,4 @@
-//! Mesh files in and out. [`read`] and [`write`] pick the format from the file extension.
+//! Mesh files in and out. [`read()`] and [`write()`] pick the format from the file extension.
 //!
 //! | extension               | read                                                  | write           |
 //! |-------------------------|-------------------------------------------------------|-----------------|
