@@ -186,6 +186,11 @@ pub struct MaterialParams {
 }
 
 impl MaterialParams {
+    /// Young's modulus from the Lamé parameters: E = μ(3λ + 2μ)/(λ + μ), Pa.
+    pub fn youngs_modulus(&self) -> f64 {
+        self.mu * (3.0 * self.lambda + 2.0 * self.mu) / (self.lambda + self.mu)
+    }
+
     /// Lamé parameters from Young's modulus E and Poisson ratio ν:
     /// λ = Eν / ((1+ν)(1−2ν)), μ = E / (2(1+ν)).
     pub fn lame_from_young(youngs_modulus: f64, poisson_ratio: f64) -> (f64, f64) {

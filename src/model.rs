@@ -507,10 +507,7 @@ impl Model {
         }
         if let Some(p) = &self.particles {
             // The hourglass penalty's weight, ½ α E V² (as `cpu::sph::PairTable` forms it).
-            let youngs = {
-                let m = &self.material;
-                m.mu * (3.0 * m.lambda + 2.0 * m.mu) / (m.lambda + m.mu)
-            };
+            let youngs = self.material.youngs_modulus();
             let weight = 0.5 * p.settings.hourglass as f32 * youngs as f32 * (p.volume * p.volume);
             if !weight.is_finite() {
                 return Err(bad(format!(
@@ -568,8 +565,7 @@ impl Model {
         let s = &p.settings;
         let dt = params.dt as f64;
         let substeps = self.particle_substeps(dt);
-        let m = &self.material;
-        let youngs = m.mu * (3.0 * m.lambda + 2.0 * m.mu) / (m.lambda + m.mu);
+        let youngs = self.material.youngs_modulus();
         Some(
             crate::particles::params::ParticleParams {
                 n_particles: p.len() as u32,

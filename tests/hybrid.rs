@@ -44,6 +44,15 @@ fn layered_block_spaced(
     scene
 }
 
+/// The particles of `s` that are dynamic or blending back.
+fn awake(s: &CpuStepper) -> usize {
+    s.particle_modes()
+        .unwrap()
+        .iter()
+        .filter(|&&q| q & (mode::DYNAMIC | mode::BLENDING) != 0)
+        .count()
+}
+
 fn stepper(scene: &Scene, dt_factor: f64) -> (Arc<Model>, CpuStepper) {
     let m = Arc::new(Model::from_scene(scene));
     let p = m.step_params(dt_factor * m.bounds.dt_bound, 0.0);
@@ -538,11 +547,7 @@ fn hm1_activates_a_few_hundred_particles_under_the_tool_and_releases_them_withou
             }
         }
     }
-    let modes = s.particle_modes().unwrap();
-    let left = modes
-        .iter()
-        .filter(|&&x| x & (mode::DYNAMIC | mode::BLENDING) != 0)
-        .count();
+    let left = awake(&s);
     eprintln!(
         "hm1: {n} particles; at most {max_dynamic} dynamic; largest tool force {max_force:.3}; {switched} switches, largest jump at a switch {worst_jump:.2e} ({:.1e} of the spacing); after the tool left {left} still dynamic or blending",
         worst_jump / spacing
@@ -640,12 +645,7 @@ fn checkpoints_of_the_touched_particles_equal_the_whole_state() {
             batch += 1;
         }
         let c = s.activation_counts().unwrap();
-        let left = s
-            .particle_modes()
-            .unwrap()
-            .iter()
-            .filter(|&&q| q & (mode::DYNAMIC | mode::BLENDING) != 0)
-            .count();
+        let left = awake(&s);
         eprintln!("{name}: {batch} batches, {restores} restores, at most {most_dynamic} dynamic, {left} left at the end; activations {c:?}");
         assert!(
             most_dynamic > 50,
@@ -825,12 +825,7 @@ fn the_cpu_activation_over_its_region_equals_the_activation_over_everything() {
             t = saved as f64 * interval as f64 * dt;
         }
     }
-    let left = region
-        .particle_modes()
-        .unwrap()
-        .iter()
-        .filter(|&&x| x & (mode::DYNAMIC | mode::BLENDING) != 0)
-        .count();
+    let left = awake(&region);
     let counts = region.activation_counts().unwrap();
     let reference = everything.activation_counts().unwrap();
     eprintln!("region vs full activation: equal over {batch} batches; up to {dynamic_max} dynamic, {released} releases, {left} left active; activations {counts:?} (reference {reference:?})");

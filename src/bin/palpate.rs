@@ -201,9 +201,7 @@ fn main() -> ExitCode {
         (r, _) => r,
     };
     match result {
-        Ok(()) if STOPPED_BY_SIGNAL.load(std::sync::atomic::Ordering::SeqCst) => {
-            ExitCode::from(palpate::interrupt::EXIT_STATUS)
-        }
+        Ok(()) if stopped => ExitCode::from(palpate::interrupt::EXIT_STATUS),
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             palpate::say_err!("error: {e}");

@@ -609,12 +609,13 @@ fn copy_particle_state(
         dst.clone_from(src);
         return;
     }
+    use super::touched::copy_ranges;
     let ranges = touched.ranges();
-    touched.copy(&ranges, 3, &src.displacements, &mut dst.displacements);
-    touched.copy(&ranges, 3, &src.velocities, &mut dst.velocities);
-    touched.copy(&ranges, 3, &src.offset, &mut dst.offset);
-    touched.copy(&ranges, 1, &src.mode, &mut dst.mode);
-    touched.copy(&ranges, 1, &src.timer, &mut dst.timer);
+    copy_ranges(&ranges, 3, &src.displacements, &mut dst.displacements);
+    copy_ranges(&ranges, 3, &src.velocities, &mut dst.velocities);
+    copy_ranges(&ranges, 3, &src.offset, &mut dst.offset);
+    copy_ranges(&ranges, 1, &src.mode, &mut dst.mode);
+    copy_ranges(&ranges, 1, &src.timer, &mut dst.timer);
     dst.mass.clone_from(&src.mass);
     dst.inv_mass.clone_from(&src.inv_mass);
 }

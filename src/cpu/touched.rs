@@ -84,14 +84,14 @@ impl Touched {
         }
         out
     }
+}
 
-    /// Copy the marked particles' entries of a per-particle array of `width` values each from
-    /// `src` into `dst` (both of `width` × the particle count).
-    pub fn copy<T: Copy>(&self, ranges: &[Range<usize>], width: usize, src: &[T], dst: &mut [T]) {
-        for r in ranges {
-            let (a, b) = (width * r.start, width * r.end);
-            dst[a..b].copy_from_slice(&src[a..b]);
-        }
+/// Copy the entries of the particles in `ranges` ([`Touched::ranges`]) of a per-particle
+/// array of `width` values each from `src` into `dst` (both of `width` × the particle count).
+pub fn copy_ranges<T: Copy>(ranges: &[Range<usize>], width: usize, src: &[T], dst: &mut [T]) {
+    for r in ranges {
+        let (a, b) = (width * r.start, width * r.end);
+        dst[a..b].copy_from_slice(&src[a..b]);
     }
 }
 
@@ -110,7 +110,7 @@ mod tests {
         assert_eq!(t.ranges(), vec![0..64, 192..200]);
         let src: Vec<u32> = (0..400).collect();
         let mut dst = vec![0u32; 400];
-        t.copy(&t.ranges(), 2, &src, &mut dst);
+        copy_ranges(&t.ranges(), 2, &src, &mut dst);
         assert_eq!(&dst[..128], &src[..128]);
         assert!(dst[128..384].iter().all(|&x| x == 0));
         assert_eq!(&dst[384..], &src[384..]);

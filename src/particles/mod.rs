@@ -156,8 +156,7 @@ impl Particles {
             return 0.0;
         }
         let (dx, support) = (s.spacing, self.support as f64);
-        let (lambda, mu) = (material.lambda, material.mu);
-        let youngs = mu * (3.0 * lambda + 2.0 * mu) / (lambda + mu);
+        let youngs = material.youngs_modulus();
         let v = self.volume as f64;
         let h = 0.5 * s.hourglass * youngs * v * v;
         let reach = (support / dx).ceil() as i32;
