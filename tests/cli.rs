@@ -1329,6 +1329,15 @@ fn bad_particle_sections_are_one_line_errors_naming_the_key() {
             &["particles.spacing", "too coarse"],
         ),
         (
+            // Again in exponent form, not 31 digits.
+            "region = 0\nspacing = 1e30\nactivation_radius = 0.004",
+            &["particles.spacing", "1e30 m is too coarse"],
+        ),
+        (
+            "region = 0\nspacing = 0.002\nactivation_radius = 0.004\nblend = inf",
+            &["particles.blend", "finite", "inf"],
+        ),
+        (
             "region = 0\nspacing = 1e-6\nactivation_radius = 0.004",
             &["particles.spacing", "particles"],
         ),

@@ -87,7 +87,8 @@ pub fn sample(
         return Err(bad(
             "particles.spacing",
             format!(
-                "{dx} m is too coarse: no lattice point falls inside the {} tets of region {}",
+                "{} m is too coarse: no lattice point falls inside the {} tets of region {}",
+                crate::scene::Num(dx),
                 zone.len(),
                 settings.region
             ),

@@ -212,7 +212,11 @@ pub(super) fn resolve_particles(
     let blend = spec.blend.unwrap_or(0.01);
     for (item, v) in [("particles.dwell", dwell), ("particles.blend", blend)] {
         if !(v.is_finite() && v >= 0.0) {
-            return Err(bad(item, format!("must be >= 0 s, got {}", super::Num(v))));
+            let what = if v.is_infinite() { "finite and " } else { "" };
+            return Err(bad(
+                item,
+                format!("must be {what}>= 0 s, got {}", super::Num(v)),
+            ));
         }
     }
     let activation_interval = spec.activation_interval.unwrap_or(10);
