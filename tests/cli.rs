@@ -182,6 +182,12 @@ fn a_viscous_particle_scene_notes_that_particles_carry_no_viscosity() {
             false,
         ),
         ("viscous_asleep.toml", "[0.0, 5.0]", "", false),
+        (
+            "viscous_exact.toml",
+            "[0.0, 5.0]",
+            "activation = \"all\"\ncoupling = \"exact\"",
+            false,
+        ),
     ] {
         let text = beam_with(&format!("{particles}\n{extra}")).replace(
             "viscosity = [0.0, 0.0]",
