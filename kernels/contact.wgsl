@@ -69,7 +69,7 @@ fn contact_sph_stress(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgr
         if r > 0u {
             workgroupBarrier();
         }
-        sph_stress_entry((r * groups + first) * SPH_STRESS_ITEMS + local % SPH_STRESS_ITEMS, local, params.lambda, params.mu);
+        sph_stress_entry((r * groups + first) * SPH_STRESS_ITEMS + local % SPH_STRESS_ITEMS, local, params.lambda, params.mu, params.phi, params.psi);
     }
 }
 

@@ -76,6 +76,9 @@ fn fem_forces_follow(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num
         if follow_embedded(p) {
             let h = tets[particle_host[p]];
             follow_particle(p, array<vec3<f32>, 4>(displacement(h.x), displacement(h.y), displacement(h.z), displacement(h.w)));
+            if VISCOUS {
+                follow_particle_velocity(p, array<vec3<f32>, 4>(velocity(h.x), velocity(h.y), velocity(h.z), velocity(h.w)));
+            }
         }
     }
 }

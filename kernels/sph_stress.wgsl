@@ -21,5 +21,5 @@ const ITEMS_PER_WORKGROUP: u32 = 64u;
 
 @compute @workgroup_size(256)
 fn sph_stress(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>, @builtin(local_invocation_index) local: u32) {
-    sph_stress_entry(workgroup_index(wid, nwg) * SPH_STRESS_ITEMS + local % SPH_STRESS_ITEMS, local, params.lambda, params.mu);
+    sph_stress_entry(workgroup_index(wid, nwg) * SPH_STRESS_ITEMS + local % SPH_STRESS_ITEMS, local, params.lambda, params.mu, params.phi, params.psi);
 }

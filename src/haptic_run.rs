@@ -333,9 +333,6 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
             sim.backend_name(),
             sim.backend_reason,
         );
-        if let Some(note) = model.particle_viscosity_note(sim.dt) {
-            crate::say_err!("note: {}: {note}", scene.origin);
-        }
     }
 
     // Built before the servo starts: with hm1's 28,000 particles it takes milliseconds.

@@ -600,30 +600,6 @@ impl Model {
         t
     }
 
-    /// What the particle layer leaves out of this scene's material at time step `dt`: the
-    /// particles' stress is elastic only (no strain-rate viscosity φ, ψ of paper eq. 3–4),
-    /// so where particles are dynamic the tissue damps only through `solver.damping`. None
-    /// when no particle can become dynamic (no particles, or neither a tool nor
-    /// `activation = "all"`), under design 8 (`coupling = "exact"`: the tets keep their whole
-    /// stress, viscous part included, and the particles add an elastic remainder), or when the
-    /// viscosity is too small to matter at this dt: its damping ratio on the fastest mode,
-    /// about max(φ, ψ)/(μ dt), under 1 % (HM1's Table 1 values: 0.6 %).
-    pub fn particle_viscosity_note(&self, dt: f64) -> Option<String> {
-        let p = self.particles.as_ref()?;
-        if (self.tool.is_none() && !p.settings.all_active) || p.settings.exact_coupling {
-            return None;
-        }
-        let m = &self.material;
-        let ratio = m.phi.max(m.psi) / (m.mu * dt);
-        (ratio >= 0.01).then(|| {
-            format!(
-                "the particle layer carries no strain-rate viscosity: material.viscosity = [{}, {}] (max(phi, psi)/(mu dt) = {ratio:.2}) acts on the tets only, so where particles are dynamic the tissue damps through solver.damping alone",
-                crate::scene::Num(m.phi),
-                crate::scene::Num(m.psi)
-            )
-        })
-    }
-
     /// Number of vertices.
     pub fn n_vertices(&self) -> usize {
         self.mass.len()

@@ -329,9 +329,6 @@ pub fn run_with_state(
         );
     }
     let dt0 = sim.dt;
-    if let Some(note) = model.particle_viscosity_note(dt0).filter(|_| opts.announce) {
-        crate::say_err!("note: {}: {note}", scene.origin);
-    }
     let max_steps = steps_for(opts.length, dt0)?;
     let mut target_steps = max_steps;
     // The run's simulated length; halve-dt keeps it (so --steps N may take more than N steps

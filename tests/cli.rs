@@ -160,58 +160,6 @@ fn gpu_run_with_frames_writes_a_series() {
     assert!(s["max_displacement"].as_f64().unwrap() > 0.0);
 }
 
-/// A particle scene whose viscosity matters at its dt says that the particles leave it out
-/// (their stress is elastic only); without viscosity, or without a tool or `activation =
-/// "all"` to wake a particle, it says nothing.
-#[test]
-fn a_viscous_particle_scene_notes_that_particles_carry_no_viscosity() {
-    let d = tmp("particleviscosity");
-    let particles = "[particles]\nregion = 0\nspacing = 0.004\nactivation_radius = 0.004";
-    let note = "no strain-rate viscosity";
-    for (name, viscosity, extra, noted) in [
-        (
-            "viscous_all.toml",
-            "[0.0, 5.0]",
-            "activation = \"all\"",
-            true,
-        ),
-        (
-            "plain_all.toml",
-            "[0.0, 0.0]",
-            "activation = \"all\"",
-            false,
-        ),
-        ("viscous_asleep.toml", "[0.0, 5.0]", "", false),
-        (
-            "viscous_exact.toml",
-            "[0.0, 5.0]",
-            "activation = \"all\"\ncoupling = \"exact\"",
-            false,
-        ),
-    ] {
-        let text = beam_with(&format!("{particles}\n{extra}")).replace(
-            "viscosity = [0.0, 0.0]",
-            &format!("viscosity = {viscosity}"),
-        );
-        let scene = scene_file(&d, name, &text);
-        let (ok, out, err) = palpate(&[
-            "run",
-            &scene,
-            "--steps",
-            "1",
-            "--backend",
-            "cpu",
-            "--out",
-            d.to_str().unwrap(),
-        ]);
-        assert!(ok, "{name}: {out}{err}");
-        assert_eq!(err.contains(note), noted, "{name}: {err}");
-        if noted {
-            assert!(err.contains("material.viscosity = [0, 5]"), "{err}");
-        }
-    }
-}
-
 /// A particle scene's frames carry the particles too: `particles_series.pvd` lists one
 /// `particles_frame_NNNN.vtu` per frame, the last equal to `particles_final.vtu`.
 #[test]

@@ -399,6 +399,130 @@ impl ActivateIo {
 #[test]
 fn particle_kernels_match_their_cpu_twins() {
     let (m, params) = pressed_block_model();
+    check_particle_kernels(m, params);
+}
+
+/// The same with a viscous material: `follow` gives the embedded particles their host's
+/// velocity and `sph_stress` adds the strain-rate stress F·S_v from the particles'
+/// velocities, on both backends; the viscous part must matter in the compared stress.
+#[test]
+fn viscous_particle_kernels_match_their_cpu_twins() {
+    let text = PRESSED_BLOCK.replace(
+        "density = 1000.0\n",
+        "density = 1000.0\nviscosity = [2.0, 5.0]\n",
+    );
+    let scene = Scene::from_toml(&text, "viscous block", "viscous_block", None).unwrap();
+    let m = Arc::new(Model::from_scene(&scene));
+    assert!(m.fem_variant().viscous);
+    let params = m.step_params(0.5 * m.bounds.dt_bound, 50.0);
+    check_particle_kernels(m, params);
+}
+
+/// tlsph's viscous stress is the tets': every particle of a viscous block (each one, to the
+/// surface, by the corrected kernel gradients) given the velocity field v = L X at rest gets
+/// P = φ tr(sym L) I + 2ψ sym L, what `fem_forces` gives a tet (`viscous_stress` at F = I);
+/// a rigid spin (L antisymmetric) gives none.
+#[test]
+fn the_particle_viscous_stress_is_the_tets_under_a_uniform_velocity_gradient() {
+    let text = PRESSED_BLOCK.replace(
+        "density = 1000.0\n",
+        "density = 1000.0\nviscosity = [2.0, 5.0]\n",
+    );
+    let scene = Scene::from_toml(&text, "viscous block", "viscous_block", None).unwrap();
+    let m = Model::from_scene(&scene);
+    let params = m.step_params(0.5 * m.bounds.dt_bound, 0.0);
+    let pd = m.particles.as_ref().unwrap();
+    let pp = m.particle_params(&params).unwrap();
+    let n = pd.len();
+    let lists = cpu::neighbours::build(&GridParams::over(&pd.rest, pd.support), &pd.rest);
+    let (noff, nbrs) = (&lists.neighbour_offsets, &lists.neighbours);
+    let mut correction = vec![0.0f32; 9 * n];
+    cpu::sph_setup::sph_setup(&pp, &pd.rest, noff, nbrs, &mut correction);
+    let all: Vec<u32> = (0..n as u32).collect();
+    // The one-walk sum of displacements and velocities is each one's own sum, bit for bit.
+    let mut rng = Rng(7);
+    let (a, b): (Vec<f32>, Vec<f32>) = (0..3 * n)
+        .map(|_| (rng.sym() as f32, rng.sym() as f32))
+        .unzip();
+    for p in (0..n).step_by(37) {
+        let one = |x: &[f32]| cpu::sph_setup::gradient_sum(&pp, &pd.rest, x, noff, nbrs, None, p);
+        assert_eq!(
+            cpu::sph_setup::gradient_sums(&pp, &pd.rest, &a, &b, noff, nbrs, None, p),
+            (one(&a), one(&b)),
+            "particle {p}"
+        );
+    }
+    let stress_for = |l: glam::Mat3| {
+        let mut v = vec![0.0f32; 3 * n];
+        for p in 0..n {
+            let x = glam::Vec3::from_slice(&pd.rest[3 * p..3 * p + 3]);
+            v[3 * p..3 * p + 3].copy_from_slice(&(l * x).to_array());
+        }
+        let (mut stress, mut grad, mut energy) =
+            (vec![0.0f32; 9 * n], vec![0.0f32; 9 * n], vec![0.0f32; n]);
+        cpu::sph_stress::sph_stress(
+            &params,
+            &pp,
+            m.material.model,
+            &all,
+            &pd.rest,
+            &vec![0.0f32; 3 * n],
+            Some(&v),
+            noff,
+            nbrs,
+            &correction,
+            None,
+            &mut stress,
+            &mut grad,
+            &mut energy,
+        );
+        // P = A G⁻ᵀ per particle.
+        (0..n)
+            .map(|p| {
+                let a = glam::Mat3::from_cols_slice(&stress[9 * p..9 * p + 9]);
+                let g = glam::Mat3::from_cols_slice(&correction[9 * p..9 * p + 9]);
+                a * g.transpose().inverse()
+            })
+            .collect::<Vec<_>>()
+    };
+    // A stretch rate with shear (1/s).
+    let l = glam::Mat3::from_cols_array(&[2.0, 0.5, -0.3, 0.1, -1.0, 0.4, 0.2, 0.7, 0.5]);
+    let expected = cpu::fem_forces::viscous_stress(&params, glam::Mat3::IDENTITY, l);
+    let scale = expected
+        .abs()
+        .to_cols_array()
+        .into_iter()
+        .fold(0.0f32, f32::max);
+    assert!(scale > 1.0, "the expected viscous stress is {scale} Pa");
+    let worst = stress_for(l)
+        .iter()
+        .map(|p| {
+            (*p - expected)
+                .abs()
+                .to_cols_array()
+                .into_iter()
+                .fold(0.0f32, f32::max)
+        })
+        .fold(0.0f32, f32::max);
+    eprintln!("viscous stress under v = L X: worst error {worst:.2e} Pa of {scale:.2e} Pa");
+    assert!(
+        worst <= 1e-4 * scale,
+        "worst error {worst:.2e} Pa of {scale:.2e}"
+    );
+    // A rigid spin about an axis through the block: no strain rate, no viscous stress.
+    let spin = glam::Mat3::from_cols_array(&[0.0, 3.0, -1.0, -3.0, 0.0, 2.0, 1.0, -2.0, 0.0]);
+    let worst = stress_for(spin)
+        .iter()
+        .map(|p| p.abs().to_cols_array().into_iter().fold(0.0f32, f32::max))
+        .fold(0.0f32, f32::max);
+    eprintln!("viscous stress under a rigid spin: worst {worst:.2e} Pa");
+    assert!(worst <= 1e-4 * scale, "a rigid spin gives {worst:.2e} Pa");
+}
+
+/// Every particle kernel against its CPU twin on `m`'s pressed block (see
+/// [`particle_kernels_match_their_cpu_twins`]).
+fn check_particle_kernels(m: Arc<Model>, params: palpate::params::StepParams) {
+    let viscous = m.fem_variant().viscous;
     let pd = m.particles.as_ref().unwrap();
     let pp = m.particle_params(&params).unwrap();
     let mut g = GpuStepper::new(gpu(), &m, params).unwrap();
@@ -527,7 +651,40 @@ fn particle_kernels_match_their_cpu_twins() {
     g.write_f32("particle_offset", &poffset).unwrap();
     g.run_stage(Stage::Follow).unwrap();
     let timers_before = ptimer.clone();
-    cpu::follow::follow(&pp, &fl, &pmode, &st, &u, &mut ptimer, &poffset, &mut pu);
+    let mut pv_follow = pv.clone();
+    cpu::follow::follow(
+        &pp,
+        &fl,
+        &pmode,
+        &st,
+        &u,
+        &mut ptimer,
+        &poffset,
+        &mut pu,
+        viscous.then_some((&v[..], &mut pv_follow[..])),
+    );
+    if viscous {
+        // The embedded particles of F took their host's velocity (less a fading offset's
+        // rate): on both backends alike, and not what they had.
+        let moved = fl
+            .iter()
+            .filter(|&&q| pmode[q as usize] & mode::DYNAMIC == 0)
+            .filter(|&&q| {
+                let q = q as usize;
+                pv_follow[3 * q..3 * q + 3] != pv[3 * q..3 * q + 3]
+            })
+            .count();
+        assert!(moved > 10, "follow set only {moved} embedded velocities");
+        let e = rel(
+            &g.read_f32("particle_velocities").unwrap()[..pv_follow.len()],
+            &pv_follow,
+        );
+        eprintln!("follow: particle_velocities rel err {e:.2e}");
+        assert!(
+            e <= KERNEL_TOL,
+            "follow: particle_velocities rel err {e:.2e}"
+        );
+    }
     assert!(
         ptimer
             .iter()
@@ -560,7 +717,8 @@ fn particle_kernels_match_their_cpu_twins() {
     g.run_stage(Stage::SphStress).unwrap();
     // The CPU path caches rest-state pair quantities; the cache must not change a bit.
     let pairs = cpu::sph::PairTable::new(&pp, &pd.rest, noff, nbrs);
-    let stress_with = |pairs: Option<&cpu::sph::PairTable>| {
+    let pv_gpu = g.read_f32("particle_velocities").unwrap();
+    let stress_of = |pairs: Option<&cpu::sph::PairTable>, velocities: Option<&[f32]>| {
         let (mut stress, mut grad, mut energy) =
             (vec![0.0f32; 9 * n], vec![0.0f32; 9 * n], vec![0.0f32; n]);
         cpu::sph_stress::sph_stress(
@@ -570,6 +728,7 @@ fn particle_kernels_match_their_cpu_twins() {
             &sl,
             &pd.rest,
             &pu,
+            velocities,
             noff,
             nbrs,
             &corr,
@@ -580,7 +739,16 @@ fn particle_kernels_match_their_cpu_twins() {
         );
         (stress, grad, energy)
     };
+    let stress_with =
+        |pairs: Option<&cpu::sph::PairTable>| stress_of(pairs, viscous.then_some(&pv_gpu[..]));
     let (stress, grad, energy) = stress_with(Some(&pairs));
+    if viscous {
+        // The viscous part is well above the tolerance the backends are held to.
+        let (elastic, _, _) = stress_of(Some(&pairs), None);
+        let e = rel(&on_list9(&sl, &elastic), &on_list9(&sl, &stress));
+        eprintln!("sph_stress: the viscous part, relative to the whole: {e:.2e}");
+        assert!(e > 100.0 * KERNEL_TOL, "the viscous stress is only {e:.2e}");
+    }
     assert!(
         stress_with(None) == (stress.clone(), grad.clone(), energy.clone()),
         "sph_stress with the pair cache differs from without it"
@@ -738,6 +906,13 @@ fn particle_kernels_match_their_cpu_twins() {
     let e = rel(&g.read_f32("forces").unwrap()[..forces.len()], &forces);
     eprintln!("gather_coupled: rel err {e:.2e} ({coupled} vertices receive particle forces)");
     assert!(e <= KERNEL_TOL, "gather_coupled rel err {e:.2e}");
+}
+
+/// The 9 floats of each particle of `list` in `a`.
+fn on_list9(list: &[u32], a: &[f32]) -> Vec<f32> {
+    list.iter()
+        .flat_map(|&p| a[9 * p as usize..9 * p as usize + 9].iter().copied())
+        .collect()
 }
 
 /// A vertex with no mass left (every particle it hosts is dynamic) takes its particles'
@@ -2127,6 +2302,7 @@ fn the_paired_sph_force_stage_equals_the_kernel_twin() {
         &sl,
         &pd.rest,
         &snap.displacements,
+        None,
         noff,
         nbrs,
         &correction,

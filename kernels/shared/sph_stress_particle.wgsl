@@ -5,6 +5,10 @@
 //   tlsph: P and Psi from the element stage's material law (shared/material.wgsl);
 //   paper: the paper's eq. (1)-(2) stress with strain eps = F^T F - I (no 1/2), which is
 //          S = lambda tr(E) I + 2 mu E for E = eps/2 doubled; Psi = mu E:E + lambda/2 tr(E)^2.
+// With VISCOUS (the material's strain-rate viscosity, paper eq. 3-4, as fem_forces adds it),
+// also Fdot_p = [sum_b V (v_b - v_p) (x) grad W(X_b - X_p)] G_p from the particles'
+// velocities (follow gives the embedded ones their host's), Edot = (Fdot^T F + F^T Fdot)/2,
+// and P += F (phi tr(Edot) I + 2 psi Edot); Psi stays elastic.
 // Writes A_p = P G_p^T (so that P g_pb = A_p grad W_pb), H_p (for the hourglass penalty) and
 // V Psi. Each particle has SPH_STRESS_LANES threads of a 256-thread workgroup that takes 64
 // entries: lane j sums the neighbours j, j + SPH_STRESS_LANES, ... and the lanes' sums are
@@ -24,9 +28,12 @@
 @group(0) @binding(72) var<storage, read_write> particle_stress: array<f32>;
 @group(0) @binding(73) var<storage, read_write> particle_gradient: array<f32>;
 @group(0) @binding(74) var<storage, read_write> particle_energy: array<f32>;
+@group(0) @binding(75) var<storage, read> particle_velocities: array<f32>;
 
-// Pipeline constant: the material law (as fem_forces' MATERIAL).
+// Pipeline constants: the material law (as fem_forces' MATERIAL), and whether the viscous
+// stress is compiled in (as fem_forces' VISCOUS).
 override MATERIAL: u32 = 0u;
+override VISCOUS: bool = false;
 
 const SPH_STRESS_LANES: u32 = 4u;
 // Entries of S a workgroup takes at a time (its 256 threads / SPH_STRESS_LANES).
@@ -40,6 +47,10 @@ fn sph_rest(p: u32) -> vec3<f32> {
 
 fn sph_disp(p: u32) -> vec3<f32> {
     return vec3<f32>(particle_displacements[3u * p], particle_displacements[3u * p + 1u], particle_displacements[3u * p + 2u]);
+}
+
+fn sph_vel(p: u32) -> vec3<f32> {
+    return vec3<f32>(particle_velocities[3u * p], particle_velocities[3u * p + 1u], particle_velocities[3u * p + 2u]);
 }
 
 fn sph_kernel_gradient(d: vec3<f32>) -> vec3<f32> {
@@ -61,34 +72,62 @@ fn store9(a: u32, p: u32, m: mat3x3<f32>) {
     }
 }
 
+// The sum over the lanes of the slot `slot` in `lane_sums`.
+fn sph_lane_total(slot: u32) -> mat3x3<f32> {
+    var s = lane_sums[slot];
+    for (var j = 1u; j < SPH_STRESS_LANES; j++) {
+        s += lane_sums[slot + j * SPH_STRESS_ITEMS];
+    }
+    return s;
+}
+
 // The stress of entry k of S (nothing where k is past its end) for Lame constants lambda and
-// mu, by the thread `local` of the workgroup (lane local / 64 of slot local % 64). Every thread of the workgroup calls it, for
-// the same 64 entries (it has a workgroup barrier); a caller that calls it again must put a
-// workgroup barrier between the calls (lane 0 reads `lane_sums` after the first).
-fn sph_stress_entry(k: u32, local: u32, lambda: f32, mu: f32) {
+// mu (and viscosities phi and psi with VISCOUS), by the thread `local` of the workgroup (lane local / 64 of slot local % 64). Every thread of the workgroup calls it, for
+// the same 64 entries (it has workgroup barriers); a caller that calls it again must put a
+// workgroup barrier between the calls (lane 0 reads `lane_sums` after the last).
+fn sph_stress_entry(k: u32, local: u32, lambda: f32, mu: f32, phi: f32, psi: f32) {
     let slot = local % SPH_STRESS_ITEMS;
     let lane = local / SPH_STRESS_ITEMS;
     let live = k < particle_counts[1];
     var p = 0u;
     var mine = mat3x3<f32>(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0));
+    var mine_rate = mat3x3<f32>(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0));
     if live {
         p = stress_list[k];
         let x = sph_rest(p);
         let up = sph_disp(p);
+        var vp = vec3<f32>(0.0);
+        if VISCOUS {
+            vp = sph_vel(p);
+        }
         for (var n = neighbour_offsets[p] + lane; n < neighbour_offsets[p + 1u]; n += SPH_STRESS_LANES) {
             let b = neighbours[n];
             let w = sph_kernel_gradient(sph_rest(b) - x) * particle_params.volume;
             let du = sph_disp(b) - up;
             mine += mat3x3<f32>(du * w.x, du * w.y, du * w.z);
+            if VISCOUS {
+                let dv = sph_vel(b) - vp;
+                mine_rate += mat3x3<f32>(dv * w.x, dv * w.y, dv * w.z);
+            }
         }
     }
     lane_sums[local] = mine;
     workgroupBarrier();
+    var s = mat3x3<f32>(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0));
     if live && lane == 0u {
-        var s = lane_sums[slot];
-        for (var j = 1u; j < SPH_STRESS_LANES; j++) {
-            s += lane_sums[slot + j * SPH_STRESS_ITEMS];
+        s = sph_lane_total(slot);
+    }
+    var s_rate = mat3x3<f32>(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0));
+    if VISCOUS {
+        // The same array for the velocity sums, once lane 0 has read the displacements'.
+        workgroupBarrier();
+        lane_sums[local] = mine_rate;
+        workgroupBarrier();
+        if live && lane == 0u {
+            s_rate = sph_lane_total(slot);
         }
+    }
+    if live && lane == 0u {
         let c = 9u * p;
         let g = mat3x3<f32>(
             vec3<f32>(particle_correction[c], particle_correction[c + 1u], particle_correction[c + 2u]),
@@ -108,7 +147,14 @@ fn sph_stress_entry(k: u32, local: u32, lambda: f32, mu: f32) {
         } else {
             se = material_stress_energy(MATERIAL, h, lambda, mu);
         }
-        store9(0u, p, se.p * transpose(g));
+        var stress = se.p;
+        if VISCOUS {
+            let f = identity3() + h;
+            let f_dot = s_rate * g;
+            let rate = (transpose(f_dot) * f + transpose(f) * f_dot) * 0.5;
+            stress = stress + f * (identity3() * (phi * trace3(rate)) + rate * (2.0 * psi));
+        }
+        store9(0u, p, stress * transpose(g));
         store9(1u, p, h);
         particle_energy[p] = particle_params.volume * se.psi;
     }

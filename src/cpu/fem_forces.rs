@@ -54,9 +54,15 @@ pub fn displacement_gradient(u: [Vec3; 4], dmi: Mat3) -> Mat3 {
 /// S_v = φ tr(Ė) I + 2ψ Ė, Ė = ½(ḞᵀF + FᵀḞ), Ḟ = Dv·Dm⁻¹.
 #[inline]
 pub fn viscous_first_piola(params: &StepParams, h: Mat3, v: [Vec3; 4], dmi: Mat3) -> Mat3 {
-    let f = Mat3::IDENTITY + h;
     let dv = Mat3::from_cols(v[1] - v[0], v[2] - v[0], v[3] - v[0]);
-    let rate = green_strain_rate(f, dv * dmi);
+    viscous_stress(params, Mat3::IDENTITY + h, dv * dmi)
+}
+
+/// F·S_v for deformation gradient F and its rate Ḟ: S_v = φ tr(Ė) I + 2ψ Ė with
+/// Ė = ½(ḞᵀF + FᵀḞ) (paper eq. 3–4; the tets' and, from the particles' velocities, tlsph's).
+#[inline]
+pub fn viscous_stress(params: &StepParams, f: Mat3, f_dot: Mat3) -> Mat3 {
+    let rate = green_strain_rate(f, f_dot);
     f * stvk_second_piola(Mat3::ZERO, rate, 0.0, 0.0, params.phi, params.psi)
 }
 

@@ -96,3 +96,41 @@ pub fn gradient_sum(
     }
     Mat3::from_cols(c0.into(), c1.into(), c2.into())
 }
+
+/// [`gradient_sum`] of `a` and of `b` in one walk over p's neighbours (the displacements' and
+/// the velocities' for a viscous stress): each the same products and sums as its own call.
+#[allow(clippy::too_many_arguments)]
+pub fn gradient_sums(
+    pp: &ParticleParams,
+    rest: &[f32],
+    a: &[f32],
+    b: &[f32],
+    neighbour_offsets: &[u32],
+    neighbours: &[u32],
+    pairs: Option<&super::sph::PairTable>,
+    p: usize,
+) -> (Mat3, Mat3) {
+    let x = load3(rest, p);
+    let (ap, bp) = (load3a(a, p), load3a(b, p));
+    let (mut c0, mut c1, mut c2) = (Vec3A::ZERO, Vec3A::ZERO, Vec3A::ZERO);
+    let (mut d0, mut d1, mut d2) = (Vec3A::ZERO, Vec3A::ZERO, Vec3A::ZERO);
+    for k in neighbour_offsets[p]..neighbour_offsets[p + 1] {
+        let q = neighbours[k as usize] as usize;
+        let w = match pairs {
+            Some(t) => t.gradient[k as usize],
+            None => kernel_gradient(pp.model, load3(rest, q) - x, pp.spacing, pp.support),
+        } * pp.volume;
+        let da = load3a(a, q) - ap;
+        c0 += da * w.x;
+        c1 += da * w.y;
+        c2 += da * w.z;
+        let db = load3a(b, q) - bp;
+        d0 += db * w.x;
+        d1 += db * w.y;
+        d2 += db * w.z;
+    }
+    (
+        Mat3::from_cols(c0.into(), c1.into(), c2.into()),
+        Mat3::from_cols(d0.into(), d1.into(), d2.into()),
+    )
+}

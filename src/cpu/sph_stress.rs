@@ -1,14 +1,17 @@
 //! CPU twin of `kernels/sph_stress.wgsl`: per particle of the stress set, H_p, the material's
-//! P (tlsph) or the paper's eq. (1)–(2) stress (paper), A_p = P G_pᵀ and V Ψ.
+//! P (tlsph) or the paper's eq. (1)–(2) stress (paper), plus for a viscous material the
+//! strain-rate stress F·S_v of eq. (3)–(4) from the particles' velocities (as the element
+//! forces add it), A_p = P G_pᵀ and V Ψ (elastic).
 
-use super::fem_forces::load_dm_inv;
-use super::sph_setup::gradient_sum;
+use super::fem_forces::{load_dm_inv, viscous_stress};
+use super::sph_setup::{gradient_sum, gradient_sums};
 use crate::material::{ddot, elastic_stress_energy, trace, MaterialModel};
 use crate::params::StepParams;
 use crate::particles::params::ParticleParams;
 use glam::Mat3;
 
-/// A_p, H_p and V Ψ of particle p.
+/// A_p, H_p and V Ψ of particle p; with `velocities` (a viscous material) P includes
+/// F·S_v, S_v = φ tr(Ė) I + 2ψ Ė, Ė = ½(ḞᵀF + FᵀḞ), Ḟ = [Σ_b V (v_b − v_p) ⊗ ∇W] G_p.
 #[allow(clippy::too_many_arguments)]
 pub fn stress_of(
     params: &StepParams,
@@ -16,21 +19,40 @@ pub fn stress_of(
     material: MaterialModel,
     rest: &[f32],
     displacements: &[f32],
+    velocities: Option<&[f32]>,
     neighbour_offsets: &[u32],
     neighbours: &[u32],
     correction: &[f32],
     pairs: Option<&super::sph::PairTable>,
     p: usize,
 ) -> (Mat3, Mat3, f32) {
-    let s = gradient_sum(
-        pp,
-        rest,
-        displacements,
-        neighbour_offsets,
-        neighbours,
-        pairs,
-        p,
-    );
+    let (s, s_rate) = match velocities {
+        Some(v) => {
+            let (s, r) = gradient_sums(
+                pp,
+                rest,
+                displacements,
+                v,
+                neighbour_offsets,
+                neighbours,
+                pairs,
+                p,
+            );
+            (s, Some(r))
+        }
+        None => (
+            gradient_sum(
+                pp,
+                rest,
+                displacements,
+                neighbour_offsets,
+                neighbours,
+                pairs,
+                p,
+            ),
+            None,
+        ),
+    };
     let g = load_dm_inv(correction, p);
     let h = s * g;
     let (stress, psi) = if pp.model == 1 {
@@ -44,11 +66,16 @@ pub fn stress_of(
     } else {
         elastic_stress_energy(material, h, params.lambda, params.mu)
     };
+    let stress = match s_rate {
+        Some(s_rate) => stress + viscous_stress(params, Mat3::IDENTITY + h, s_rate * g),
+        None => stress,
+    };
     (stress * g.transpose(), h, pp.volume * psi)
 }
 
 /// Per particle of `stress_list`: `particle_stress` (A), `particle_gradient` (H),
-/// `particle_energy` (kernel gradients from `pairs` when given).
+/// `particle_energy` (kernel gradients from `pairs` when given; `velocities`: the viscous
+/// stress too, see [`stress_of`]).
 #[allow(clippy::too_many_arguments)]
 pub fn sph_stress(
     params: &StepParams,
@@ -57,6 +84,7 @@ pub fn sph_stress(
     stress_list: &[u32],
     rest: &[f32],
     displacements: &[f32],
+    velocities: Option<&[f32]>,
     neighbour_offsets: &[u32],
     neighbours: &[u32],
     correction: &[f32],
@@ -75,6 +103,7 @@ pub fn sph_stress(
                 material,
                 rest,
                 displacements,
+                velocities,
                 neighbour_offsets,
                 neighbours,
                 correction,

@@ -238,6 +238,9 @@ struct ChainInputs<'a> {
     material: crate::material::MaterialModel,
     tool: &'a ToolArrays,
     vertex_displacements: &'a [f32],
+    /// The vertices' velocities (a viscous material's particle stress reads them through
+    /// `follow`).
+    vertex_velocities: &'a [f32],
 }
 
 /// The particle stages that read the vertices only through their displacements and write
@@ -350,6 +353,9 @@ fn run_chain_stage(stage: Stage, c: &ChainInputs, pa: &mut ParticleArrays, statu
     };
     let pp = pa.params;
     let (noff, nbrs) = (&pa.lists.neighbour_offsets, &pa.lists.neighbours);
+    // A viscous material's particle stress reads velocities (`follow` gives the embedded
+    // particles their host's), as the kernels' VISCOUS constant does.
+    let viscous = m.fem_variant().viscous;
     match stage {
         Stage::Follow => super::follow::follow(
             &pp,
@@ -360,6 +366,7 @@ fn run_chain_stage(stage: Stage, c: &ChainInputs, pa: &mut ParticleArrays, statu
             &mut pa.state.timer,
             &pa.state.offset,
             &mut pa.state.displacements,
+            viscous.then_some((c.vertex_velocities, &mut pa.state.velocities[..])),
         ),
         Stage::SphStress => super::sph_stress::sph_stress(
             p,
@@ -368,6 +375,7 @@ fn run_chain_stage(stage: Stage, c: &ChainInputs, pa: &mut ParticleArrays, statu
             &pa.act.stress_list,
             &pd.rest,
             &pa.state.displacements,
+            viscous.then_some(&pa.state.velocities[..]),
             noff,
             nbrs,
             &pa.correction,
@@ -1286,6 +1294,7 @@ impl CpuStepper {
                     material: self.variant.model,
                     tool: &self.tool,
                     vertex_displacements: &self.state.displacements,
+                    vertex_velocities: &self.state.velocities,
                 },
                 pa,
                 x,
@@ -1677,6 +1686,7 @@ impl CpuStepper {
                     material: self.variant.model,
                     tool: &self.tool,
                     vertex_displacements: &self.state.displacements,
+                    vertex_velocities: &self.state.velocities,
                 },
                 pa,
                 &mut self.status,
@@ -1771,6 +1781,7 @@ impl CpuStepper {
             material: self.variant.model,
             tool: &self.tool,
             vertex_displacements: &self.state.displacements,
+            vertex_velocities: &self.state.velocities,
         };
         let (state, params, variant) = (&self.state, &self.params, self.variant);
         let (corner_forces, tet_energy) = (&mut self.corner_forces, &mut self.tet_energy);

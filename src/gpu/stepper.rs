@@ -98,7 +98,15 @@ fn stage_flags(stage: Stage, model: &Model) -> Vec<(&'static str, f64)> {
         Stage::GatherCoupled => vec![("CONTACT", tool), ("PARTICLES", particles)],
         Stage::Contact | Stage::ToolForce => vec![("PARTICLES", particles)],
         Stage::Activate | Stage::ActivateExact => vec![("TOOL", tool)],
-        Stage::SphStress | Stage::ExactStress => {
+        Stage::SphStress => {
+            let v = model.fem_variant();
+            vec![
+                ("MATERIAL", v.model as u32 as f64),
+                ("VISCOUS", flag(v.viscous)),
+            ]
+        }
+        Stage::Follow => vec![("VISCOUS", flag(model.fem_variant().viscous))],
+        Stage::ExactStress => {
             vec![("MATERIAL", model.fem_variant().model as u32 as f64)]
         }
         Stage::ExactForces => vec![("TOOL", tool)],

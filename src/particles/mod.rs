@@ -118,7 +118,8 @@ impl Particles {
     }
 
     /// The largest stable particle step: the lattice's highest frequency, ω ≈ 2 c_p/Δx, as
-    /// for a tet of altitude Δx, the tool's contact springs on surface particles of area
+    /// for a tet of altitude Δx (with the tets' viscous damping ratio ζ = (φ + 2ψ)ω/(2(λ + 2μ)):
+    /// (Δx/c_p)(sqrt(1 + ζ²) − ζ), the particle stress being viscous too), the tool's contact springs on surface particles of area
     /// Δx², ω_c² = k Δx²/m with damping ratio ζ = b Δx²/(2 m ω_c), whose bound
     /// (2/ω_c)(sqrt(1 + ζ²) − ζ) is the vertices' one, and the hourglass penalty's
     /// [`Self::hourglass_omega`]; combined in quadrature (see [`crate::timestep`]).
@@ -129,7 +130,10 @@ impl Particles {
         contact: Option<(f64, f64)>,
     ) -> f64 {
         let dx = self.settings.spacing;
-        let elastic = dx / material.p_wave_speed();
+        let c = material.p_wave_speed();
+        let m = material;
+        let zeta = (m.phi + 2.0 * m.psi) * (2.0 * c / dx) / (2.0 * (m.lambda + 2.0 * m.mu));
+        let elastic = dx / c * crate::timestep::damped_step_factor(zeta);
         // 1/dt² summed over the springs, each dt = 2/ω (quadrature, as the vertices').
         let mut inv2 = 1.0 / (elastic * elastic);
         if let Some((k, b)) = contact {
