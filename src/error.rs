@@ -51,8 +51,10 @@ pub enum PalpateError {
         message: String,
     },
     /// A requested time step exceeds the stability bound.
-    #[error("dt = {dt:.3e} s is above the stability bound {bound:.3e} s ({detail}); use a smaller --dt or dt = \"auto\" (`palpate run --allow-unstable` runs it anyway)")]
+    #[error("{given} = {dt:.3e} s is above the stability bound {bound:.3e} s ({detail}); use a smaller --dt or dt = \"auto\" (`palpate run --allow-unstable` runs it anyway)")]
     UnstableTimeStep {
+        /// Where the step was given: `--dt`, or the scene file and `solver.dt`.
+        given: String,
         /// The requested step.
         dt: f64,
         /// The bound it exceeds.

@@ -155,8 +155,9 @@ fn steps_for(length: RunLength, dt: f64) -> Result<u64> {
         RunLength::Steps(n) => n,
         RunLength::Duration(t) => {
             if !(t.is_finite() && t >= 0.0) {
+                let what = if t.is_infinite() { "finite and " } else { "" };
                 return Err(PalpateError::Usage(format!(
-                    "--duration must be >= 0 s, got {t}"
+                    "--duration must be {what}>= 0 s, got {t}"
                 )));
             }
             // Round up, but not past a whole number that f64 division missed by an ulp.

@@ -209,6 +209,10 @@ pub fn choose_dt(
             dt_source(scene, override_dt)
         ))),
         Some(dt) if dt > bound && !allow_unstable => Err(PalpateError::UnstableTimeStep {
+            given: match override_dt {
+                Some(_) => "--dt".into(),
+                None => format!("{}: solver.dt", scene.origin),
+            },
             dt,
             bound,
             detail: model.bounds.describe(),

@@ -160,6 +160,104 @@ fn gpu_run_with_frames_writes_a_series() {
     assert!(s["max_displacement"].as_f64().unwrap() > 0.0);
 }
 
+/// Negative and infinite numbers on the command line get the option's own message (not
+/// clap's tip to write `-- -1`, which would make -1 the scene), an infinity among the scene's
+/// ">= bound" values says it must be finite, and `--out` naming a file says so.
+#[test]
+fn negative_and_infinite_values_and_an_out_that_is_a_file_are_one_line_errors() {
+    let d = tmp("badnumbers");
+    let out = d.to_str().unwrap();
+    let run = |extra: &[&str]| -> Vec<String> {
+        let mut v: Vec<String> = ["run", "beam", "--backend", "cpu", "--out", out]
+            .iter()
+            .map(|s| s.to_string())
+            .collect();
+        v.extend(extra.iter().map(|s| s.to_string()));
+        v
+    };
+    for (extra, want) in [
+        (
+            &["--duration", "-1"][..],
+            &["--duration must be >= 0 s, got -1"][..],
+        ),
+        (
+            &["--duration", "inf"],
+            &["--duration must be finite and >= 0 s"],
+        ),
+        (&["--dt", "-1e-3"], &["--dt must be > 0 s"]),
+        (&["--steps", "-1"], &["--steps", "-1"]),
+    ] {
+        let args = run(extra);
+        let args: Vec<&str> = args.iter().map(|s| s.as_str()).collect();
+        assert_one_line_error(&args, want);
+    }
+    let file = d.join("a_file");
+    std::fs::write(&file, b"").unwrap();
+    assert_one_line_error(
+        &[
+            "run",
+            "beam",
+            "--steps",
+            "1",
+            "--backend",
+            "cpu",
+            "--out",
+            file.to_str().unwrap(),
+        ],
+        &["a_file", "--out is not a directory"],
+    );
+    for (name, from, to, want) in [
+        ("damping.toml", "safety = 0.5", "safety = 0.5\ndamping = inf", "solver.damping: must be finite and >= 0 1/s, got inf"),
+        ("hysteresis.toml", "[solver]", "[particles]\nregion = 0\nspacing = 0.004\nactivation_radius = 0.004\nhysteresis = inf\n\n[solver]", "particles.hysteresis: must be finite and >= 1, got inf"),
+    ] {
+        assert_scene_refused(&d, name, &BEAM.replacen(from, to, 1), &[want]);
+    }
+}
+
+/// A particle zone without a tool to wake it (and not `activation = "all"`) runs, with a
+/// warning that its particles stay asleep.
+#[test]
+fn particles_without_a_tool_warn_that_none_wakes() {
+    let d = tmp("particlesnotool");
+    let scene = scene_file(
+        &d,
+        "asleep.toml",
+        &beam_with("[particles]\nregion = 0\nspacing = 0.004\nactivation_radius = 0.004"),
+    );
+    let (ok, out, err) = palpate(&[
+        "run",
+        &scene,
+        "--steps",
+        "2",
+        "--backend",
+        "cpu",
+        "--out",
+        d.to_str().unwrap(),
+    ]);
+    assert!(ok, "{out}{err}");
+    assert!(
+        err.contains("warning:") && err.contains("[particles] without a [tool]"),
+        "{err}"
+    );
+    let awake = scene_file(
+        &d,
+        "awake.toml",
+        &beam_with("[particles]\nregion = 0\nspacing = 0.004\nactivation_radius = 0.004\nactivation = \"all\""),
+    );
+    let (ok, out, err) = palpate(&[
+        "run",
+        &awake,
+        "--steps",
+        "2",
+        "--backend",
+        "cpu",
+        "--out",
+        d.to_str().unwrap(),
+    ]);
+    assert!(ok, "{out}{err}");
+    assert!(!err.contains("without a [tool]"), "{err}");
+}
+
 /// A particle scene's frames carry the particles too: `particles_series.pvd` lists one
 /// `particles_frame_NNNN.vtu` per frame, the last equal to `particles_final.vtu`.
 #[test]
@@ -389,7 +487,11 @@ fn dt_above_the_bound_is_refused_unless_allowed_and_divergence_is_caught() {
             "--out",
             out,
         ],
-        &["above the stability bound", "--allow-unstable"],
+        &[
+            "--dt = 1.000e-3 s",
+            "above the stability bound",
+            "--allow-unstable",
+        ],
     );
     // The scene's own dt above the bound: refused, and `--allow-unstable` alone (as the
     // message says) runs it.
@@ -410,7 +512,11 @@ fn dt_above_the_bound_is_refused_unless_allowed_and_divergence_is_caught() {
     ];
     assert_one_line_error(
         &fast_args,
-        &["above the stability bound", "--allow-unstable"],
+        &[
+            "fast.toml: solver.dt = 1.000e-3 s",
+            "above the stability bound",
+            "--allow-unstable",
+        ],
     );
     let (ok, _, err) = palpate(&[&fast_args[..], &["--allow-unstable"]].concat());
     assert!(ok, "{err}");
@@ -811,7 +917,7 @@ fn command_line_errors_are_one_line_with_exit_status_1() {
             &["run", "--backend", "foo"],
             &["'foo'", "--backend", "auto, gpu, cpu"],
         ),
-        (&["run", "--steps", "-1"], &["'-1'", "usage: palpate run"]),
+        (&["run", "--steps", "-1"], &["'-1'", "--steps"]),
         (&["frobnicate"], &["'frobnicate'"]),
         (&["mesh"], &["<SCENE>", "usage: palpate mesh"]),
         (&["run", "--duration", "abc"], &["'abc'", "--duration"]),

@@ -31,13 +31,13 @@ enum Command {
         backend: Backend,
         /// CPU backend threads (default: all cores; refused with --backend gpu). Results do
         /// not depend on it.
-        #[arg(long)]
+        #[arg(long, allow_negative_numbers = true)]
         threads: Option<usize>,
         /// Number of steps (0 writes the initial state).
-        #[arg(long, conflicts_with_all = ["duration", "until_static"])]
+        #[arg(long, allow_negative_numbers = true, conflicts_with_all = ["duration", "until_static"])]
         steps: Option<u64>,
         /// Simulated time, s.
-        #[arg(long, conflicts_with = "until_static")]
+        #[arg(long, allow_hyphen_values = true, conflicts_with = "until_static")]
         duration: Option<f64>,
         /// Run with critical viscous damping until the residual force is below the scene's tolerance.
         #[arg(long)]
@@ -46,7 +46,7 @@ enum Command {
         #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
         max_steps: Option<u64>,
         /// Time step, s (overrides the scene).
-        #[arg(long)]
+        #[arg(long, allow_hyphen_values = true)]
         dt: Option<f64>,
         /// Accept a dt (--dt or the scene's) above the stability bound.
         #[arg(long)]
@@ -292,10 +292,26 @@ fn execute(cli: Cli) -> Result<()> {
             if let Some(tool) = &scene.tool {
                 warn_tool_overlap(&scene, tool.position_at(0.0), "at t = 0");
             }
+            if scene
+                .particles
+                .as_ref()
+                .is_some_and(|p| !p.all_active && scene.tool.is_none())
+            {
+                palpate::say_err!(
+                    "warning: {}: [particles] without a [tool]: no particle becomes dynamic (they wake around the tool), so the tets carry the particle zone and the particle stages do not run; add a [tool], or set particles.activation = \"all\"",
+                    scene.origin
+                );
+            }
             if max_steps.is_some() && !until_static {
                 return Err(PalpateError::Usage(
                     "--max-steps caps --until-static; without it use --steps or --duration".into(),
                 ));
+            }
+            if let Some(t) = duration.filter(|t| !(t.is_finite() && *t >= 0.0)) {
+                let what = if t.is_infinite() { "finite and " } else { "" };
+                return Err(PalpateError::Usage(format!(
+                    "--duration must be {what}>= 0 s, got {t}"
+                )));
             }
             let length = match (steps, duration, until_static) {
                 (Some(n), _, _) => RunLength::Steps(n),

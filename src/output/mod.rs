@@ -20,6 +20,12 @@ pub fn prepare_out_dir(dir: &Path) -> Result<()> {
         path: dir.to_path_buf(),
         source,
     };
+    if dir.exists() && !dir.is_dir() {
+        return Err(PalpateError::Usage(format!(
+            "{}: --out is not a directory (it names an existing file); give a directory for the outputs",
+            dir.display()
+        )));
+    }
     std::fs::create_dir_all(dir).map_err(err)?;
     let probe = dir.join(format!(".palpate-write-probe-{}", std::process::id()));
     std::fs::write(&probe, b"").map_err(err)?;

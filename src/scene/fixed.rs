@@ -123,12 +123,7 @@ pub(super) fn select_fixed(specs: &[FixedSpec], mesh: &TetMesh, bad: &Bad) -> Re
             finite("box.max", &b.max)?;
         }
         if let Some(t) = spec.tolerance {
-            if !(t.is_finite() && t >= 0.0) {
-                return Err(bad(
-                    &format!("{item}.tolerance"),
-                    format!("must be >= 0 m, got {}", super::Num(t)),
-                ));
-            }
+            super::at_least(bad, &format!("{item}.tolerance"), t, 0.0, "m")?;
         }
         let select: Box<dyn Fn(usize, DVec3) -> bool> = if let Some(plane) = &spec.plane {
             let n = unit_normal(plane, &item, bad)?;

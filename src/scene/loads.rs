@@ -101,13 +101,13 @@ pub(super) fn follower_loads(
             }
             (None, Some(plane)) => {
                 let n = super::fixed::unit_normal(plane, &item, bad)?;
-                let tol = spec.tolerance.unwrap_or(1e-6 * diag);
-                if !(tol.is_finite() && tol >= 0.0) {
-                    return Err(bad(
-                        &format!("{item}.tolerance"),
-                        format!("must be >= 0 m, got {}", super::Num(tol)),
-                    ));
-                }
+                let tol = super::at_least(
+                    bad,
+                    &format!("{item}.tolerance"),
+                    spec.tolerance.unwrap_or(1e-6 * diag),
+                    0.0,
+                    "m",
+                )?;
                 let offset = plane.offset;
                 Box::new(move |v| (n.dot(mesh.positions[v as usize]) - offset).abs() <= tol)
             }

@@ -305,6 +305,25 @@ impl std::fmt::Display for Num {
 
 pub(crate) type Bad<'a> = dyn Fn(&str, String) -> PalpateError + 'a;
 
+/// `v` when it is finite and at least `min`; else an error naming `item` ("must be finite
+/// and >= …" for an infinity, which is >= any bound but no value to run with).
+pub(crate) fn at_least(bad: &Bad, item: &str, v: f64, min: f64, unit: &str) -> Result<f64> {
+    if v.is_finite() && v >= min {
+        Ok(v)
+    } else {
+        let what = if v.is_infinite() { "finite and " } else { "" };
+        let unit = if unit.is_empty() {
+            String::new()
+        } else {
+            format!(" {unit}")
+        };
+        Err(bad(
+            item,
+            format!("must be {what}>= {}{unit}, got {}", Num(min), Num(v)),
+        ))
+    }
+}
+
 pub(crate) fn positive(bad: &Bad, item: &str, v: f64, unit: &str) -> Result<f64> {
     if v.is_finite() && v > 0.0 {
         Ok(v)

@@ -201,24 +201,15 @@ pub(super) fn resolve_particles(
             ),
         ));
     }
-    let hysteresis = spec.hysteresis.unwrap_or(1.5);
-    if !(hysteresis.is_finite() && hysteresis >= 1.0) {
-        return Err(bad(
-            "particles.hysteresis",
-            format!("must be >= 1, got {}", super::Num(hysteresis)),
-        ));
-    }
-    let dwell = spec.dwell.unwrap_or(0.01);
-    let blend = spec.blend.unwrap_or(0.01);
-    for (item, v) in [("particles.dwell", dwell), ("particles.blend", blend)] {
-        if !(v.is_finite() && v >= 0.0) {
-            let what = if v.is_infinite() { "finite and " } else { "" };
-            return Err(bad(
-                item,
-                format!("must be {what}>= 0 s, got {}", super::Num(v)),
-            ));
-        }
-    }
+    let hysteresis = super::at_least(
+        bad,
+        "particles.hysteresis",
+        spec.hysteresis.unwrap_or(1.5),
+        1.0,
+        "",
+    )?;
+    let dwell = super::at_least(bad, "particles.dwell", spec.dwell.unwrap_or(0.01), 0.0, "s")?;
+    let blend = super::at_least(bad, "particles.blend", spec.blend.unwrap_or(0.01), 0.0, "s")?;
     let activation_interval = spec.activation_interval.unwrap_or(10);
     if activation_interval == 0 {
         return Err(bad(

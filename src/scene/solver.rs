@@ -71,13 +71,7 @@ pub(super) fn resolve_solver(s: &SolverSpec, bad: &Bad) -> Result<SolverSettings
             format!("must be in (0, 1], got {}", super::Num(safety)),
         ));
     }
-    let damping = s.damping.unwrap_or(0.0);
-    if !(damping.is_finite() && damping >= 0.0) {
-        return Err(bad(
-            "solver.damping",
-            format!("must be >= 0 1/s, got {}", super::Num(damping)),
-        ));
-    }
+    let damping = super::at_least(bad, "solver.damping", s.damping.unwrap_or(0.0), 0.0, "1/s")?;
     let static_tolerance = s.static_tolerance.unwrap_or(1e-3);
     positive(bad, "solver.static_tolerance", static_tolerance, "")?;
     let duration = match s.duration {

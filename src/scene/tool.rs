@@ -138,13 +138,13 @@ pub(super) fn resolve_tool(spec: &ToolSpec, bad: &Bad) -> Result<Tool> {
             .ok_or_else(|| bad("tool.stiffness", "is required (Pa/m)".into()))?,
         "Pa/m",
     )?;
-    let damping = spec.damping.unwrap_or(0.0);
-    if !(damping.is_finite() && damping >= 0.0) {
-        return Err(bad(
-            "tool.damping",
-            format!("must be >= 0 Pa s/m, got {}", super::Num(damping)),
-        ));
-    }
+    let damping = super::at_least(
+        bad,
+        "tool.damping",
+        spec.damping.unwrap_or(0.0),
+        0.0,
+        "Pa s/m",
+    )?;
     let mut path = Vec::new();
     for (k, row) in spec.path.iter().flatten().enumerate() {
         if row.iter().any(|v| !v.is_finite()) {
