@@ -162,7 +162,9 @@ fn gpu_run_with_frames_writes_a_series() {
 
 /// Negative and infinite numbers on the command line get the option's own message (not
 /// clap's tip to write `-- -1`, which would make -1 the scene), an infinity among the scene's
-/// ">= bound" values says it must be finite, and `--out` naming a file says so.
+/// ">= bound" values says it must be finite, `--out` naming a file says so, a one-table
+/// section written as a list (`[[solver]]`) or a dt of the wrong type says what to write, and
+/// a mesh too large for single precision names its vertex.
 #[test]
 fn negative_and_infinite_values_and_an_out_that_is_a_file_are_one_line_errors() {
     let d = tmp("badnumbers");
@@ -208,6 +210,9 @@ fn negative_and_infinite_values_and_an_out_that_is_a_file_are_one_line_errors() 
     );
     for (name, from, to, want) in [
         ("damping.toml", "safety = 0.5", "safety = 0.5\ndamping = inf", "solver.damping: must be finite and >= 0 1/s, got inf"),
+        ("list.toml", "[solver]", "[[solver]]", "line 24 `[[solver]]`: [solver] is a single table: write [solver], not [[solver]]"),
+        ("dt_type.toml", "dt = \"auto\"", "dt = true", "`dt = true`: dt must be \"auto\" or a time step in seconds"),
+        ("huge.toml", "size = [0.1,", "size = [1e300,", "lies beyond ±1e18 m"),
         ("hysteresis.toml", "[solver]", "[particles]\nregion = 0\nspacing = 0.004\nactivation_radius = 0.004\nhysteresis = inf\n\n[solver]", "particles.hysteresis: must be finite and >= 1, got inf"),
     ] {
         assert_scene_refused(&d, name, &BEAM.replacen(from, to, 1), &[want]);

@@ -95,6 +95,10 @@ pub const TET_FACES: [[usize; 3]; 4] = [[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 
 /// The six edges of a tet as corner pairs.
 pub const TET_EDGES: [[usize; 2]; 6] = [[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]];
 
+/// The largest coordinate magnitude a mesh may have, m: the engine computes in f32, whose
+/// squares overflow past ~1.8e19 (3.4e38 = f32::MAX).
+pub const MAX_COORDINATE: f64 = 1e18;
+
 impl TetMesh {
     /// Build a mesh and validate it (see [`TetMesh::validate`]).
     pub fn new(
@@ -138,7 +142,8 @@ impl TetMesh {
     /// Check indices, refuse degenerate tets, reorient inverted ones.
     ///
     /// A tet is degenerate when |6V| ≤ 1e-9 · ℓ³ (ℓ its longest edge) or when it repeats a
-    /// vertex; the error names the tet and its vertices. Non-finite coordinates are refused.
+    /// vertex; the error names the tet and its vertices. Non-finite coordinates, and any
+    /// beyond ±[`MAX_COORDINATE`], are refused.
     pub fn validate(&mut self, origin: &str) -> Result<ValidationReport> {
         let err = |message: String| PalpateError::Mesh {
             origin: origin.to_string(),
@@ -177,6 +182,14 @@ impl TetMesh {
         for (i, p) in self.positions.iter().enumerate() {
             if !p.is_finite() {
                 return Err(err(format!("vertex {i} has a non-finite coordinate {p:?}")));
+            }
+            if p.abs().max_element() > MAX_COORDINATE {
+                return Err(err(format!(
+                    "vertex {i} at [{}, {}, {}] m lies beyond ±{MAX_COORDINATE:e} m, which single precision cannot square (check the mesh's size or scale)",
+                    crate::scene::Num(p.x),
+                    crate::scene::Num(p.y),
+                    crate::scene::Num(p.z)
+                )));
             }
         }
         let n = self.positions.len() as u32;

@@ -168,19 +168,21 @@ impl Scene {
         dir: Option<&Path>,
     ) -> Result<Scene> {
         let file: SceneFile = toml::from_str(text).map_err(|e| {
+            let mut message = e.message().trim().replace('\n', " ");
             let line = e.span().map(|s| {
                 let n = line_of(text, s.start);
                 let src = text.lines().nth(n - 1).unwrap_or("");
                 let src = src.split('#').next().unwrap_or("").trim();
+                if let Some(section) = single_table_as_array(src) {
+                    message = format!(
+                        "[{section}] is a single table: write [{section}], not [[{section}]]"
+                    );
+                }
                 format!("line {n} `{src}`: ")
             });
             PalpateError::SceneParse {
                 origin: origin.to_string(),
-                message: format!(
-                    "{}{}",
-                    line.unwrap_or_default(),
-                    e.message().trim().replace('\n', " ")
-                ),
+                message: format!("{}{message}", line.unwrap_or_default()),
             }
         })?;
         Scene::from_file(file, origin, default_name, dir)
@@ -301,6 +303,15 @@ impl std::fmt::Display for Num {
             write!(f, "{:e}", self.0)
         }
     }
+}
+
+/// The section of a header line `[[name]]` whose section is one table, not a list (serde's
+/// message for it names a field type instead).
+fn single_table_as_array(line: &str) -> Option<&str> {
+    let name = line.strip_prefix("[[")?.strip_suffix("]]")?.trim();
+    ["mesh", "material", "loads", "solver", "tool", "particles"]
+        .contains(&name)
+        .then_some(name)
 }
 
 pub(crate) type Bad<'a> = dyn Fn(&str, String) -> PalpateError + 'a;

@@ -6,7 +6,7 @@ use serde::Deserialize;
 
 /// `dt`: `"auto"` or seconds.
 #[derive(Clone, Debug, Deserialize)]
-#[serde(untagged)]
+#[serde(untagged, expecting = "dt must be \"auto\" or a time step in seconds")]
 pub enum DtSpec {
     /// Seconds.
     Seconds(f64),
