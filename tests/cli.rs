@@ -217,6 +217,14 @@ fn negative_and_infinite_values_and_an_out_that_is_a_file_are_one_line_errors() 
     ] {
         assert_scene_refused(&d, name, &BEAM.replacen(from, to, 1), &[want]);
     }
+    // The key the user wrote is named, and a default that does not fit says it is one.
+    let lv = include_str!("../scenes/lv.toml");
+    for (name, from, to, want) in [
+        ("fine.toml", "resolution = 3 ", "resolution = 1000 ", "mesh.resolution: would make more than the limit"),
+        ("small.toml", "resolution = 3 ", "resolution = 3\nlong_radius = [0.001, 0.002]\n", "mesh.base_z: must lie inside the endocardium (|base_z| < 0.001), got 0.005 (the default; set mesh.base_z for these radii)"),
+    ] {
+        assert_scene_refused(&d, name, &lv.replacen(from, to, 1), &[want]);
+    }
 }
 
 /// A particle zone without a tool to wake it (and not `activation = "all"`) runs, with a

@@ -114,7 +114,7 @@ pub(super) fn build_mesh(
                     positive(bad, &format!("mesh.size[{i}]"), *s, "m")?;
                 }
                 let c = cells_n(spec, 3, bad)?;
-                check_count(&[c[0], c[1], c[2], 6], bad)?;
+                check_count(&[c[0], c[1], c[2], 6], "mesh.cells", bad)?;
                 generators::beam(size, [c[0], c[1], c[2]])
             }
             "ellipsoid_shell" => {
@@ -136,7 +136,7 @@ pub(super) fn build_mesh(
                     }
                 }
                 let c = cells_n(spec, 2, bad)?;
-                check_count(&[36, c[0], c[1], c[1]], bad)?;
+                check_count(&[36, c[0], c[1], c[1]], "mesh.cells", bad)?;
                 generators::ellipsoid_shell(inner, outer, c[0], c[1])
             }
             "lv" => {
@@ -178,8 +178,14 @@ pub(super) fn build_mesh(
                     return Err(bad(
                         "mesh.base_z",
                         format!(
-                            "must lie inside the endocardium (|base_z| < {}), got {}",
-                            geo.long_radius[0], geo.base_z
+                            "must lie inside the endocardium (|base_z| < {}), got {}{}",
+                            geo.long_radius[0],
+                            geo.base_z,
+                            if spec.base_z.is_none() {
+                                " (the default; set mesh.base_z for these radii)"
+                            } else {
+                                ""
+                            }
                         ),
                     ));
                 }
@@ -203,7 +209,11 @@ pub(super) fn build_mesh(
                         format!("lv needs at least 2 disk cells, got {disk}"),
                     ));
                 }
-                check_count(&[6, layers, disk, disk], bad)?;
+                let item = match spec.resolution {
+                    Some(_) => "mesh.resolution",
+                    None => "mesh.cells",
+                };
+                check_count(&[6, layers, disk, disk], item, bad)?;
                 generators::lv(geo, layers, disk)
             }
             other => {
@@ -226,11 +236,11 @@ pub(super) fn build_mesh(
 
 /// Refuse a generator whose tet count (the product of `factors`) exceeds the limit or
 /// overflows.
-fn check_count(factors: &[usize], bad: &Bad) -> Result<()> {
+fn check_count(factors: &[usize], item: &str, bad: &Bad) -> Result<()> {
     match factors.iter().try_fold(1usize, |a, &x| a.checked_mul(x)) {
         Some(tets) if tets <= MAX_GENERATED_TETS => Ok(()),
         _ => Err(bad(
-            "mesh.cells",
+            item,
             format!("would make more than the limit of {MAX_GENERATED_TETS} tets"),
         )),
     }
