@@ -42,7 +42,9 @@ impl Clone for State {
 pub struct ParticleSnapshot {
     /// Displacements u_p, packed xyz, m.
     pub displacements: Vec<f32>,
-    /// Velocities, packed xyz, m/s.
+    /// Velocities, packed xyz, m/s: a dynamic particle's own; an embedded one's as `follow`
+    /// last set it when the material is viscous (its host's), else as it was when it last
+    /// stopped being dynamic (embedded particles move with their host).
     pub velocities: Vec<f32>,
     /// Mode bits ([`crate::particles::params::mode`]).
     pub modes: Vec<u32>,

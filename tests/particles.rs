@@ -452,7 +452,15 @@ fn the_particle_viscous_stress_is_the_tets_under_a_uniform_velocity_gradient() {
             "particle {p}"
         );
     }
-    let stress_for = |l: glam::Mat3| {
+    let mut paper_correction = vec![0.0f32; 9 * n];
+    let paper = palpate::particles::params::ParticleParams { model: 1, ..pp };
+    cpu::sph_setup::sph_setup(&paper, &pd.rest, noff, nbrs, &mut paper_correction);
+    let stress_for = |l: glam::Mat3, pp: &palpate::particles::params::ParticleParams| {
+        let correction = if pp.model == 1 {
+            &paper_correction
+        } else {
+            &correction
+        };
         let mut v = vec![0.0f32; 3 * n];
         for p in 0..n {
             let x = glam::Vec3::from_slice(&pd.rest[3 * p..3 * p + 3]);
@@ -462,7 +470,7 @@ fn the_particle_viscous_stress_is_the_tets_under_a_uniform_velocity_gradient() {
             (vec![0.0f32; 9 * n], vec![0.0f32; 9 * n], vec![0.0f32; n]);
         cpu::sph_stress::sph_stress(
             &params,
-            &pp,
+            pp,
             m.material.model,
             &all,
             &pd.rest,
@@ -470,7 +478,7 @@ fn the_particle_viscous_stress_is_the_tets_under_a_uniform_velocity_gradient() {
             Some(&v),
             noff,
             nbrs,
-            &correction,
+            correction,
             None,
             &mut stress,
             &mut grad,
@@ -494,7 +502,7 @@ fn the_particle_viscous_stress_is_the_tets_under_a_uniform_velocity_gradient() {
         .into_iter()
         .fold(0.0f32, f32::max);
     assert!(scale > 1.0, "the expected viscous stress is {scale} Pa");
-    let worst = stress_for(l)
+    let worst = stress_for(l, &pp)
         .iter()
         .map(|p| {
             (*p - expected)
@@ -511,12 +519,88 @@ fn the_particle_viscous_stress_is_the_tets_under_a_uniform_velocity_gradient() {
     );
     // A rigid spin about an axis through the block: no strain rate, no viscous stress.
     let spin = glam::Mat3::from_cols_array(&[0.0, 3.0, -1.0, -3.0, 0.0, 2.0, 1.0, -2.0, 0.0]);
-    let worst = stress_for(spin)
+    let worst = stress_for(spin, &pp)
         .iter()
         .map(|p| p.abs().to_cols_array().into_iter().fold(0.0f32, f32::max))
         .fold(0.0f32, f32::max);
     eprintln!("viscous stress under a rigid spin: worst {worst:.2e} Pa");
     assert!(worst <= 1e-4 * scale, "a rigid spin gives {worst:.2e} Pa");
+    // The paper model: eq. (3)–(4) on the rate of its strain FᵀF − I, 2 sym L at rest, so
+    // twice the tets' S_v there.
+    let worst = stress_for(l, &paper)
+        .iter()
+        .map(|p| {
+            (*p - expected * 2.0)
+                .abs()
+                .to_cols_array()
+                .into_iter()
+                .fold(0.0f32, f32::max)
+        })
+        .fold(0.0f32, f32::max);
+    eprintln!(
+        "paper model under v = L X: worst error {worst:.2e} Pa of {:.2e} Pa",
+        2.0 * scale
+    );
+    assert!(
+        worst <= 2e-4 * scale,
+        "paper model: worst error {worst:.2e} Pa"
+    );
+}
+
+/// The same for the paper's particle model, whose viscous stress is eq. (3)–(4) on its own
+/// strain's rate.
+#[test]
+fn viscous_paper_particle_kernels_match_their_cpu_twins() {
+    let text = PRESSED_BLOCK
+        .replace(
+            "density = 1000.0\n",
+            "density = 1000.0\nviscosity = [2.0, 5.0]\n",
+        )
+        .replace("spacing = 0.001\n", "spacing = 0.001\nmodel = \"paper\"\n");
+    let scene = Scene::from_toml(&text, "viscous paper block", "viscous_paper", None).unwrap();
+    let m = Arc::new(Model::from_scene(&scene));
+    assert_eq!(
+        m.particle_params(&m.step_params(1e-5, 0.0)).unwrap().model,
+        1
+    );
+    let params = m.step_params(0.5 * m.bounds.dt_bound, 50.0);
+    check_particle_kernels(m, params);
+}
+
+/// A viscous pressed block's 300 steps agree between the backends (the CPU stepper's wiring
+/// of the velocities: a side that left the viscous stress out would part from the other),
+/// the viscosity changes the trajectory well beyond that agreement, and the GPU's fused
+/// passes (`fem_forces_follow`, `contact_sph_stress`) hold the bits of the plain ones.
+#[test]
+fn a_viscous_hybrid_trajectory_matches_between_backends_and_fused_passes() {
+    let text = PRESSED_BLOCK.replace(
+        "density = 1000.0\n",
+        "density = 1000.0\nviscosity = [2.0, 5.0]\n",
+    );
+    let scene = Scene::from_toml(&text, "viscous block", "viscous_block", None).unwrap();
+    let (c, _) = run_batches(&scene, palpate::sim::Backend::Cpu, None, 3, 100);
+    let (g, _) = run_batches(&scene, palpate::sim::Backend::Gpu, None, 3, 100);
+    backends_agree("viscous: ", &c, &g);
+    // The elastic block at the viscous one's step (viscosity shortens the automatic step).
+    let m = Arc::new(Model::from_scene(&scene));
+    let dt = scene.solver.safety * m.bounds.dt_bound;
+    let (elastic, _) = run_batches(
+        &pressed_block(),
+        palpate::sim::Backend::Cpu,
+        Some(dt),
+        3,
+        100,
+    );
+    let (last_v, last_e) = (&c[c.len() - 1].1, &elastic[elastic.len() - 1].1);
+    let e = rel(last_v, last_e);
+    eprintln!("viscous against elastic particle displacements after 300 steps: {e:.2e}");
+    assert!(
+        e > 1e-2,
+        "the viscosity moved the particles by only {e:.2e}"
+    );
+    let k = m.particles.as_ref().unwrap().settings.activation_interval;
+    let (dynamic, _) = fused_against_plain(&m, m.step_params(0.5 * m.bounds.dt_bound, 50.0), k, 3);
+    assert!(dynamic > 10, "the press woke {dynamic} particles");
 }
 
 /// Every particle kernel against its CPU twin on `m`'s pressed block (see

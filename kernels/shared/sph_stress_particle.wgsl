@@ -8,7 +8,8 @@
 // With VISCOUS (the material's strain-rate viscosity, paper eq. 3-4, as fem_forces adds it),
 // also Fdot_p = [sum_b V (v_b - v_p) (x) grad W(X_b - X_p)] G_p from the particles'
 // velocities (follow gives the embedded ones their host's), Edot = (Fdot^T F + F^T Fdot)/2,
-// and P += F (phi tr(Edot) I + 2 psi Edot); Psi stays elastic.
+// and tlsph: P += F (phi tr(Edot) I + 2 psi Edot); paper: on its own strain's rate
+// nu = 2 Edot, stress += phi tr(nu) I + 2 psi nu. Psi stays elastic.
 // Writes A_p = P G_p^T (so that P g_pb = A_p grad W_pb), H_p (for the hourglass penalty) and
 // V Psi. Each particle has SPH_STRESS_LANES threads of a 256-thread workgroup that takes 64
 // entries: lane j sums the neighbours j, j + SPH_STRESS_LANES, ... and the lanes' sums are
@@ -151,8 +152,15 @@ fn sph_stress_entry(k: u32, local: u32, lambda: f32, mu: f32, phi: f32, psi: f32
         if VISCOUS {
             let f = identity3() + h;
             let f_dot = s_rate * g;
-            let rate = (transpose(f_dot) * f + transpose(f) * f_dot) * 0.5;
-            stress = stress + f * (identity3() * (phi * trace3(rate)) + rate * (2.0 * psi));
+            if particle_params.model == 1u {
+                // The paper's eq. (3)-(4) on its own strain eps = F^T F - I, as its elastic
+                // stress above: nu = d eps/dt, no F.
+                let nu = transpose(f_dot) * f + transpose(f) * f_dot;
+                stress = stress + identity3() * (phi * trace3(nu)) + nu * (2.0 * psi);
+            } else {
+                let rate = (transpose(f_dot) * f + transpose(f) * f_dot) * 0.5;
+                stress = stress + f * (identity3() * (phi * trace3(rate)) + rate * (2.0 * psi));
+            }
         }
         store9(0u, p, stress * transpose(g));
         store9(1u, p, h);

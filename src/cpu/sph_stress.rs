@@ -5,13 +5,14 @@
 
 use super::fem_forces::{load_dm_inv, viscous_stress};
 use super::sph_setup::{gradient_sum, gradient_sums};
-use crate::material::{ddot, elastic_stress_energy, trace, MaterialModel};
+use crate::material::{ddot, elastic_stress_energy, stvk_second_piola, trace, MaterialModel};
 use crate::params::StepParams;
 use crate::particles::params::ParticleParams;
 use glam::Mat3;
 
 /// A_p, H_p and V Ψ of particle p; with `velocities` (a viscous material) P includes
-/// F·S_v, S_v = φ tr(Ė) I + 2ψ Ė, Ė = ½(ḞᵀF + FᵀḞ), Ḟ = [Σ_b V (v_b − v_p) ⊗ ∇W] G_p.
+/// F·S_v, S_v = φ tr(Ė) I + 2ψ Ė, Ė = ½(ḞᵀF + FᵀḞ), Ḟ = [Σ_b V (v_b − v_p) ⊗ ∇W] G_p
+/// (tlsph; the paper model adds φ tr(ν) I + 2ψ ν on its own strain's rate ν = 2Ė, no F).
 #[allow(clippy::too_many_arguments)]
 pub fn stress_of(
     params: &StepParams,
@@ -67,6 +68,13 @@ pub fn stress_of(
         elastic_stress_energy(material, h, params.lambda, params.mu)
     };
     let stress = match s_rate {
+        Some(s_rate) if pp.model == 1 => {
+            // The paper's eq. (3)–(4) on its own strain ε = FᵀF − I, as its elastic stress:
+            // ν = ε̇ = ḞᵀF + FᵀḞ, no F.
+            let (f, f_dot) = (Mat3::IDENTITY + h, s_rate * g);
+            let nu = f_dot.transpose() * f + f.transpose() * f_dot;
+            stress + stvk_second_piola(Mat3::ZERO, nu, 0.0, 0.0, params.phi, params.psi)
+        }
         Some(s_rate) => stress + viscous_stress(params, Mat3::IDENTITY + h, s_rate * g),
         None => stress,
     };
