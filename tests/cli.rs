@@ -225,6 +225,24 @@ fn negative_and_infinite_values_and_an_out_that_is_a_file_are_one_line_errors() 
     ] {
         assert_scene_refused(&d, name, &lv.replacen(from, to, 1), &[want]);
     }
+    // A split law's constant too large for f32 is named (not the modulus derived from it).
+    let land = include_str!("../scenes/land_p1.toml");
+    for (name, from, to, want) in [
+        (
+            "c.toml",
+            "guccione_c = 2000.0",
+            "guccione_c = 1e300",
+            "material.guccione_c: 1e300 does not fit single precision",
+        ),
+        (
+            "k.toml",
+            "bulk_modulus = 2.0e5",
+            "bulk_modulus = 1e300",
+            "material.bulk_modulus: 1e300 does not fit single precision",
+        ),
+    ] {
+        assert_scene_refused(&d, name, &land.replacen(from, to, 1), &[want]);
+    }
 }
 
 /// A particle zone without a tool to wake it (and not `activation = "all"`) runs, with a

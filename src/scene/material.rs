@@ -101,6 +101,15 @@ fn resolve_split(
                 ));
             }
         }
+        fits_f32(
+            bad,
+            &[
+                ("material.guccione_c", m.guccione_c),
+                ("material.guccione_bf", m.guccione_bf),
+                ("material.guccione_bt", m.guccione_bt),
+                ("material.guccione_bfs", m.guccione_bfs),
+            ],
+        )?;
         let c = m.guccione_c.ok_or_else(|| {
             bad(
                 "material.guccione_c",
@@ -162,6 +171,7 @@ fn resolve_split(
             }
         }
     };
+    fits_f32(bad, &[("material.bulk_modulus", m.bulk_modulus)])?;
     let bulk_modulus = match (m.bulk_modulus, m.poisson_ratio, m.lambda) {
         (Some(k), _, _) => {
             if m.lambda.is_some() {
@@ -315,4 +325,21 @@ fn resolve_lame(m: &MaterialSpec, bad: &Bad) -> Result<(f64, f64)> {
             ))
         }
     })
+}
+
+/// Refuse a given key whose value single precision cannot hold (the kernels compute in f32;
+/// a derived modulus would otherwise be blamed instead of the key written).
+fn fits_f32(bad: &Bad, keys: &[(&str, Option<f64>)]) -> Result<()> {
+    for &(key, v) in keys {
+        if let Some(v) = v.filter(|v| v.is_finite() && v.abs() > f32::MAX as f64) {
+            return Err(bad(
+                key,
+                format!(
+                    "{} does not fit single precision (f32, |v| <= 3.4e38); rescale the units",
+                    super::Num(v)
+                ),
+            ));
+        }
+    }
+    Ok(())
 }
