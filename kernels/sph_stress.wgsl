@@ -4,7 +4,8 @@
 //   tlsph: P and Psi from the element stage's material law (shared/material.wgsl);
 //   paper: the paper's eq. (1)-(2) stress with strain eps = F^T F - I (no 1/2), which is
 //          S = lambda tr(E) I + 2 mu E for E = eps/2 doubled; Psi = mu E:E + lambda/2 tr(E)^2.
-// Writes A_p = P G_p^T (so that P g_pb = A_p grad W_pb), H_p (for the hourglass penalty) and
+// With VISCOUS, + the strain-rate stress from the particles' velocities (see
+// shared/sph_stress_particle.wgsl). Writes A_p = P G_p^T (so that P g_pb = A_p grad W_pb), H_p (for the hourglass penalty) and
 // V Psi (shared/sph_stress_particle.wgsl, which contact.wgsl's `contact_sph_stress` runs on
 // the contact's grid). CPU twin: src/cpu/sph_stress.rs. Each particle has SPH_STRESS_LANES threads:
 // lane j sums the neighbours j, j + 4, … and the lanes' sums are added in lane order (the twin sums in list

@@ -43,8 +43,8 @@ pub struct ParticleSnapshot {
     /// Displacements u_p, packed xyz, m.
     pub displacements: Vec<f32>,
     /// Velocities, packed xyz, m/s: a dynamic particle's own; an embedded one's as `follow`
-    /// last set it when the material is viscous (its host's), else as it was when it last
-    /// stopped being dynamic (embedded particles move with their host).
+    /// last set it (its host's; particles of the force set, viscous material), else as it
+    /// was when it last stopped being dynamic (zero if it never was).
     pub velocities: Vec<f32>,
     /// Mode bits ([`crate::particles::params::mode`]).
     pub modes: Vec<u32>,

@@ -14,7 +14,8 @@
 // V Psi. Each particle has SPH_STRESS_LANES threads of a 256-thread workgroup that takes 64
 // entries: lane j sums the neighbours j, j + SPH_STRESS_LANES, ... and the lanes' sums are
 // added in lane order.
-// The arrays are declared here (bound by name); the Lame constants come as arguments.
+// The arrays are declared here (bound by name); the Lame constants and viscosities come as
+// arguments.
 #import particles
 #import material
 

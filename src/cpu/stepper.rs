@@ -243,7 +243,8 @@ struct ChainInputs<'a> {
     vertex_velocities: &'a [f32],
 }
 
-/// The particle stages that read the vertices only through their displacements and write
+/// The particle stages that read the vertices only through their displacements (and
+/// velocities, for a viscous material's `follow`) and write
 /// nothing but particle arrays and the status: everything after the activation.
 fn is_chain_stage(stage: Stage) -> bool {
     matches!(

@@ -119,7 +119,8 @@ impl Particles {
 
     /// The largest stable particle step: the lattice's highest frequency, ω ≈ 2 c_p/Δx, as
     /// for a tet of altitude Δx (with the tets' viscous damping ratio ζ = (φ + 2ψ)ω/(2(λ + 2μ)):
-    /// (Δx/c_p)(sqrt(1 + ζ²) − ζ), the particle stress being viscous too), the tool's contact springs on surface particles of area
+    /// (Δx/c_p)(sqrt(1 + ζ²) − ζ), the particle stress being viscous too in the blend; design 8,
+    /// whose particles stay elastic, keeps the factor, a little conservative), the tool's contact springs on surface particles of area
     /// Δx², ω_c² = k Δx²/m with damping ratio ζ = b Δx²/(2 m ω_c), whose bound
     /// (2/ω_c)(sqrt(1 + ζ²) − ζ) is the vertices' one, and the hourglass penalty's
     /// [`Self::hourglass_omega`]; combined in quadrature (see [`crate::timestep`]).
