@@ -149,17 +149,23 @@ pub fn relaxation_scene(scene: &Scene) -> Scene {
     s
 }
 
+/// `--duration t`: finite and ≥ 0, else a one-line usage error.
+pub fn check_duration(t: f64) -> Result<()> {
+    if t.is_finite() && t >= 0.0 {
+        return Ok(());
+    }
+    let what = if t.is_infinite() { "finite and " } else { "" };
+    Err(PalpateError::Usage(format!(
+        "--duration must be {what}>= 0 s, got {t}"
+    )))
+}
+
 /// Steps a run of `length` takes at time step `dt` (the step cap for `--until-static`).
 fn steps_for(length: RunLength, dt: f64) -> Result<u64> {
     let n = match length {
         RunLength::Steps(n) => n,
         RunLength::Duration(t) => {
-            if !(t.is_finite() && t >= 0.0) {
-                let what = if t.is_infinite() { "finite and " } else { "" };
-                return Err(PalpateError::Usage(format!(
-                    "--duration must be {what}>= 0 s, got {t}"
-                )));
-            }
+            check_duration(t)?;
             // Round up, but not past a whole number that f64 division missed by an ulp.
             let x = t / dt;
             if x > MAX_RUN_STEPS as f64 {

@@ -250,43 +250,29 @@ fn negative_and_infinite_values_and_an_out_that_is_a_file_are_one_line_errors() 
 #[test]
 fn particles_without_a_tool_warn_that_none_wakes() {
     let d = tmp("particlesnotool");
-    let scene = scene_file(
-        &d,
-        "asleep.toml",
-        &beam_with("[particles]\nregion = 0\nspacing = 0.004\nactivation_radius = 0.004"),
-    );
-    let (ok, out, err) = palpate(&[
-        "run",
-        &scene,
-        "--steps",
-        "2",
-        "--backend",
-        "cpu",
-        "--out",
-        d.to_str().unwrap(),
-    ]);
-    assert!(ok, "{out}{err}");
-    assert!(
-        err.contains("warning:") && err.contains("[particles] without a [tool]"),
-        "{err}"
-    );
-    let awake = scene_file(
-        &d,
-        "awake.toml",
-        &beam_with("[particles]\nregion = 0\nspacing = 0.004\nactivation_radius = 0.004\nactivation = \"all\""),
-    );
-    let (ok, out, err) = palpate(&[
-        "run",
-        &awake,
-        "--steps",
-        "2",
-        "--backend",
-        "cpu",
-        "--out",
-        d.to_str().unwrap(),
-    ]);
-    assert!(ok, "{out}{err}");
-    assert!(!err.contains("without a [tool]"), "{err}");
+    let particles = "[particles]\nregion = 0\nspacing = 0.004\nactivation_radius = 0.004";
+    for (name, extra, warned) in [
+        ("asleep.toml", "", true),
+        ("awake.toml", "\nactivation = \"all\"", false),
+    ] {
+        let scene = scene_file(&d, name, &beam_with(&format!("{particles}{extra}")));
+        let (ok, out, err) = palpate(&[
+            "run",
+            &scene,
+            "--steps",
+            "2",
+            "--backend",
+            "cpu",
+            "--out",
+            d.to_str().unwrap(),
+        ]);
+        assert!(ok, "{name}: {out}{err}");
+        assert_eq!(
+            err.contains("warning:") && err.contains("[particles] without a [tool]"),
+            warned,
+            "{name}: {err}"
+        );
+    }
 }
 
 /// A particle scene's frames carry the particles too: `particles_series.pvd` lists one

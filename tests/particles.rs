@@ -238,6 +238,21 @@ fn pressed_block() -> Scene {
     Scene::from_toml(PRESSED_BLOCK, "hybrid block", "hybrid_block", None).unwrap()
 }
 
+/// The [`PRESSED_BLOCK`] with viscosity φ = 2, ψ = 5 Pa·s and `particles` (TOML lines) added
+/// to its `[particles]`.
+fn viscous_pressed_block(particles: &str) -> Scene {
+    let text = PRESSED_BLOCK
+        .replace(
+            "density = 1000.0\n",
+            "density = 1000.0\nviscosity = [2.0, 5.0]\n",
+        )
+        .replace(
+            "spacing = 0.001\n",
+            &format!("spacing = 0.001\n{particles}"),
+        );
+    Scene::from_toml(&text, "viscous block", "viscous_block", None).unwrap()
+}
+
 /// The [`PRESSED_BLOCK`] model and its step parameters (half the stable step, damping 50/s).
 fn pressed_block_model() -> (Arc<Model>, palpate::params::StepParams) {
     let m = Arc::new(Model::from_scene(&pressed_block()));
@@ -407,11 +422,7 @@ fn particle_kernels_match_their_cpu_twins() {
 /// velocities, on both backends; the viscous part must matter in the compared stress.
 #[test]
 fn viscous_particle_kernels_match_their_cpu_twins() {
-    let text = PRESSED_BLOCK.replace(
-        "density = 1000.0\n",
-        "density = 1000.0\nviscosity = [2.0, 5.0]\n",
-    );
-    let scene = Scene::from_toml(&text, "viscous block", "viscous_block", None).unwrap();
+    let scene = viscous_pressed_block("");
     let m = Arc::new(Model::from_scene(&scene));
     assert!(m.fem_variant().viscous);
     let params = m.step_params(0.5 * m.bounds.dt_bound, 50.0);
@@ -424,11 +435,7 @@ fn viscous_particle_kernels_match_their_cpu_twins() {
 /// a rigid spin (L antisymmetric) gives none.
 #[test]
 fn the_particle_viscous_stress_is_the_tets_under_a_uniform_velocity_gradient() {
-    let text = PRESSED_BLOCK.replace(
-        "density = 1000.0\n",
-        "density = 1000.0\nviscosity = [2.0, 5.0]\n",
-    );
-    let scene = Scene::from_toml(&text, "viscous block", "viscous_block", None).unwrap();
+    let scene = viscous_pressed_block("");
     let m = Model::from_scene(&scene);
     let params = m.step_params(0.5 * m.bounds.dt_bound, 0.0);
     let pd = m.particles.as_ref().unwrap();
@@ -447,8 +454,8 @@ fn the_particle_viscous_stress_is_the_tets_under_a_uniform_velocity_gradient() {
     for p in (0..n).step_by(37) {
         let one = |x: &[f32]| cpu::sph_setup::gradient_sum(&pp, &pd.rest, x, noff, nbrs, None, p);
         assert_eq!(
-            cpu::sph_setup::gradient_sums(&pp, &pd.rest, &a, &b, noff, nbrs, None, p),
-            (one(&a), one(&b)),
+            cpu::sph_setup::gradient_sums(&pp, &pd.rest, [&a[..], &b[..]], noff, nbrs, None, p),
+            [one(&a), one(&b)],
             "particle {p}"
         );
     }
@@ -551,13 +558,7 @@ fn the_particle_viscous_stress_is_the_tets_under_a_uniform_velocity_gradient() {
 /// strain's rate.
 #[test]
 fn viscous_paper_particle_kernels_match_their_cpu_twins() {
-    let text = PRESSED_BLOCK
-        .replace(
-            "density = 1000.0\n",
-            "density = 1000.0\nviscosity = [2.0, 5.0]\n",
-        )
-        .replace("spacing = 0.001\n", "spacing = 0.001\nmodel = \"paper\"\n");
-    let scene = Scene::from_toml(&text, "viscous paper block", "viscous_paper", None).unwrap();
+    let scene = viscous_pressed_block("model = \"paper\"\n");
     let m = Arc::new(Model::from_scene(&scene));
     assert_eq!(
         m.particle_params(&m.step_params(1e-5, 0.0)).unwrap().model,
@@ -573,11 +574,7 @@ fn viscous_paper_particle_kernels_match_their_cpu_twins() {
 /// passes (`fem_forces_follow`, `contact_sph_stress`) hold the bits of the plain ones.
 #[test]
 fn a_viscous_hybrid_trajectory_matches_between_backends_and_fused_passes() {
-    let text = PRESSED_BLOCK.replace(
-        "density = 1000.0\n",
-        "density = 1000.0\nviscosity = [2.0, 5.0]\n",
-    );
-    let scene = Scene::from_toml(&text, "viscous block", "viscous_block", None).unwrap();
+    let scene = viscous_pressed_block("");
     let (c, _) = run_batches(&scene, palpate::sim::Backend::Cpu, None, 3, 100);
     let (g, _) = run_batches(&scene, palpate::sim::Backend::Gpu, None, 3, 100);
     backends_agree("viscous: ", &c, &g);

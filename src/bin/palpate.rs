@@ -307,11 +307,9 @@ fn execute(cli: Cli) -> Result<()> {
                     "--max-steps caps --until-static; without it use --steps or --duration".into(),
                 ));
             }
-            if let Some(t) = duration.filter(|t| !(t.is_finite() && *t >= 0.0)) {
-                let what = if t.is_infinite() { "finite and " } else { "" };
-                return Err(PalpateError::Usage(format!(
-                    "--duration must be {what}>= 0 s, got {t}"
-                )));
+            if let Some(t) = duration {
+                // Before the run's banner (the run checks it again for library callers).
+                palpate::run::check_duration(t)?;
             }
             let length = match (steps, duration, until_static) {
                 (Some(n), _, _) => RunLength::Steps(n),

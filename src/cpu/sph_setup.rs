@@ -69,8 +69,7 @@ pub fn lists_and_corrections(
 }
 
 /// Σ_b V (a_b − a_p) ⊗ ∇W(X_b − X_p) (the bracket of F_p; a = displacements or positions),
-/// with the kernel gradients from `pairs` when given. Summed in SIMD-width columns
-/// (`Vec3A`): the same products and sums, element by element, as the kernel.
+/// with the kernel gradients from `pairs` when given: [`gradient_sums`] of one array.
 pub fn gradient_sum(
     pp: &ParticleParams,
     rest: &[f32],
@@ -80,57 +79,38 @@ pub fn gradient_sum(
     pairs: Option<&super::sph::PairTable>,
     p: usize,
 ) -> Mat3 {
+    let [s] = gradient_sums(pp, rest, [a], neighbour_offsets, neighbours, pairs, p);
+    s
+}
+
+/// Σ_b V (a_b − a_p) ⊗ ∇W(X_b − X_p) for each array a of `arrays`, in one walk over p's
+/// neighbours (the displacements' and the velocities' for a viscous stress), with the kernel
+/// gradients from `pairs` when given. Summed in SIMD-width columns (`Vec3A`): the same
+/// products and sums, element by element, as the kernel, and for each array as alone.
+pub fn gradient_sums<const N: usize>(
+    pp: &ParticleParams,
+    rest: &[f32],
+    arrays: [&[f32]; N],
+    neighbour_offsets: &[u32],
+    neighbours: &[u32],
+    pairs: Option<&super::sph::PairTable>,
+    p: usize,
+) -> [Mat3; N] {
     let x = load3(rest, p);
-    let ap = load3a(a, p);
-    let (mut c0, mut c1, mut c2) = (Vec3A::ZERO, Vec3A::ZERO, Vec3A::ZERO);
+    let own = arrays.map(|a| load3a(a, p));
+    let mut cols = [[Vec3A::ZERO; 3]; N];
     for k in neighbour_offsets[p]..neighbour_offsets[p + 1] {
         let b = neighbours[k as usize] as usize;
         let w = match pairs {
             Some(t) => t.gradient[k as usize],
             None => kernel_gradient(pp.model, load3(rest, b) - x, pp.spacing, pp.support),
         } * pp.volume;
-        let du = load3a(a, b) - ap;
-        c0 += du * w.x;
-        c1 += du * w.y;
-        c2 += du * w.z;
+        for ((c, a), ap) in cols.iter_mut().zip(arrays).zip(own) {
+            let du = load3a(a, b) - ap;
+            c[0] += du * w.x;
+            c[1] += du * w.y;
+            c[2] += du * w.z;
+        }
     }
-    Mat3::from_cols(c0.into(), c1.into(), c2.into())
-}
-
-/// [`gradient_sum`] of `a` and of `b` in one walk over p's neighbours (the displacements' and
-/// the velocities' for a viscous stress): each the same products and sums as its own call.
-#[allow(clippy::too_many_arguments)]
-pub fn gradient_sums(
-    pp: &ParticleParams,
-    rest: &[f32],
-    a: &[f32],
-    b: &[f32],
-    neighbour_offsets: &[u32],
-    neighbours: &[u32],
-    pairs: Option<&super::sph::PairTable>,
-    p: usize,
-) -> (Mat3, Mat3) {
-    let x = load3(rest, p);
-    let (ap, bp) = (load3a(a, p), load3a(b, p));
-    let (mut c0, mut c1, mut c2) = (Vec3A::ZERO, Vec3A::ZERO, Vec3A::ZERO);
-    let (mut d0, mut d1, mut d2) = (Vec3A::ZERO, Vec3A::ZERO, Vec3A::ZERO);
-    for k in neighbour_offsets[p]..neighbour_offsets[p + 1] {
-        let q = neighbours[k as usize] as usize;
-        let w = match pairs {
-            Some(t) => t.gradient[k as usize],
-            None => kernel_gradient(pp.model, load3(rest, q) - x, pp.spacing, pp.support),
-        } * pp.volume;
-        let da = load3a(a, q) - ap;
-        c0 += da * w.x;
-        c1 += da * w.y;
-        c2 += da * w.z;
-        let db = load3a(b, q) - bp;
-        d0 += db * w.x;
-        d1 += db * w.y;
-        d2 += db * w.z;
-    }
-    (
-        Mat3::from_cols(c0.into(), c1.into(), c2.into()),
-        Mat3::from_cols(d0.into(), d1.into(), d2.into()),
-    )
+    cols.map(|c| Mat3::from_cols(c[0].into(), c[1].into(), c[2].into()))
 }

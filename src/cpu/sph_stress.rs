@@ -27,30 +27,14 @@ pub fn stress_of(
     pairs: Option<&super::sph::PairTable>,
     p: usize,
 ) -> (Mat3, Mat3, f32) {
+    let lists = (neighbour_offsets, neighbours);
     let (s, s_rate) = match velocities {
         Some(v) => {
-            let (s, r) = gradient_sums(
-                pp,
-                rest,
-                displacements,
-                v,
-                neighbour_offsets,
-                neighbours,
-                pairs,
-                p,
-            );
+            let [s, r] = gradient_sums(pp, rest, [displacements, v], lists.0, lists.1, pairs, p);
             (s, Some(r))
         }
         None => (
-            gradient_sum(
-                pp,
-                rest,
-                displacements,
-                neighbour_offsets,
-                neighbours,
-                pairs,
-                p,
-            ),
+            gradient_sum(pp, rest, displacements, lists.0, lists.1, pairs, p),
             None,
         ),
     };
