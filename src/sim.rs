@@ -27,11 +27,13 @@ pub enum Backend {
 
 /// The backend `auto` picks on this machine among the adapters `PALPATE_ADAPTER` allows,
 /// with the reason in words, and the hardware adapter it found (None: the CPU backend).
-pub fn pick_auto() -> (Backend, String, Option<wgpu::Adapter>) {
+/// A `PALPATE_BACKEND` that names no backend is an error, not a quiet fall back to the CPU.
+pub fn pick_auto() -> Result<(Backend, String, Option<wgpu::Adapter>)> {
     let filter = crate::gpu::context::adapter_filter()
         .map(|a| format!(" matching PALPATE_ADAPTER='{a}'"))
         .unwrap_or_default();
-    match crate::gpu::context::allowed_adapters() {
+    Ok(match crate::gpu::context::allowed_adapters() {
+        Err(e @ PalpateError::Usage(_)) => return Err(e),
         Err(e) => (Backend::Cpu, format!("auto: {e}"), None),
         Ok(adapters) => {
             let hardware = adapters
@@ -67,7 +69,7 @@ pub fn pick_auto() -> (Backend, String, Option<wgpu::Adapter>) {
                 },
             }
         }
-    }
+    })
 }
 
 /// Options for [`Simulation::new`].
@@ -283,7 +285,7 @@ impl Simulation {
                 "auto: the GPU context given".to_string(),
                 None,
             ),
-            Backend::Auto => pick_auto(),
+            Backend::Auto => pick_auto()?,
             Backend::Gpu => (Backend::Gpu, "--backend gpu".to_string(), None),
             Backend::Cpu => (Backend::Cpu, "--backend cpu".to_string(), None),
         };

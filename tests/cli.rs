@@ -712,7 +712,7 @@ fn auto_backend_picks_the_cpu_without_a_hardware_gpu_and_says_why() {
 }
 
 #[test]
-fn threads_are_recorded_and_bad_counts_or_missing_adapters_are_one_line_errors() {
+fn threads_are_recorded_and_bad_counts_missing_adapters_or_unknown_backends_are_one_line_errors() {
     let d = tmp("threads");
     let out = d.to_str().unwrap();
     let (ok, o, err) = palpate(&[
@@ -799,6 +799,17 @@ fn threads_are_recorded_and_bad_counts_or_missing_adapters_are_one_line_errors()
         "{}",
         lines[0]
     );
+    // A backend name that is none: an error under auto too, not a quiet run on the CPU.
+    let o = Command::new(env!("CARGO_BIN_EXE_palpate"))
+        .args(["run", "beam", "--steps", "10", "--out", out])
+        .env("PALPATE_BACKEND", "vulkn")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{err}");
+    let lines = error_lines(&err);
+    assert_eq!(lines.len(), 1, "{err}");
+    assert!(lines[0].contains("PALPATE_BACKEND='vulkn'"), "{}", lines[0]);
 }
 
 /// Standard output that cannot be written does not stop a run or panic: a closed pipe
@@ -882,6 +893,35 @@ fn inputs_that_are_not_regular_files_are_refused() {
     assert_one_line_error(
         &["haptic", "--device", "scripted:/dev/zero", "--out", out],
         &["/dev/zero", "not a regular file"],
+    );
+}
+
+/// A bad tet in a scene's mesh file is an error naming the scene and the file; an inverted
+/// one is reoriented with a warning naming both.
+#[test]
+fn a_mesh_files_bad_tets_are_named_with_the_file() {
+    let d = tmp("mesh_file_tets");
+    std::fs::create_dir_all(&d).unwrap();
+    let node = "4 3 0 0\n0 0 0 0\n1 0.01 0 0\n2 0 0.01 0\n3 0 0 0.01\n";
+    std::fs::write(d.join("t.node"), node).unwrap();
+    let scene = scene_file(
+        &d,
+        "t.toml",
+        "[mesh]\nfile = \"t.ele\"\n[material]\nyoungs_modulus = 3.0e4\npoisson_ratio = 0.3\ndensity = 1000.0\n[solver]\nduration = 1e-3\n",
+    );
+    let out = d.join("out");
+    let out = out.to_str().unwrap();
+    std::fs::write(d.join("t.ele"), "1 4 0\n0 0 1 2 2\n").unwrap();
+    assert_one_line_error(
+        &["run", &scene, "--out", out],
+        &["t.toml: mesh file", "t.ele: tet 0", "repeats vertex 2"],
+    );
+    std::fs::write(d.join("t.ele"), "1 4 0\n0 0 2 1 3\n").unwrap();
+    let (ok, _, err) = palpate(&["run", &scene, "--backend", "cpu", "--out", out]);
+    assert!(ok, "{err}");
+    assert!(
+        err.contains("t.toml: mesh file") && err.contains("t.ele: tet 0 was inverted"),
+        "{err}"
     );
 }
 

@@ -391,6 +391,25 @@ fn hand_made_minimal_files_are_read() {
     }
 }
 
+/// A TetGen `.ele` line whose values disagree with its header's nodes and attributes per
+/// element (a 10-node file declared as 4-node, a lost attribute) names the line and the count.
+#[test]
+fn tetgen_elements_that_disagree_with_their_header_are_refused() {
+    let node = b"10 3 0 0\n0 0 0 0\n1 1 0 0\n2 0 1 0\n3 0 0 1\n4 .5 0 0\n5 0 .5 0\n6 0 0 .5\n7 .5 .5 0\n8 0 .5 .5\n9 .5 0 .5\n";
+    for (ele, line, expected) in [
+        ("1 4 0\n0 0 1 2 3 4 5 6 7 8 9\n", "line 2", "expected 5"),
+        ("1 10 0\n0 0 1 2 3\n", "line 2", "expected 11"),
+        ("1 4 1\n0 0 1 2 3\n", "line 2", "expected 6"),
+    ] {
+        let e = read_err(
+            "tetgen_count",
+            &[("h.ele", ele.as_bytes()), ("h.node", node)],
+        );
+        assert_located(&e, "h.ele", line);
+        assert!(e.contains(expected), "{e}");
+    }
+}
+
 #[test]
 fn empty_files_are_refused() {
     for name in ["e.msh", "e.vtk", "e.vtu", "e.node", "e.pts"] {

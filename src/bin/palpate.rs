@@ -279,13 +279,13 @@ fn execute(cli: Cli) -> Result<()> {
             for t in scene.mesh_report.reoriented.iter().take(3) {
                 palpate::say_err!(
                     "warning: {}: tet {t} was inverted and has been reoriented",
-                    scene.origin
+                    scene.mesh_report.origin
                 );
             }
             if scene.mesh_report.reoriented.len() > 3 {
                 palpate::say_err!(
                     "warning: {}: {} tets reoriented in all",
-                    scene.origin,
+                    scene.mesh_report.origin,
                     scene.mesh_report.reoriented.len()
                 );
             }
@@ -508,7 +508,7 @@ fn execute(cli: Cli) -> Result<()> {
                     i.driver_info
                 );
             }
-            let (auto, reason, _) = palpate::sim::pick_auto();
+            let (auto, reason, _) = palpate::sim::pick_auto()?;
             palpate::say!(
                 "--backend auto picks: {} ({reason})",
                 if auto == Backend::Gpu { "gpu" } else { "cpu" }
@@ -809,10 +809,10 @@ fn warn_tool_overlap(scene: &Scene, centre: glam::DVec3, when: &str) {
 
 fn adapter_name(backend: Backend) -> String {
     match backend {
-        Backend::Auto => {
-            let (b, reason, _) = palpate::sim::pick_auto();
-            format!("{} ({reason})", adapter_name(b))
-        }
+        Backend::Auto => match palpate::sim::pick_auto() {
+            Ok((b, reason, _)) => format!("{} ({reason})", adapter_name(b)),
+            Err(e) => e.to_string(),
+        },
         Backend::Cpu => format!("cpu ({} threads)", palpate::cpu::stepper::available_cores()),
         Backend::Gpu => palpate::gpu::GpuContext::new()
             .map(|c| c.describe())

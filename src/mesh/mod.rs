@@ -54,6 +54,9 @@ pub struct ValidationReport {
     pub reoriented: Vec<usize>,
     /// Vertices referenced by no tet (they get no mass and are held fixed).
     pub unused_vertices: usize,
+    /// Where the mesh came from, as its errors and warnings name it (a scene, or a scene
+    /// and its mesh file).
+    pub origin: String,
 }
 
 /// Size and quality figures of a mesh.
@@ -234,6 +237,7 @@ impl TetMesh {
         }
         self.check_connectivity().map_err(err)?;
         report.unused_vertices = used.iter().filter(|u| !**u).count();
+        report.origin = origin.to_string();
         Ok(report)
     }
 

@@ -91,7 +91,7 @@ pub(super) fn build_mesh(
     dir: Option<&Path>,
     bad: &Bad,
 ) -> Result<(TetMesh, ValidationReport)> {
-    let mut mesh = match (&spec.generator, &spec.file) {
+    let mesh = match (&spec.generator, &spec.file) {
         (Some(_), Some(_)) | (None, None) => {
             return Err(bad(
                 "mesh",
@@ -104,7 +104,10 @@ pub(super) fn build_mesh(
                 Some(d) if file.is_relative() => d.join(file),
                 _ => file.clone(),
             };
-            crate::mesh::io::read(&path)?
+            let mesh = crate::mesh::io::read(&path)?;
+            // Its tets' errors name the file they are in.
+            let from = format!("{origin}: mesh file {}", path.display());
+            return finish(mesh, spec, &from, bad);
         }
         (Some(g), None) => match g.as_str() {
             "beam" => {
@@ -224,6 +227,16 @@ pub(super) fn build_mesh(
             }
         },
     };
+    finish(mesh, spec, origin, bad)
+}
+
+/// Scale the mesh by `mesh.scale` and validate it, its errors naming `origin`.
+fn finish(
+    mut mesh: TetMesh,
+    spec: &MeshSpec,
+    origin: &str,
+    bad: &Bad,
+) -> Result<(TetMesh, ValidationReport)> {
     if let Some(s) = spec.scale {
         positive(bad, "mesh.scale", s, "")?;
         for p in &mut mesh.positions {

@@ -120,6 +120,16 @@ pub(super) fn read(path: &Path) -> Result<TetMesh> {
     let mut tets = Vec::with_capacity(m.min(ele_text.len() / 8 + 1));
     let mut regions = Vec::with_capacity(tets.capacity());
     for (ln, toks) in lines.take(m) {
+        let want = 1 + npe + n_attr;
+        if toks.len() != want {
+            return Err(file_err(
+                &ele_path,
+                format!(
+                    "line {ln}: {} values, but the header (line {hl}) declares {npe} nodes and {n_attr} attributes per element: expected {want}",
+                    toks.len()
+                ),
+            ));
+        }
         let mut t = [0u32; 4];
         for (k, v) in t.iter_mut().enumerate() {
             let i: i64 = parse(&ele_path, ln, toks.get(1 + k), "node index")?;
