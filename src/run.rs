@@ -173,10 +173,16 @@ fn steps_for(length: RunLength, dt: f64) -> Result<u64> {
                     "the run would take {x:.3e} steps of {dt:.3e} s (more than {MAX_RUN_STEPS}); use a larger --dt or a shorter run"
                 )));
             }
-            if (x - x.round()).abs() < 1e-9 * x.max(1.0) {
+            let n = if (x - x.round()).abs() < 1e-9 * x.max(1.0) {
                 x.round() as u64
             } else {
                 x.ceil() as u64
+            };
+            // A positive duration is at least one step, however short.
+            if t > 0.0 {
+                n.max(1)
+            } else {
+                n
             }
         }
         RunLength::UntilStatic { max_steps } => max_steps,
@@ -346,6 +352,13 @@ pub fn run_with_state(
     } else {
         f64::INFINITY
     };
+    if opts.announce && opts.frames as u64 > max_steps + 1 && opts.frames >= 2 {
+        crate::say_err!(
+            "warning: --frames {} is more than the run's {max_steps} steps make: a frame after each step ({} in all)",
+            opts.frames,
+            max_steps + 1
+        );
+    }
     let mut frames = FrameSeries::new(&opts.out);
     if opts.frames >= 2 {
         frames.write(&model, &sim.state()?, sim.particle_state()?.as_ref(), 0.0)?;

@@ -238,6 +238,16 @@ fn dt_source(scene: &Scene, override_dt: Option<f64>) -> &'static str {
 impl Simulation {
     /// Build a simulation of `scene` on `backend`.
     pub fn new(scene: &Scene, backend: Backend, opts: SimOptions) -> Result<Simulation> {
+        // On the CPU backend, a particle layer too big for this machine is refused from the
+        // scene's estimate before minutes of sampling (and after it, from the count).
+        if let (Backend::Cpu, Some(p), Some(free)) = (
+            backend,
+            scene.particles.as_ref(),
+            crate::cpu::memory::available_memory(),
+        ) {
+            let n = crate::scene::particles::estimated_count(&scene.mesh, p);
+            crate::cpu::memory::check_particles_fit(n, true, p, free, &scene.origin)?;
+        }
         let model = Arc::new(Model::try_from_scene(scene)?);
         model
             .check_f32()
@@ -250,7 +260,14 @@ impl Simulation {
                 dt_source(scene, opts.dt)
             )));
         }
-        Simulation::from_model(model, backend, dt, scene.solver.damping, opts)
+        Simulation::from_model_of(
+            model,
+            backend,
+            dt,
+            scene.solver.damping,
+            opts,
+            &scene.origin,
+        )
     }
 
     /// Build from a prepared model and a time step.
@@ -260,6 +277,18 @@ impl Simulation {
         dt: f64,
         damping: f64,
         opts: SimOptions,
+    ) -> Result<Simulation> {
+        Simulation::from_model_of(model, backend, dt, damping, opts, "the model")
+    }
+
+    /// [`Simulation::from_model`], its errors naming `origin` (the scene).
+    fn from_model_of(
+        model: Arc<Model>,
+        backend: Backend,
+        dt: f64,
+        damping: f64,
+        opts: SimOptions,
+        origin: &str,
     ) -> Result<Simulation> {
         model.check_f32()?;
         if !(dt as f32 > 0.0 && (dt as f32).is_finite()) {
@@ -299,6 +328,13 @@ impl Simulation {
                 (Box::new(GpuStepper::new(ctx, &model, params)?), 1)
             }
             _ => {
+                if let (Some(p), Some(free)) = (
+                    model.particles.as_ref(),
+                    crate::cpu::memory::available_memory(),
+                ) {
+                    let n = (p.rest.len() / 3) as f64;
+                    crate::cpu::memory::check_particles_fit(n, false, &p.settings, free, origin)?;
+                }
                 let threads = opts
                     .threads
                     .unwrap_or_else(crate::cpu::stepper::available_cores);

@@ -330,6 +330,27 @@ fn duration_runs_the_right_number_of_steps() {
     ]);
     assert!(ok, "{out}{err}");
     assert_eq!(summary(&d)["steps"], 100);
+    // However short, a positive duration is a step (it used to round to none), and more
+    // frames than steps are a warning, one frame after each step.
+    let (ok, out, err) = palpate(&[
+        "run",
+        "beam",
+        "--duration",
+        "1e-300",
+        "--frames",
+        "50",
+        "--backend",
+        "cpu",
+        "--out",
+        d.to_str().unwrap(),
+    ]);
+    assert!(ok, "{out}{err}");
+    assert_eq!(summary(&d)["steps"], 1);
+    assert!(
+        err.contains("warning: --frames 50 is more than") && err.contains("(2 in all)"),
+        "{err}"
+    );
+    assert!(d.join("frame_0001.vtu").exists() && !d.join("frame_0002.vtu").exists());
 }
 
 #[test]
@@ -923,6 +944,13 @@ fn a_mesh_files_bad_tets_are_named_with_the_file() {
         err.contains("t.toml: mesh file") && err.contains("t.ele: tet 0 was inverted"),
         "{err}"
     );
+    // An empty name and a directory are named as such, not as an unknown format '.'.
+    let text = std::fs::read_to_string(&scene).unwrap();
+    for (file, says) in [("", "mesh.file: is empty"), ("sub", "is a directory")] {
+        std::fs::create_dir_all(d.join("sub")).unwrap();
+        let s = scene_file(&d, "f.toml", &text.replace("t.ele", file));
+        assert_one_line_error(&["mesh", &s], &[says]);
+    }
 }
 
 /// The GPU stepper's switches (`PALPATE_GPU_FUSION`, `PALPATE_GPU_PRERECORD`) take only the
@@ -1421,6 +1449,11 @@ fn bad_tool_sections_are_one_line_errors_naming_the_key() {
             "radius = 0.004\nstiffness = 1e8\nhome = [0.05, 0.01, 0.03, 5.0]\npath = [[0.0, 0.05, 0.01, 0.03]]",
             &["line", "home", "3 values"],
         ),
+        // An empty path is not a missing one (with a home it used to hold the tool there).
+        (
+            "radius = 0.004\nstiffness = 1e8\nhome = [0.05, 0.01, 0.03]\npath = []",
+            &["tool.path", "is empty"],
+        ),
     ];
     for (i, (body, want)) in cases.iter().enumerate() {
         assert_scene_refused(&d, &format!("tool{i}.toml"), &tool(body), want);
@@ -1524,6 +1557,14 @@ fn bad_particle_sections_are_one_line_errors_naming_the_key() {
             "region = 0\nspacing = 0.002\nactivation_radius = 0.004\nkernel_radius = 2.0",
             &["particles.kernel_radius", "√4", "1.95"],
         ),
+        (
+            "region = 0\nspacing = 0.002",
+            &[
+                "particles.activation_radius",
+                "is required",
+                "activation = \"tool\"",
+            ],
+        ),
     ];
     // A density whose particle masses underflow f32 (the run used to diverge at step 1).
     let light = with("region = 0\nspacing = 0.002\nactivation_radius = 0.004").replacen(
@@ -1548,6 +1589,53 @@ fn bad_particle_sections_are_one_line_errors_naming_the_key() {
     for (i, (body, want)) in cases.iter().enumerate() {
         assert_scene_refused(&d, &format!("p{i}.toml"), &with(body), want);
     }
+    // A layer no machine's memory holds on the CPU backend (4.5e7 particles of 248
+    // neighbours: about 400 GB) is refused from the scene's estimate, at once.
+    let huge = scene_file(
+        &d,
+        "huge.toml",
+        &with("region = 0\nspacing = 9.6e-5\nkernel_radius = 3.9\nactivation_radius = 0.004"),
+    );
+    let start = std::time::Instant::now();
+    assert_one_line_error(
+        &[
+            "run",
+            &huge,
+            "--steps",
+            "1",
+            "--backend",
+            "cpu",
+            "--out",
+            d.to_str().unwrap(),
+        ],
+        &[
+            "huge.toml",
+            "particles.spacing",
+            "CPU backend needs about",
+            "GB available",
+        ],
+    );
+    assert!(
+        start.elapsed().as_secs_f64() < 10.0,
+        "refused only after building"
+    );
+    // With every particle dynamic no radius decides anything: it may be left out.
+    let all = scene_file(
+        &d,
+        "all.toml",
+        &with("region = 0\nspacing = 0.004\nactivation = \"all\""),
+    );
+    let (ok, _, err) = palpate(&[
+        "run",
+        &all,
+        "--steps",
+        "2",
+        "--backend",
+        "cpu",
+        "--out",
+        d.join("all").to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
 }
 
 #[test]

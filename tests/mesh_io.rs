@@ -410,6 +410,36 @@ fn tetgen_elements_that_disagree_with_their_header_are_refused() {
     }
 }
 
+/// A `.vtu` piece whose NumberOfPoints or NumberOfCells disagrees with its arrays, or is not
+/// a count, is refused at the piece's line.
+#[test]
+fn vtu_piece_counts_that_disagree_with_the_arrays_are_refused() {
+    let ok = vtu_ascii(PTS, "0 1 2 3", "4", "10", "");
+    for (from, to, says) in [
+        (
+            "NumberOfPoints=\"4\"",
+            "NumberOfPoints=\"3\"",
+            "Points array holds 4",
+        ),
+        (
+            "NumberOfPoints=\"4\"",
+            "NumberOfPoints=\"-4\"",
+            "is not a count",
+        ),
+        (
+            "NumberOfCells=\"1\"",
+            "NumberOfCells=\"7\"",
+            "types array holds 1",
+        ),
+    ] {
+        assert_eq!(ok.matches(from).count(), 1);
+        let bad = ok.replace(from, to);
+        let e = read_err("vtu_counts", &[("p.vtu", bad.as_bytes())]);
+        assert_located(&e, "p.vtu", "line 4");
+        assert!(e.contains(says), "{e}");
+    }
+}
+
 #[test]
 fn empty_files_are_refused() {
     for name in ["e.msh", "e.vtk", "e.vtu", "e.node", "e.pts"] {

@@ -121,8 +121,8 @@ enum BenchStudy {
         /// CI-sized run.
         #[arg(long)]
         quick: bool,
-        /// Steps of the long ED0 run (at least 1).
-        #[arg(long, default_value_t = 1_000_000, value_parser = clap::value_parser!(u64).range(1..))]
+        /// Steps of the long ED0 run (1 to 10^9).
+        #[arg(long, default_value_t = 1_000_000, value_parser = clap::value_parser!(u64).range(1..=1_000_000_000))]
         ed0_steps: u64,
         /// Output directory.
         #[arg(long, default_value = "docs")]
@@ -632,7 +632,8 @@ fn bench(study: BenchStudy) -> Result<()> {
             use palpate::bench::haptic;
             if !(1.0..=3600.0).contains(&seconds) {
                 return Err(PalpateError::Usage(format!(
-                    "bench haptic: --seconds {seconds} must be between 1 and 3600 s"
+                    "bench haptic: --seconds {} must be between 1 and 3600 s",
+                    palpate::scene::Num(seconds)
                 )));
             }
             let cores = palpate::cpu::stepper::available_cores();

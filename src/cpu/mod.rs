@@ -21,6 +21,7 @@ pub mod follower_pressure_gather;
 pub mod gather;
 pub mod integrate;
 pub mod integrate_particles;
+pub mod memory;
 pub mod neighbours;
 pub mod nodal_pressure;
 pub mod par;

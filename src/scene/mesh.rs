@@ -100,6 +100,9 @@ pub(super) fn build_mesh(
         }
         (None, Some(file)) => {
             only_keys(spec, "a mesh file", &["scale"], bad)?;
+            if file.as_os_str().is_empty() {
+                return Err(bad("mesh.file", "is empty: give a mesh file's path".into()));
+            }
             let path = match dir {
                 Some(d) if file.is_relative() => d.join(file),
                 _ => file.clone(),

@@ -9,7 +9,7 @@ mod fixed;
 mod loads;
 mod material;
 mod mesh;
-mod particles;
+pub mod particles;
 mod solver;
 mod tool;
 

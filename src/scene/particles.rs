@@ -17,7 +17,8 @@ pub struct ParticleSpec {
     pub spacing: Option<f64>,
     /// `"tlsph"` (default) or `"paper"`.
     pub model: Option<String>,
-    /// Particles closer than this to the tool's surface become dynamic, m.
+    /// Particles closer than this to the tool's surface become dynamic, m (required with
+    /// activation `"tool"`; optional with `"all"`).
     pub activation_radius: Option<f64>,
     /// Kernel support radius in spacings (default 2.4).
     pub kernel_radius: Option<f64>,
@@ -90,7 +91,7 @@ pub struct ParticleSettings {
     pub spacing: f64,
     /// The particle model.
     pub model: ParticleModel,
-    /// Activation radius from the tool's surface, m.
+    /// Activation radius from the tool's surface, m (0 when `all_active` left it out).
     pub activation_radius: f64,
     /// Kernel support radius in spacings.
     pub kernel_radius: f64,
@@ -139,10 +140,7 @@ pub(super) fn resolve_particles(
             .ok_or_else(|| bad("particles.spacing", "is required (m)".into()))?,
         "m",
     )?;
-    let zone_volume: f64 = (0..mesh.n_tets())
-        .filter(|&e| mesh.regions[e] == region)
-        .map(|e| mesh.tet_volume(e))
-        .sum();
+    let zone_volume = zone_volume(mesh, region);
     let estimate = zone_volume / spacing.powi(3);
     if estimate > MAX_PARTICLES {
         return Err(bad(
@@ -164,13 +162,31 @@ pub(super) fn resolve_particles(
             ))
         }
     };
-    let activation_radius = positive(
-        bad,
-        "particles.activation_radius",
-        spec.activation_radius
-            .ok_or_else(|| bad("particles.activation_radius", "is required (m)".into()))?,
-        "m",
-    )?;
+    let all_active = match spec.activation.as_deref().unwrap_or("tool") {
+        "tool" => false,
+        "all" => true,
+        other => {
+            return Err(bad(
+                "particles.activation",
+                format!("must be \"tool\" or \"all\", got \"{other}\""),
+            ))
+        }
+    };
+    // With every particle dynamic no radius decides anything: optional (0 when left out).
+    let activation_radius = match (spec.activation_radius, all_active) {
+        (None, true) => 0.0,
+        (r, _) => positive(
+            bad,
+            "particles.activation_radius",
+            r.ok_or_else(|| {
+                bad(
+                    "particles.activation_radius",
+                    "is required (m) with activation = \"tool\"".into(),
+                )
+            })?,
+            "m",
+        )?,
+    };
     let kernel_radius = spec.kernel_radius.unwrap_or(2.4);
     if !(kernel_radius.is_finite() && (1.5..=4.0).contains(&kernel_radius)) {
         return Err(bad(
@@ -217,16 +233,6 @@ pub(super) fn resolve_particles(
             "must be at least 1 step".into(),
         ));
     }
-    let all_active = match spec.activation.as_deref().unwrap_or("tool") {
-        "tool" => false,
-        "all" => true,
-        other => {
-            return Err(bad(
-                "particles.activation",
-                format!("must be \"tool\" or \"all\", got \"{other}\""),
-            ))
-        }
-    };
     let exact_coupling = match spec.coupling.as_deref().unwrap_or("blend") {
         "blend" => false,
         "exact" => true,
@@ -269,4 +275,18 @@ fn lattice_shell_on_support(kernel_radius: f64) -> Option<u32> {
     let is_shell =
         (0..=4u32).any(|i| (0..=4u32).any(|j| (0..=4u32).any(|l| i * i + j * j + l * l == k)));
     (is_shell && (kernel_radius - (k as f64).sqrt()).abs() <= 1e-3 * kernel_radius).then_some(k)
+}
+
+/// The volume of the tets of `region`, m³.
+fn zone_volume(mesh: &TetMesh, region: u32) -> f64 {
+    (0..mesh.n_tets())
+        .filter(|&e| mesh.regions[e] == region)
+        .map(|e| mesh.tet_volume(e))
+        .sum()
+}
+
+/// About how many particles `settings` make in `mesh`: the zone's volume / spacing³ (the
+/// lattice's count to within its surface cells).
+pub fn estimated_count(mesh: &TetMesh, settings: &ParticleSettings) -> f64 {
+    zone_volume(mesh, settings.region) / settings.spacing.powi(3)
 }

@@ -145,6 +145,12 @@ pub(super) fn resolve_tool(spec: &ToolSpec, bad: &Bad) -> Result<Tool> {
         0.0,
         "Pa s/m",
     )?;
+    if spec.path.as_ref().is_some_and(|p| p.is_empty()) {
+        return Err(bad(
+            "tool.path",
+            "is empty: give at least one [t, x, y, z] keyframe, or leave path out (the tool then stays at home)".into(),
+        ));
+    }
     let mut path = Vec::new();
     for (k, row) in spec.path.iter().flatten().enumerate() {
         if row.iter().any(|v| !v.is_finite()) {

@@ -29,6 +29,9 @@ use std::path::Path;
 
 /// Read a tet mesh from a file; the format follows the extension (see the module table).
 pub fn read(path: &Path) -> Result<TetMesh> {
+    if path.is_dir() {
+        return Err(file_err(path, "is a directory, not a mesh file".into()));
+    }
     let ext = extension(path);
     let mut mesh = match ext.as_str() {
         "msh" => gmsh::read(path)?,

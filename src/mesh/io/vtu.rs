@@ -449,7 +449,23 @@ pub(super) fn read(path: &Path) -> Result<TetMesh> {
                         r.layout = file_layout(&r.c, tag)?;
                     }
                     b"Piece" if parent == Some(&b"UnstructuredGrid"[..]) => {
-                        piece = Some(Piece::new(tag.pos));
+                        let count = |key: &str| -> Result<Option<usize>> {
+                            match tag.attr(key) {
+                                None => Ok(None),
+                                Some(v) => v.trim().parse().map(Some).map_err(|_| {
+                                    r.c.err(
+                                        tag.pos,
+                                        format!(
+                                            "<Piece> {key}={} is not a count",
+                                            show(v.as_bytes())
+                                        ),
+                                    )
+                                }),
+                            }
+                        };
+                        let mut p = Piece::new(tag.pos);
+                        p.declared = (count("NumberOfPoints")?, count("NumberOfCells")?);
+                        piece = Some(p);
                         first_piece.get_or_insert(tag.pos);
                     }
                     b"DataArray" => {
@@ -568,11 +584,14 @@ struct Piece {
     types: Option<(usize, Vec<f64>)>,
     point_data: Vec<Array>,
     cell_data: Vec<Array>,
+    /// The tag's NumberOfPoints and NumberOfCells, where given.
+    declared: (Option<usize>, Option<usize>),
 }
 
 impl Piece {
     fn new(pos: usize) -> Self {
         Piece {
+            declared: (None, None),
             pos,
             points: None,
             connectivity: None,
@@ -602,6 +621,23 @@ impl Piece {
         };
         let part = grid_mesh(&coords, &cells, &places, &self.cell_data, &self.point_data)
             .map_err(|(p, m)| c.err(p, m))?;
+        // The tag's counts, once the arrays themselves are sound.
+        let disagree = |key: &str, n: usize, what: &str, held: usize| {
+            c.err(
+                self.pos,
+                format!("<Piece> {key}=\"{n}\" but its {what} array holds {held}"),
+            )
+        };
+        if let Some(n) = self
+            .declared
+            .0
+            .filter(|&n| n.checked_mul(3) != Some(coords.len()))
+        {
+            return Err(disagree("NumberOfPoints", n, "Points", coords.len() / 3));
+        }
+        if let Some(n) = self.declared.1.filter(|&n| n != cells.types.len()) {
+            return Err(disagree("NumberOfCells", n, "types", cells.types.len()));
+        }
         merge(mesh, part).map_err(|m| c.err(self.pos, m))
     }
 }

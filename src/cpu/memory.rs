@@ -1,0 +1,126 @@
+//! What the CPU backend's particle layer will take of the machine's memory, checked before
+//! it is built: a spacing fine enough to make tens of millions of particles otherwise runs
+//! minutes of setup and then aborts on a failed allocation.
+//!
+//! Measured (2026-11-28, the 2-core VM; `palpate run --backend cpu --steps 1`, peak resident
+//! memory of 989,740 particles on a 768-tet LV): 1.07 GB at kernel_radius 1.95 (26
+//! neighbours), 1.96 GB at 2.4 (56) and 5.43 GB at 3.5 (178): about 330 bytes per particle
+//! plus 29 per neighbour slot (lists, pair table, transposes, checkpoint), which
+//! [`BYTES_PER_PARTICLE`] and [`BYTES_PER_NEIGHBOUR`] round up.
+
+use crate::error::{PalpateError, Result};
+use crate::scene::ParticleSettings;
+
+/// Bytes per particle besides its neighbour slots (measured 330, see the module docs).
+pub const BYTES_PER_PARTICLE: f64 = 400.0;
+
+/// Bytes per neighbour slot (measured 29).
+pub const BYTES_PER_NEIGHBOUR: f64 = 35.0;
+
+/// Lattice neighbours within `kernel_radius` spacings of a particle of a full cubic lattice
+/// (26 at 1.95, 56 at 2.4): the particles' average slot count, a little over it at a surface.
+pub fn lattice_neighbours(kernel_radius: f64) -> u64 {
+    let reach = kernel_radius.floor() as i64;
+    let mut n = 0;
+    for i in -reach..=reach {
+        for j in -reach..=reach {
+            for k in -reach..=reach {
+                let r2 = (i * i + j * j + k * k) as f64;
+                if r2 > 0.0 && r2 < kernel_radius * kernel_radius {
+                    n += 1;
+                }
+            }
+        }
+    }
+    n
+}
+
+/// Estimated bytes the CPU backend holds for `n` particles of `settings`:
+/// n (BYTES_PER_PARTICLE + BYTES_PER_NEIGHBOUR · neighbours(kernel_radius)).
+pub fn particle_bytes(n: f64, settings: &ParticleSettings) -> f64 {
+    let slots = lattice_neighbours(settings.kernel_radius) as f64;
+    n * (BYTES_PER_PARTICLE + BYTES_PER_NEIGHBOUR * slots)
+}
+
+/// The memory this machine has free for a new allocation, bytes (`MemAvailable` of
+/// `/proc/meminfo`; None where that cannot be read).
+pub fn available_memory() -> Option<f64> {
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024.0)
+}
+
+/// Refuse `n` particles of `settings` (`about`: n is the scene's estimate, zone volume /
+/// spacing³, before they are sampled) that the CPU backend could not hold in `available`
+/// bytes, naming `particles.spacing` of `origin` (the scene), with the figures.
+pub fn check_particles_fit(
+    n: f64,
+    about: bool,
+    settings: &ParticleSettings,
+    available: f64,
+    origin: &str,
+) -> Result<()> {
+    let need = particle_bytes(n, settings);
+    if need <= available {
+        return Ok(());
+    }
+    Err(PalpateError::SceneValue {
+        origin: origin.to_string(),
+        item: "particles.spacing".into(),
+        message: format!(
+            "{} m makes {}{n:.3e} particles, which the CPU backend needs about {:.1} GB for ({} neighbours each at kernel_radius {}); this machine has {:.1} GB available: use a larger spacing, a smaller kernel_radius or zone, or --backend gpu",
+            crate::scene::Num(settings.spacing),
+            if about { "about " } else { "" },
+            need / 1e9,
+            lattice_neighbours(settings.kernel_radius),
+            settings.kernel_radius,
+            available / 1e9
+        ),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_lattice_shells_count_as_in_the_scenes() {
+        // 6 + 12 + 8 within 1.95 spacings; + 6 at 2 and 24 at √5 within 2.4.
+        assert_eq!(lattice_neighbours(1.95), 26);
+        assert_eq!(lattice_neighbours(2.4), 56);
+    }
+
+    #[test]
+    fn a_layer_over_the_memory_is_refused_naming_the_spacing() {
+        let settings = ParticleSettings {
+            all_active: false,
+            exact_coupling: false,
+            region: 1,
+            spacing: 1e-4,
+            model: crate::scene::ParticleModel::Tlsph,
+            activation_radius: 1e-3,
+            kernel_radius: 1.95,
+            hourglass: 0.1,
+            hysteresis: 1.5,
+            dwell: 0.01,
+            blend: 0.01,
+            activation_interval: 10,
+        };
+        let need = particle_bytes(1e6, &settings);
+        assert_eq!(
+            need,
+            1e6 * (BYTES_PER_PARTICLE + 26.0 * BYTES_PER_NEIGHBOUR)
+        );
+        assert!(check_particles_fit(1e6, true, &settings, need, "s.toml").is_ok());
+        let e = check_particles_fit(1e6, true, &settings, 0.5 * need, "s.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("s.toml")
+                && e.contains("particles.spacing")
+                && e.contains("about 1.000e6 particles"),
+            "{e}"
+        );
+    }
+}
