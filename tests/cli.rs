@@ -245,6 +245,28 @@ fn negative_and_infinite_values_and_an_out_that_is_a_file_are_one_line_errors() 
     }
 }
 
+/// Fixing every vertex runs (the state stays at rest) with a warning that nothing can move.
+#[test]
+fn fixing_every_vertex_warns_that_nothing_moves() {
+    let d = tmp("allfixed");
+    let all = beam_with("[[fixed]]\nbox = { min = [-1.0, -1.0, -1.0], max = [1.0, 1.0, 1.0] }");
+    for (name, text, warned) in [("all.toml", all.as_str(), true), ("beam.toml", BEAM, false)] {
+        let scene = scene_file(&d, name, text);
+        let (ok, out, err) = palpate(&[
+            "run",
+            &scene,
+            "--steps",
+            "2",
+            "--backend",
+            "cpu",
+            "--out",
+            d.to_str().unwrap(),
+        ]);
+        assert!(ok, "{name}: {out}{err}");
+        assert_eq!(err.contains("holds every vertex"), warned, "{name}: {err}");
+    }
+}
+
 /// A particle zone without a tool to wake it (and not `activation = "all"`) runs, with a
 /// warning that its particles stay asleep.
 #[test]

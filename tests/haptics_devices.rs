@@ -153,6 +153,12 @@ fn scripted_trajectory_errors_name_the_file_and_line() {
             "strictly increase",
         ),
         (
+            "negative.csv",
+            "-1,0,0,0\n0.1,0,0,0\n",
+            "line 1",
+            "before the session's start at 0 s",
+        ),
+        (
             "back.csv",
             "0,0,0,0\n1,0,0,0\n0.2,0,0,0\n",
             "line 3",

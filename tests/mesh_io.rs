@@ -440,6 +440,21 @@ fn vtu_piece_counts_that_disagree_with_the_arrays_are_refused() {
     }
 }
 
+/// A legacy `.vtk` file's bad point or cell is named by its section and that section's
+/// keyword line (it used to carry the label of the last section read, CELL_TYPES).
+#[test]
+fn vtk_legacy_errors_name_the_section_they_are_about() {
+    for (from, to, says) in [
+        ("0 0 1\nCELLS", "0 0 nan\nCELLS", "line 5 (POINTS): point 3"),
+        ("4 0 1 2 3", "4 0 1 2 9", "line 7 (CELLS): cell 0"),
+    ] {
+        assert_eq!(TET_VTK.matches(from).count(), 1);
+        let bad = TET_VTK.replace(from, to);
+        let e = read_err("vtk_sections", &[("s.vtk", bad.as_bytes())]);
+        assert_located(&e, "s.vtk", says);
+    }
+}
+
 #[test]
 fn empty_files_are_refused() {
     for name in ["e.msh", "e.vtk", "e.vtu", "e.node", "e.pts"] {

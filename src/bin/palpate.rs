@@ -292,6 +292,12 @@ fn execute(cli: Cli) -> Result<()> {
             if let Some(tool) = &scene.tool {
                 warn_tool_overlap(&scene, tool.position_at(0.0), "at t = 0");
             }
+            if !scene.fixed.is_empty() && scene.fixed.iter().all(|&f| f) {
+                palpate::say_err!(
+                    "warning: {}: [[fixed]] holds every vertex: nothing can move (fix a tag, box or plane of the boundary)",
+                    scene.origin
+                );
+            }
             if scene
                 .particles
                 .as_ref()

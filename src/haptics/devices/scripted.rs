@@ -3,7 +3,7 @@
 //! Format: one row `t,x,y,z` per line (s, m; positions relative to the tool home, the
 //! physics side adds the scene's home). `#` starts a comment; blank lines are skipped; the
 //! first non-blank line may be a header (a line none of whose fields is a number, such as
-//! `t,x,y,z`). Times must strictly increase. The position is linear between rows, held at
+//! `t,x,y,z`). Times must be ≥ 0 and strictly increase. The position is linear between rows, held at
 //! the first row before it and at the last row after it. Time 0 is the device's first read.
 //! A row more than 10 workspace radii from the origin is refused (no device gets there).
 
@@ -107,6 +107,15 @@ impl Trajectory {
                         ))
                     }
                 }
+            }
+            if row[0] < 0.0 {
+                return Err(err(
+                    line_no,
+                    format!(
+                        "time {} s is before the session's start at 0 s",
+                        crate::scene::Num(row[0])
+                    ),
+                ));
             }
             if let Some(&last) = times.last() {
                 if row[0] <= last {

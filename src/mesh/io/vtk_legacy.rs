@@ -539,8 +539,19 @@ pub(super) fn read(path: &Path) -> Result<TetMesh> {
         cells: cpos,
         types: tpos,
     };
-    let mesh = grid_mesh(&coords, &cells, &places, &r.cell_data, &r.point_data)
-        .map_err(|(p, m)| c.err(p, m))?;
+    let mesh =
+        grid_mesh(&coords, &cells, &places, &r.cell_data, &r.point_data).map_err(|(p, m)| {
+            // Named by the section it is about (at its keyword's line), not by the last one
+            // read.
+            let mut at = c.clone();
+            at.context = match p {
+                _ if p == ppos => "POINTS",
+                _ if p == cpos => "CELLS",
+                _ if p == tpos => "CELL_TYPES",
+                _ => "",
+            };
+            at.err(p, m)
+        })?;
     if mesh.tets.is_empty() {
         return Err(c.err(tpos, "no cell is a tetrahedron (VTK type 10 or 24)"));
     }
