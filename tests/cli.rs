@@ -245,12 +245,25 @@ fn negative_and_infinite_values_and_an_out_that_is_a_file_are_one_line_errors() 
     }
 }
 
-/// Fixing every vertex runs (the state stays at rest) with a warning that nothing can move.
+/// Fixing every vertex, or pressing only fixed ones, runs with a warning that nothing moves.
 #[test]
-fn fixing_every_vertex_warns_that_nothing_moves() {
+fn fixing_every_vertex_or_pressing_only_fixed_ones_warns_that_nothing_moves() {
     let d = tmp("allfixed");
     let all = beam_with("[[fixed]]\nbox = { min = [-1.0, -1.0, -1.0], max = [1.0, 1.0, 1.0] }");
-    for (name, text, warned) in [("all.toml", all.as_str(), true), ("beam.toml", BEAM, false)] {
+    // lv presses its endocardium with its base held; pressing the base instead moves nothing.
+    let lv = include_str!("../scenes/lv.toml");
+    assert_eq!(lv.matches("tag = \"endocardium\"").count(), 1);
+    let on_base = lv.replace("tag = \"endocardium\"", "tag = \"base\"");
+    for (name, text, warning) in [
+        ("all.toml", all.as_str(), Some("holds every vertex")),
+        ("beam.toml", BEAM, None),
+        (
+            "on_base.toml",
+            on_base.as_str(),
+            Some("acts only on fixed vertices"),
+        ),
+        ("lv.toml", lv, None),
+    ] {
         let scene = scene_file(&d, name, text);
         let (ok, out, err) = palpate(&[
             "run",
@@ -263,7 +276,10 @@ fn fixing_every_vertex_warns_that_nothing_moves() {
             d.to_str().unwrap(),
         ]);
         assert!(ok, "{name}: {out}{err}");
-        assert_eq!(err.contains("holds every vertex"), warned, "{name}: {err}");
+        match warning {
+            Some(w) => assert!(err.contains(w), "{name}: {err}"),
+            None => assert!(!err.contains("warning"), "{name}: {err}"),
+        }
     }
 }
 

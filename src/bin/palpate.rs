@@ -297,6 +297,19 @@ fn execute(cli: Cli) -> Result<()> {
                     "warning: {}: [[fixed]] holds every vertex: nothing can move (fix a tag, box or plane of the boundary)",
                     scene.origin
                 );
+            } else {
+                let mut loaded = scene
+                    .external_forces
+                    .iter()
+                    .zip(&scene.fixed)
+                    .filter(|(f, _)| **f != glam::DVec3::ZERO)
+                    .peekable();
+                if loaded.peek().is_some() && loaded.all(|(_, &fixed)| fixed) {
+                    palpate::say_err!(
+                        "warning: {}: [[loads.pressure]] acts only on fixed vertices: it moves nothing",
+                        scene.origin
+                    );
+                }
             }
             if scene
                 .particles
