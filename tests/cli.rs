@@ -1657,6 +1657,17 @@ fn bad_particle_sections_are_one_line_errors_naming_the_key() {
         start.elapsed().as_secs_f64() < 10.0,
         "refused only after building"
     );
+    // A layer of over a million particles that fits is announced before its setup; the
+    // paper's 28,000 are not.
+    let large = with("region = 0\nspacing = 3.3e-4\nactivation_radius = 0.004");
+    let large = palpate::Scene::from_toml(&large, "large.toml", "large", None).unwrap();
+    let note = palpate::sim::large_particle_layer_note(&large).expect("a note");
+    assert!(
+        note.contains("large.toml") && note.contains("about 1.11e6 particles"),
+        "{note}"
+    );
+    let small = palpate::Scene::load("hm1").unwrap();
+    assert_eq!(palpate::sim::large_particle_layer_note(&small), None);
     // With every particle dynamic no radius decides anything: it may be left out.
     let all = scene_file(
         &d,
