@@ -520,10 +520,11 @@ fn truncated_files_are_refused_with_a_location() {
 #[test]
 fn indices_out_of_range_are_refused() {
     let msh = TET_V22.replace("1 2 3 4\n$EndElements", "1 2 3 99\n$EndElements");
+    // The element's own line (13), not the count's before it.
     assert_located(
         &read_err("range", &[("r.msh", msh.as_bytes())]),
         "r.msh",
-        "line 12",
+        "line 13 ($Elements)",
     );
     assert!(read_err("range", &[("r.msh", msh.as_bytes())]).contains("node tag 99"));
     let vtk = TET_VTK.replace("4 0 1 2 3", "4 0 1 2 4");

@@ -386,9 +386,18 @@ impl Reader<'_> {
         Ok(f64::from_bits(uint(b, self.swap)))
     }
 
+    /// Where the next value starts, for its errors: past the spaces and line breaks before it
+    /// in an ASCII file (else an error names the line before it), at the cursor in binary.
+    fn next_value_at(&mut self) -> usize {
+        if !self.c.binary {
+            self.c.skip_ws();
+        }
+        self.c.pos
+    }
+
     /// A coordinate: a finite double.
     fn coordinate(&mut self) -> Result<f64> {
-        let pos = self.c.pos;
+        let pos = self.next_value_at();
         let v = self.double("coordinate")?;
         if !v.is_finite() {
             return Err(self.err(pos, format!("coordinate is not finite ({v})")));
@@ -398,7 +407,7 @@ impl Reader<'_> {
 
     /// A node tag read as an `int` (2.x) and checked to be positive.
     fn int_tag(&mut self, what: &str) -> Result<u64> {
-        let pos = self.c.pos;
+        let pos = self.next_value_at();
         let t = self.int(what)?;
         u64::try_from(t).map_err(|_| self.err(pos, format!("{what} {t} is negative")))
     }
@@ -673,7 +682,7 @@ impl Reader<'_> {
                 Kind::OtherVolume(_) => {}
             }
             for _ in 0..n {
-                let pos = self.c.pos;
+                let pos = self.next_value_at();
                 let elem = self.size("element tag")?;
                 self.element_nodes(nn)?;
                 self.element(pos, elem, &kind, region, bits)?;
@@ -696,7 +705,7 @@ impl Reader<'_> {
         let mut element_tags = Vec::new();
         if !self.c.binary {
             for _ in 0..m {
-                let pos = self.c.pos;
+                let pos = self.next_value_at();
                 let elem = self.int_tag("element number")?;
                 let tpos = self.c.pos;
                 let ty = self.int("element type")?;
@@ -730,7 +739,7 @@ impl Reader<'_> {
                 ));
             }
             for _ in 0..follow {
-                let pos = self.c.pos;
+                let pos = self.next_value_at();
                 let elem = self.int_tag("element number")?;
                 element_tags.clear();
                 for _ in 0..n_tags {
@@ -847,7 +856,7 @@ impl Reader<'_> {
             self.vertex_tags = vec![0; self.positions.len()];
         }
         for _ in 0..n_items {
-            let pos = self.c.pos;
+            let pos = self.next_value_at();
             let tag = self.int_tag(if elements { "element tag" } else { "node tag" })?;
             if elements {
                 let v = DVec3::new(
