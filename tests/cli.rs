@@ -75,6 +75,20 @@ fn assert_scene_refused(dir: &Path, name: &str, text: &str, want: &[&str]) {
 
 const BEAM: &str = include_str!("../scenes/beam.toml");
 
+/// `palpate run SCENE --steps STEPS --backend cpu --out OUT`: success, stdout, stderr.
+fn run_on_cpu(scene: &str, steps: &str, out: &str) -> (bool, String, String) {
+    palpate(&[
+        "run",
+        scene,
+        "--steps",
+        steps,
+        "--backend",
+        "cpu",
+        "--out",
+        out,
+    ])
+}
+
 /// The beam scene with `sections` (TOML) added before its `[solver]`.
 fn beam_with(sections: &str) -> String {
     BEAM.replacen("[solver]", &format!("{sections}\n\n[solver]"), 1)
@@ -89,16 +103,7 @@ fn scene_file(dir: &Path, name: &str, text: &str) -> String {
 #[test]
 fn steps_zero_writes_initial_state_and_summary() {
     let d = tmp("zero");
-    let (ok, out, err) = palpate(&[
-        "run",
-        "beam",
-        "--steps",
-        "0",
-        "--backend",
-        "cpu",
-        "--out",
-        d.to_str().unwrap(),
-    ]);
+    let (ok, out, err) = run_on_cpu("beam", "0", d.to_str().unwrap());
     assert!(ok, "{out}{err}");
     let s = summary(&d);
     for key in [
@@ -265,16 +270,7 @@ fn fixing_every_vertex_or_pressing_only_fixed_ones_warns_that_nothing_moves() {
         ("lv.toml", lv, None),
     ] {
         let scene = scene_file(&d, name, text);
-        let (ok, out, err) = palpate(&[
-            "run",
-            &scene,
-            "--steps",
-            "2",
-            "--backend",
-            "cpu",
-            "--out",
-            d.to_str().unwrap(),
-        ]);
+        let (ok, out, err) = run_on_cpu(&scene, "2", d.to_str().unwrap());
         assert!(ok, "{name}: {out}{err}");
         match warning {
             Some(w) => assert!(err.contains(w), "{name}: {err}"),
@@ -294,16 +290,7 @@ fn particles_without_a_tool_warn_that_none_wakes() {
         ("awake.toml", "\nactivation = \"all\"", false),
     ] {
         let scene = scene_file(&d, name, &beam_with(&format!("{particles}{extra}")));
-        let (ok, out, err) = palpate(&[
-            "run",
-            &scene,
-            "--steps",
-            "2",
-            "--backend",
-            "cpu",
-            "--out",
-            d.to_str().unwrap(),
-        ]);
+        let (ok, out, err) = run_on_cpu(&scene, "2", d.to_str().unwrap());
         assert!(ok, "{name}: {out}{err}");
         assert_eq!(
             err.contains("warning:") && err.contains("[particles] without a [tool]"),
@@ -693,16 +680,7 @@ fn a_scene_runs_on_a_gmsh_file_with_scale_tags_and_regions() {
             && out.contains("volume 1.600000e-5"),
         "{out}"
     );
-    let (ok, out, err) = palpate(&[
-        "run",
-        &path,
-        "--steps",
-        "50",
-        "--backend",
-        "cpu",
-        "--out",
-        d.to_str().unwrap(),
-    ]);
+    let (ok, out, err) = run_on_cpu(&path, "50", d.to_str().unwrap());
     assert!(ok, "{out}{err}");
     let s = summary(&d);
     assert_eq!(s["tets"], 200);
@@ -1253,16 +1231,7 @@ fn a_tool_that_starts_inside_the_tissue_is_warned_about() {
         ));
         let path = scene_file(&d, &format!("inside{i}.toml"), &text);
         let out = d.join(format!("out{i}"));
-        let (ok, _, err) = palpate(&[
-            "run",
-            &path,
-            "--steps",
-            "1",
-            "--backend",
-            "cpu",
-            "--out",
-            out.to_str().unwrap(),
-        ]);
+        let (ok, _, err) = run_on_cpu(&path, "1", out.to_str().unwrap());
         assert!(ok, "{at}: {err}");
         let warning = err
             .lines()
@@ -1674,16 +1643,7 @@ fn bad_particle_sections_are_one_line_errors_naming_the_key() {
         "all.toml",
         &with("region = 0\nspacing = 0.004\nactivation = \"all\""),
     );
-    let (ok, _, err) = palpate(&[
-        "run",
-        &all,
-        "--steps",
-        "2",
-        "--backend",
-        "cpu",
-        "--out",
-        d.join("all").to_str().unwrap(),
-    ]);
+    let (ok, _, err) = run_on_cpu(&all, "2", d.join("all").to_str().unwrap());
     assert!(ok, "{err}");
 }
 

@@ -464,7 +464,8 @@ pub(super) fn read(path: &Path) -> Result<TetMesh> {
                             }
                         };
                         let mut p = Piece::new(tag.pos);
-                        p.declared = (count("NumberOfPoints")?, count("NumberOfCells")?);
+                        p.declared_points = count("NumberOfPoints")?;
+                        p.declared_cells = count("NumberOfCells")?;
                         piece = Some(p);
                         first_piece.get_or_insert(tag.pos);
                     }
@@ -584,14 +585,17 @@ struct Piece {
     types: Option<(usize, Vec<f64>)>,
     point_data: Vec<Array>,
     cell_data: Vec<Array>,
-    /// The tag's NumberOfPoints and NumberOfCells, where given.
-    declared: (Option<usize>, Option<usize>),
+    /// The tag's NumberOfPoints, where given.
+    declared_points: Option<usize>,
+    /// The tag's NumberOfCells, where given.
+    declared_cells: Option<usize>,
 }
 
 impl Piece {
     fn new(pos: usize) -> Self {
         Piece {
-            declared: (None, None),
+            declared_points: None,
+            declared_cells: None,
             pos,
             points: None,
             connectivity: None,
@@ -629,13 +633,12 @@ impl Piece {
             )
         };
         if let Some(n) = self
-            .declared
-            .0
+            .declared_points
             .filter(|&n| n.checked_mul(3) != Some(coords.len()))
         {
             return Err(disagree("NumberOfPoints", n, "Points", coords.len() / 3));
         }
-        if let Some(n) = self.declared.1.filter(|&n| n != cells.types.len()) {
+        if let Some(n) = self.declared_cells.filter(|&n| n != cells.types.len()) {
             return Err(disagree("NumberOfCells", n, "types", cells.types.len()));
         }
         merge(mesh, part).map_err(|m| c.err(self.pos, m))
