@@ -68,9 +68,13 @@ pub enum PalpateError {
         /// What was tried.
         detail: String,
     },
-    /// The mesh does not fit in the adapter's buffer limits.
-    #[error("mesh too big for the GPU adapter '{adapter}': buffer '{buffer}' needs {bytes} bytes but the adapter allows {limit} bytes per {what}")]
+    /// The mesh or its particle layer does not fit in the adapter's buffer limits.
+    #[error("{subject} too big for the GPU adapter '{adapter}': buffer '{buffer}' needs {bytes} bytes but the adapter allows {limit} bytes per {what}{advice}")]
     TooBigForAdapter {
+        /// What is too big: `mesh` or `particle layer`.
+        subject: String,
+        /// What to change, with a leading separator ("" when there is nothing to add).
+        advice: String,
         /// Adapter name.
         adapter: String,
         /// Which buffer.

@@ -655,7 +655,40 @@ fn mesh_too_big_for_the_adapter_is_a_clear_error() {
         Err(e) => e.to_string(),
     };
     assert!(
-        err.contains("too big") && err.contains("corner_forces") && err.contains("65536"),
+        err.starts_with("mesh too big")
+            && err.contains("corner_forces")
+            && err.contains("65536")
+            && !err.contains("particles."),
+        "{err}"
+    );
+    assert_eq!(err.lines().count(), 1);
+}
+
+#[test]
+fn a_particle_layer_too_big_for_the_adapter_names_the_keys_that_size_it() {
+    use palpate::gpu::{GpuContext, GpuStepper};
+    let mut ctx = GpuContext::new()
+        .unwrap_or_else(|e| panic!("{e}; install mesa-vulkan-drivers for a software adapter"));
+    // Pretend the adapter allows only 64 KiB per storage binding: the 192 tets' buffers fit
+    // (corner forces 9 KiB), the 4,000 particles' 9-float arrays (144 KiB) do not.
+    ctx.limits.max_storage_buffer_binding_size = 1 << 16;
+    let text = "[mesh]\ngenerator = \"beam\"\nsize = [0.02, 0.02, 0.01]\ncells = [4, 4, 2]\n[material]\nyoungs_modulus = 3.0e4\npoisson_ratio = 0.3\ndensity = 1000.0\n[[fixed]]\nplane = { normal = [0.0, 0.0, 1.0], offset = 0.0 }\n[particles]\nregion = 0\nspacing = 0.001\nactivation_radius = 0.003\n";
+    let scene = palpate::Scene::from_toml(text, "block", "block", None).unwrap();
+    let model = palpate::model::Model::from_scene(&scene);
+    assert_eq!(model.particles.as_ref().map(|p| p.len()), Some(4000));
+    let err = match GpuStepper::new(
+        std::sync::Arc::new(ctx),
+        &model,
+        model.step_params(0.5 * model.bounds.dt_bound, 0.0),
+    ) {
+        Ok(_) => panic!("4,000 particles' arrays must not fit a 64 KiB binding"),
+        Err(e) => e.to_string(),
+    };
+    assert!(
+        err.starts_with("particle layer too big for the GPU adapter")
+            && err.contains("particles.spacing")
+            && err.contains("particles.kernel_radius")
+            && err.contains("65536"),
         "{err}"
     );
     assert_eq!(err.lines().count(), 1);

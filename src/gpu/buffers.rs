@@ -100,14 +100,28 @@ pub struct GpuBuffers {
     buffers: Vec<(&'static str, Usage, wgpu::Buffer)>,
 }
 
+/// The buffer groups sized by the particle layer (its particle count and neighbour slots),
+/// whose overflow `particles.spacing` and `particles.kernel_radius` decide.
+const PARTICLE_GROUPS: [&str; 5] = [
+    "particles",
+    "neighbour lists",
+    "particle step",
+    "particle stand-ins",
+    "exact coupling",
+];
+
 /// Refuse a set of groups that does not fit the adapter: a storage buffer above the
 /// storage-binding limit, a uniform above the uniform-binding limit, any buffer above the
-/// buffer-size limit. The largest offender is named.
+/// buffer-size limit. The largest offender is named, and a particle layer's overflow names
+/// the scene keys that size it.
 pub fn check_limits(ctx: &GpuContext, groups: &[BufferGroup]) -> Result<()> {
     let l = &ctx.limits;
-    let mut all: Vec<&BufferSpec> = groups.iter().flat_map(|g| g.specs.iter()).collect();
-    all.sort_by_key(|s| std::cmp::Reverse(s.bytes));
-    for s in all {
+    let mut all: Vec<(&str, &BufferSpec)> = groups
+        .iter()
+        .flat_map(|g| g.specs.iter().map(move |s| (g.name, s)))
+        .collect();
+    all.sort_by_key(|(_, s)| std::cmp::Reverse(s.bytes));
+    for (group, s) in all {
         let (limit, what) = match s.usage {
             Usage::Uniform => (
                 l.max_uniform_buffer_binding_size.min(l.max_buffer_size),
@@ -119,7 +133,14 @@ pub fn check_limits(ctx: &GpuContext, groups: &[BufferGroup]) -> Result<()> {
             ),
         };
         if s.bytes > limit {
+            let particles = PARTICLE_GROUPS.contains(&group);
             return Err(PalpateError::TooBigForAdapter {
+                subject: if particles { "particle layer" } else { "mesh" }.into(),
+                advice: if particles {
+                    "; raise particles.spacing or lower particles.kernel_radius, or run with --backend cpu".into()
+                } else {
+                    String::new()
+                },
                 adapter: ctx.info.name.clone(),
                 buffer: s.name.into(),
                 bytes: s.bytes,
