@@ -72,9 +72,9 @@ pub enum PalpateError {
     #[error("{subject} too big for the GPU adapter '{adapter}': buffer '{buffer}' needs {bytes} bytes but the adapter allows {limit} bytes per {what}{advice}")]
     TooBigForAdapter {
         /// What is too big: `mesh` or `particle layer`.
-        subject: String,
+        subject: &'static str,
         /// What to change, with a leading separator ("" when there is nothing to add).
-        advice: String,
+        advice: &'static str,
         /// Adapter name.
         adapter: String,
         /// Which buffer.
@@ -84,7 +84,7 @@ pub enum PalpateError {
         /// The adapter's limit.
         limit: u64,
         /// Which limit (binding or buffer).
-        what: String,
+        what: &'static str,
     },
     /// A wgpu call failed (device lost, validation error, out of memory).
     #[error("GPU error: {0}")]

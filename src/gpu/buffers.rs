@@ -135,17 +135,17 @@ pub fn check_limits(ctx: &GpuContext, groups: &[BufferGroup]) -> Result<()> {
         if s.bytes > limit {
             let particles = PARTICLE_GROUPS.contains(&group);
             return Err(PalpateError::TooBigForAdapter {
-                subject: if particles { "particle layer" } else { "mesh" }.into(),
+                subject: if particles { "particle layer" } else { "mesh" },
                 advice: if particles {
-                    "; raise particles.spacing or lower particles.kernel_radius, or run with --backend cpu".into()
+                    "; raise particles.spacing or lower particles.kernel_radius, or run with --backend cpu"
                 } else {
-                    String::new()
+                    ""
                 },
                 adapter: ctx.info.name.clone(),
                 buffer: s.name.into(),
                 bytes: s.bytes,
                 limit,
-                what: what.into(),
+                what,
             });
         }
     }
