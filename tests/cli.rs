@@ -636,24 +636,32 @@ fn dt_above_the_bound_is_refused_unless_allowed_and_divergence_is_caught() {
     );
 }
 
+/// The error of a GPU stepper for `model` on an adapter that pretends to allow only 64 KiB
+/// per storage binding; `too_big` says what must not fit, for the panic when it does.
+fn stepper_error_under_a_64_kib_binding(
+    model: &palpate::model::Model,
+    params: palpate::params::StepParams,
+    too_big: &str,
+) -> String {
+    use palpate::gpu::{GpuContext, GpuStepper};
+    let mut ctx = GpuContext::new()
+        .unwrap_or_else(|e| panic!("{e}; install mesa-vulkan-drivers for a software adapter"));
+    ctx.limits.max_storage_buffer_binding_size = 1 << 16;
+    match GpuStepper::new(std::sync::Arc::new(ctx), model, params) {
+        Ok(_) => panic!("{too_big} must not fit a 64 KiB binding"),
+        Err(e) => e.to_string(),
+    }
+}
+
 #[test]
 fn mesh_too_big_for_the_adapter_is_a_clear_error() {
-    use palpate::gpu::{GpuContext, GpuStepper};
-    let ctx = GpuContext::new()
-        .unwrap_or_else(|e| panic!("{e}; install mesa-vulkan-drivers for a software adapter"));
-    let mut ctx = ctx;
-    // Pretend the adapter allows only 64 KiB per storage binding.
-    ctx.limits.max_storage_buffer_binding_size = 1 << 16;
     let scene = palpate::Scene::load("beam").unwrap();
     let model = palpate::model::Model::from_scene(&scene);
-    let err = match GpuStepper::new(
-        std::sync::Arc::new(ctx),
+    let err = stepper_error_under_a_64_kib_binding(
         &model,
         model.step_params(1e-5, 0.0),
-    ) {
-        Ok(_) => panic!("a 92 KiB corner-force buffer must not fit a 64 KiB binding"),
-        Err(e) => e.to_string(),
-    };
+        "a 92 KiB corner-force buffer",
+    );
     assert!(
         err.starts_with("mesh too big")
             && err.contains("corner_forces")
@@ -666,24 +674,17 @@ fn mesh_too_big_for_the_adapter_is_a_clear_error() {
 
 #[test]
 fn a_particle_layer_too_big_for_the_adapter_names_the_keys_that_size_it() {
-    use palpate::gpu::{GpuContext, GpuStepper};
-    let mut ctx = GpuContext::new()
-        .unwrap_or_else(|e| panic!("{e}; install mesa-vulkan-drivers for a software adapter"));
-    // Pretend the adapter allows only 64 KiB per storage binding: the 192 tets' buffers fit
-    // (corner forces 9 KiB), the 4,000 particles' 9-float arrays (144 KiB) do not.
-    ctx.limits.max_storage_buffer_binding_size = 1 << 16;
+    // Under a 64 KiB binding the 192 tets' buffers fit (corner forces 9 KiB), the 4,000
+    // particles' 9-float arrays (144 KiB) do not.
     let text = "[mesh]\ngenerator = \"beam\"\nsize = [0.02, 0.02, 0.01]\ncells = [4, 4, 2]\n[material]\nyoungs_modulus = 3.0e4\npoisson_ratio = 0.3\ndensity = 1000.0\n[[fixed]]\nplane = { normal = [0.0, 0.0, 1.0], offset = 0.0 }\n[particles]\nregion = 0\nspacing = 0.001\nactivation_radius = 0.003\n";
     let scene = palpate::Scene::from_toml(text, "block", "block", None).unwrap();
     let model = palpate::model::Model::from_scene(&scene);
     assert_eq!(model.particles.as_ref().map(|p| p.len()), Some(4000));
-    let err = match GpuStepper::new(
-        std::sync::Arc::new(ctx),
+    let err = stepper_error_under_a_64_kib_binding(
         &model,
         model.step_params(0.5 * model.bounds.dt_bound, 0.0),
-    ) {
-        Ok(_) => panic!("4,000 particles' arrays must not fit a 64 KiB binding"),
-        Err(e) => e.to_string(),
-    };
+        "4,000 particles' arrays",
+    );
     assert!(
         err.starts_with("particle layer too big for the GPU adapter")
             && err.contains("particles.spacing")
