@@ -256,6 +256,22 @@ fn dt_source(scene: &Scene, override_dt: Option<f64>) -> &'static str {
 impl Simulation {
     /// Build a simulation of `scene` on `backend`.
     pub fn new(scene: &Scene, backend: Backend, opts: SimOptions) -> Result<Simulation> {
+        // A mesh too big for this machine's memory to build and step is refused before the
+        // model is built (an allocation failure aborts with nothing written).
+        if let Some(why) = crate::cpu::memory::available_memory().and_then(|free| {
+            crate::cpu::memory::tets_over_memory(
+                scene.mesh.tets.len() as f64,
+                crate::cpu::memory::RUN_BYTES_PER_TET,
+                "build and run",
+                free,
+            )
+        }) {
+            return Err(PalpateError::SceneValue {
+                origin: scene.origin.clone(),
+                item: "mesh".into(),
+                message: why,
+            });
+        }
         // On the CPU backend, a particle layer too big for this machine is refused from the
         // scene's estimate before minutes of sampling (and after it, from the count).
         if let (Backend::Cpu, Some(p), Some(free)) = (

@@ -672,6 +672,70 @@ fn mesh_too_big_for_the_adapter_is_a_clear_error() {
     assert_eq!(err.lines().count(), 1);
 }
 
+/// `palpate ARGS` with `PALPATE_MEMORY_BYTES` set to `bytes`: success, stderr.
+fn palpate_with_memory(bytes: &str, args: &[&str]) -> (bool, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_palpate"))
+        .args(args)
+        .env("PALPATE_MEMORY_BYTES", bytes)
+        .output()
+        .expect("run palpate");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn a_mesh_too_big_for_the_memory_is_refused_before_it_is_built() {
+    // lv at resolution 10 is 96,000 tets: ~24 MB to generate, ~72 MB to build and run.
+    let d = tmp("memory");
+    let lv = include_str!("../scenes/lv.toml").replace("resolution = 3 ", "resolution = 10 ");
+    let path = scene_file(&d, "lv10.toml", &lv);
+    let out = d.join("out");
+    let run = |bytes: &str| {
+        palpate_with_memory(
+            bytes,
+            &[
+                "run",
+                &path,
+                "--steps",
+                "1",
+                "--backend",
+                "cpu",
+                "--out",
+                out.to_str().unwrap(),
+            ],
+        )
+    };
+    // Too little to generate it: named by the key that sizes it, nothing written.
+    let (ok, err) = run("1e7");
+    let lines = error_lines(&err);
+    assert!(!ok && lines.len() == 1, "{err}");
+    assert!(
+        lines[0].contains(&path)
+            && lines[0].contains("mesh.resolution: makes 9.600e4 tets")
+            && lines[0].contains("to generate and validate")
+            && lines[0].contains("PALPATE_MEMORY_BYTES"),
+        "{err}"
+    );
+    assert!(!out.exists());
+    // Enough to generate but not to run: refused before the model is built.
+    let (ok, err) = run("5e7");
+    let lines = error_lines(&err);
+    assert!(!ok && lines.len() == 1, "{err}");
+    assert!(
+        lines[0].contains("mesh: makes 9.600e4 tets") && lines[0].contains("to build and run"),
+        "{err}"
+    );
+    // `palpate mesh` needs only the first.
+    let (ok, err) = palpate_with_memory("5e7", &["mesh", &path]);
+    assert!(ok, "{err}");
+    // Enough for both: it runs.
+    let (ok, err) = run("1e9");
+    assert!(ok, "{err}");
+    assert!(out.join("summary.json").exists());
+}
+
 #[test]
 fn a_particle_layer_too_big_for_the_adapter_names_the_keys_that_size_it() {
     // Under a 64 KiB binding the 192 tets' buffers fit (corner forces 9 KiB), the 4,000

@@ -1,6 +1,13 @@
-//! What the CPU backend's particle layer will take of the machine's memory, checked before
-//! it is built: a spacing fine enough to make tens of millions of particles otherwise runs
-//! minutes of setup and then aborts on a failed allocation.
+//! What a mesh and the CPU backend's particle layer will take of the machine's memory,
+//! checked before they are built: a resolution or spacing fine enough to make tens of
+//! millions of tets or particles otherwise runs minutes of setup and then aborts on a failed
+//! allocation (exit 134, with nothing written).
+//!
+//! Measured (2026-11-28, the 2-core VM, peak resident memory of the `lv` generator at
+//! resolution 20 and 30, 0.77 M and 2.59 M tets): `palpate mesh` 215 and 197 bytes per tet,
+//! `palpate run --steps 1` 410 and 380 on the CPU backend and 670 and 560 on the GPU backend
+//! through the software adapter (whose "GPU" buffers are host memory), which
+//! [`MESH_BYTES_PER_TET`] and [`RUN_BYTES_PER_TET`] round up.
 //!
 //! Measured (2026-11-28, the 2-core VM; `palpate run --backend cpu --steps 1`, peak resident
 //! memory of 989,740 particles on a 768-tet LV): 1.07 GB at kernel_radius 1.95 (26
@@ -16,6 +23,13 @@ pub const BYTES_PER_PARTICLE: f64 = 400.0;
 
 /// Bytes per neighbour slot (measured 29).
 pub const BYTES_PER_NEIGHBOUR: f64 = 35.0;
+
+/// Bytes per tet to generate (or read) and validate a mesh (measured ≤ 215).
+pub const MESH_BYTES_PER_TET: f64 = 250.0;
+
+/// Bytes per tet to build and step the model, the mesh included: the GPU backend's figure on
+/// a software adapter (measured ≤ 670; the CPU backend ≤ 410).
+pub const RUN_BYTES_PER_TET: f64 = 750.0;
 
 /// Lattice neighbours within `kernel_radius` spacings of a particle of a full cubic lattice
 /// (26 at 1.95, 56 at 2.4): the particles' average slot count, a little over it at a surface.
@@ -42,9 +56,20 @@ pub fn particle_bytes(n: f64, settings: &ParticleSettings) -> f64 {
     n * (BYTES_PER_PARTICLE + BYTES_PER_NEIGHBOUR * slots)
 }
 
-/// The memory this machine has free for a new allocation, bytes (`MemAvailable` of
-/// `/proc/meminfo`; None where that cannot be read).
+/// Environment variable that sets the memory palpate may plan to use, bytes, in place of
+/// the machine's `MemAvailable` (for a shared machine, or a test of these checks).
+pub const MEMORY_ENV: &str = "PALPATE_MEMORY_BYTES";
+
+/// The memory palpate may plan to use, bytes: [`MEMORY_ENV`] where it is set to a positive
+/// number, else `MemAvailable` of `/proc/meminfo` (None where neither can be read).
 pub fn available_memory() -> Option<f64> {
+    if let Some(v) = std::env::var(MEMORY_ENV)
+        .ok()
+        .and_then(|v| v.trim().parse::<f64>().ok())
+        .filter(|v| v.is_finite() && *v > 0.0)
+    {
+        return Some(v);
+    }
     let text = std::fs::read_to_string("/proc/meminfo").ok()?;
     let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
     let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
@@ -77,6 +102,25 @@ pub fn check_particles_fit(
             settings.kernel_radius,
             available / 1e9
         ),
+    })
+}
+
+/// Why a mesh of `tets` tets cannot be afforded: it would need more than `available` bytes
+/// at `bytes_per_tet` to `purpose` (e.g. "generate and validate"); None where it fits. The
+/// caller names the key or file that sizes the mesh.
+pub fn tets_over_memory(
+    tets: f64,
+    bytes_per_tet: f64,
+    purpose: &str,
+    available: f64,
+) -> Option<String> {
+    let need = tets * bytes_per_tet;
+    (need > available).then(|| {
+        format!(
+            "makes {tets:.3e} tets, which need about {:.1} GB to {purpose}; this machine has {:.1} GB available (set {MEMORY_ENV} to plan for another amount): use a coarser mesh",
+            need / 1e9,
+            available / 1e9
+        )
     })
 }
 
@@ -120,6 +164,21 @@ mod tests {
             e.contains("s.toml")
                 && e.contains("particles.spacing")
                 && e.contains("about 1.000e6 particles"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn a_mesh_over_the_memory_is_refused_with_its_figures() {
+        let need = 1e6 * MESH_BYTES_PER_TET;
+        assert!(tets_over_memory(1e6, MESH_BYTES_PER_TET, "x", need).is_none());
+        let e =
+            tets_over_memory(1e6, MESH_BYTES_PER_TET, "generate and validate", 0.5 * need).unwrap();
+        assert!(
+            e.contains("1.000e6 tets")
+                && e.contains("0.2 GB to generate and validate")
+                && e.contains("0.1 GB available")
+                && e.contains(MEMORY_ENV),
             "{e}"
         );
     }

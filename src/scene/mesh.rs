@@ -110,6 +110,7 @@ pub(super) fn build_mesh(
             let mesh = crate::mesh::io::read(&path)?;
             // Its tets' errors name the file they are in.
             let from = format!("{origin}: mesh file {}", path.display());
+            check_memory(mesh.tets.len(), "mesh.file", "validate", bad)?;
             return finish(mesh, spec, &from, bad);
         }
         (Some(g), None) => match g.as_str() {
@@ -250,14 +251,28 @@ fn finish(
     Ok((mesh, report))
 }
 
-/// Refuse a generator whose tet count (the product of `factors`) exceeds the limit or
-/// overflows.
+/// Refuse a generator whose tet count (the product of `factors`) exceeds the limit,
+/// overflows, or would not fit in the memory available to generate and validate it.
 fn check_count(factors: &[usize], item: &str, bad: &Bad) -> Result<()> {
     match factors.iter().try_fold(1usize, |a, &x| a.checked_mul(x)) {
-        Some(tets) if tets <= MAX_GENERATED_TETS => Ok(()),
+        Some(tets) if tets <= MAX_GENERATED_TETS => {
+            check_memory(tets, item, "generate and validate", bad)
+        }
         _ => Err(bad(
             item,
             format!("would make more than the limit of {MAX_GENERATED_TETS} tets"),
         )),
+    }
+}
+
+/// Refuse a mesh of `tets` tets that the memory available could not take to `purpose`,
+/// naming `item`.
+fn check_memory(tets: usize, item: &str, purpose: &str, bad: &Bad) -> Result<()> {
+    use crate::cpu::memory::{available_memory, tets_over_memory, MESH_BYTES_PER_TET};
+    match available_memory()
+        .and_then(|free| tets_over_memory(tets as f64, MESH_BYTES_PER_TET, purpose, free))
+    {
+        Some(why) => Err(bad(item, why)),
+        None => Ok(()),
     }
 }
