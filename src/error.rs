@@ -51,7 +51,9 @@ pub enum PalpateError {
         message: String,
     },
     /// A requested time step exceeds the stability bound.
-    #[error("{given} = {dt:.3e} s is above the stability bound {bound:.3e} s ({detail}); use a smaller --dt or dt = \"auto\" (`palpate run --allow-unstable` runs it anyway)")]
+    #[error(
+        "{given} = {dt:.3e} s is above the stability bound {bound:.3e} s ({detail}); {advice}"
+    )]
     UnstableTimeStep {
         /// Where the step was given: `--dt`, or the scene file and `solver.dt`.
         given: String,
@@ -61,6 +63,9 @@ pub enum PalpateError {
         bound: f64,
         /// How the bound was computed.
         detail: String,
+        /// What to do, in the terms of the command that refused it (`run` has `--dt` and
+        /// `--allow-unstable`, `haptic` only the scene's `solver.dt`).
+        advice: &'static str,
     },
     /// No GPU adapter (hardware or software) could be found.
     #[error("no GPU adapter found ({detail}); install a software Vulkan adapter with `apt-get install -y mesa-vulkan-drivers`, or run with --backend cpu")]

@@ -308,6 +308,7 @@ pub fn run_with_state(
         SimOptions {
             dt: opts.dt,
             allow_unstable: opts.allow_unstable,
+            dt_flags: true,
             gpu: None,
             threads: opts.threads,
             step_on_this_thread: false,

@@ -97,6 +97,9 @@ pub struct SimOptions {
     pub dt: Option<f64>,
     /// Accept a dt above the stability bound.
     pub allow_unstable: bool,
+    /// The command takes `--dt` and `--allow-unstable` (`palpate run`), which the advice of a
+    /// dt above the bound then names; else it names only the scene's `solver.dt`.
+    pub dt_flags: bool,
     /// A GPU context to reuse (else one is opened for the GPU backend).
     pub gpu: Option<Arc<GpuContext>>,
     /// CPU backend threads (None: all cores).
@@ -214,12 +217,14 @@ struct BatchStart {
 }
 
 /// The time step a scene runs at: `override_dt`, else the scene's dt, else safety × bound.
-/// A given dt above the bound is refused unless `allow_unstable`.
+/// A given dt above the bound is refused unless `allow_unstable`, with advice that names
+/// `--dt` and `--allow-unstable` where the command has them (`dt_flags`).
 pub fn choose_dt(
     scene: &Scene,
     model: &Model,
     override_dt: Option<f64>,
     allow_unstable: bool,
+    dt_flags: bool,
 ) -> Result<f64> {
     let bound = model.bounds.dt_bound;
     match override_dt.or(scene.solver.dt) {
@@ -236,6 +241,11 @@ pub fn choose_dt(
             dt,
             bound,
             detail: model.bounds.describe(),
+            advice: if dt_flags {
+                "use a smaller --dt or dt = \"auto\" (`palpate run --allow-unstable` runs it anyway)"
+            } else {
+                "use a smaller solver.dt or dt = \"auto\" in the scene"
+            },
         }),
         Some(dt) => Ok(dt),
     }
@@ -289,7 +299,7 @@ impl Simulation {
         model
             .check_f32()
             .map_err(|e| PalpateError::Usage(format!("{}: {e}", scene.origin)))?;
-        let dt = choose_dt(scene, &model, opts.dt, opts.allow_unstable)?;
+        let dt = choose_dt(scene, &model, opts.dt, opts.allow_unstable, opts.dt_flags)?;
         if !(dt as f32 > 0.0 && (dt as f32).is_finite()) {
             return Err(PalpateError::Usage(format!(
                 "{}: {} = {dt:e} s is not a positive single-precision number",

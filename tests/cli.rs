@@ -1256,6 +1256,38 @@ fn an_output_path_that_cannot_be_written_fails_before_the_work() {
 }
 
 #[test]
+fn a_haptic_scene_dt_above_the_bound_advises_only_what_haptic_takes() {
+    let d = tmp("hapticdt");
+    let scene = scene_file(
+        &d,
+        "fast_touch.toml",
+        &include_str!("../scenes/lv_touch.toml").replacen("dt = \"auto\"", "dt = 1.0e-2", 1),
+    );
+    let out = d.join("out");
+    let (ok, _, err) = palpate(&[
+        "haptic",
+        &scene,
+        "--device",
+        "null",
+        "--seconds",
+        "0.1",
+        "--backend",
+        "cpu",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let lines = error_lines(&err);
+    assert!(!ok && lines.len() == 1, "{err}");
+    assert!(
+        lines[0].contains("fast_touch.toml: solver.dt = 1.000e-2 s")
+            && lines[0].contains("use a smaller solver.dt or dt = \"auto\"")
+            && !lines[0].contains("--dt")
+            && !lines[0].contains("--allow-unstable"),
+        "{err}"
+    );
+}
+
+#[test]
 fn haptic_session_lengths_are_checked_before_the_session() {
     let d = tmp("hapticlength");
     let zero = d.join("zero.csv");

@@ -1437,7 +1437,7 @@ fn multi_rate_steps_are_bit_identical_on_one_and_two_threads() {
         (all, dynamic)
     };
     let m = Model::from_scene(&scene);
-    let dt = palpate::sim::choose_dt(&scene, &m, None, false).unwrap();
+    let dt = palpate::sim::choose_dt(&scene, &m, None, false, false).unwrap();
     assert!(m.particle_substeps(dt) >= 2, "not a multi-rate scene");
     let ((one, dynamic), (two, _)) = (run(1), run(2));
     assert!(dynamic > 0, "no particle woke");
@@ -1454,7 +1454,7 @@ fn multi_rate_steps_are_bit_identical_on_one_and_two_threads() {
 fn particle_substeps_are_planned_run_and_match_between_backends() {
     let scene = soft_pressed_block(10);
     let m = Model::from_scene(&scene);
-    let dt = palpate::sim::choose_dt(&scene, &m, None, false).unwrap();
+    let dt = palpate::sim::choose_dt(&scene, &m, None, false, false).unwrap();
     let s = m.particle_substeps(dt);
     eprintln!(
         "core dt {dt:.3e} s (bound {:.3e} s), particle bound {:.3e} s: {s} sub-steps",
@@ -1580,7 +1580,7 @@ fn contact_damping_shortens_the_particle_sub_step() {
         (bound / want - 1.0).abs() < 1e-9,
         "bound {bound:e} s, formula {want:e} s"
     );
-    let dt = palpate::sim::choose_dt(&scene, &m, None, false).unwrap();
+    let dt = palpate::sim::choose_dt(&scene, &m, None, false, false).unwrap();
     let s = m.particle_substeps(dt);
     let undamped = p.dt_bound(&m.material, Some((k, 0.0)));
     eprintln!(
@@ -1615,7 +1615,7 @@ fn contact_damping_shortens_the_particle_sub_step() {
 fn particle_substeps_agree_with_a_core_step_divided_as_much() {
     let multi = soft_pressed_block(10);
     let m = Model::from_scene(&multi);
-    let dt = palpate::sim::choose_dt(&multi, &m, None, false).unwrap();
+    let dt = palpate::sim::choose_dt(&multi, &m, None, false, false).unwrap();
     let s = m.particle_substeps(dt);
     assert_eq!(s, 3);
     assert_eq!(

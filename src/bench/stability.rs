@@ -333,7 +333,7 @@ pub fn study(opts: &StabilityOptions, progress: &mut dyn FnMut(&str)) -> Result<
     progress(&format!("(e) ed0 for {} steps", opts.ed0_steps));
     let scene = Scene::load("ed0")?;
     let model = Arc::new(Model::from_scene(&scene));
-    let dt = crate::sim::choose_dt(&scene, &model, None, false)?;
+    let dt = crate::sim::choose_dt(&scene, &model, None, false, false)?;
     let mut s = sim(&model, b, dt, 0.0)?;
     let mut done = 0u64;
     let (mut e_max, mut el_max) = (0.0f64, 0.0f64);
