@@ -478,6 +478,11 @@ fn bad_scene_values_give_one_line_errors_naming_file_and_key() {
             "viscosity = [0.0, 0.0]",
             "viscosity = [0.0]",
             &["viscosity", "2 values"],
+        ),        // The beam's mesh has no tags: said so, without listing tags it does not have.
+        (
+            "plane = { normal = [1.0, 0.0, 0.0], offset = 0.0 }",
+            "tag = \"epicardium\"",
+            &["fixed[0].tag: this mesh carries no vertex tags, so tag 'epicardium' selects nothing"],
         ),
     ];
     for (i, (from, to, want)) in cases.iter().enumerate() {
@@ -489,6 +494,13 @@ fn bad_scene_values_give_one_line_errors_naming_file_and_key() {
             want,
         );
     }
+    // A tagged mesh (the lv) with a tag it does not know: the known ones are listed.
+    assert_scene_refused(
+        &d,
+        "lv_apex.toml",
+        &include_str!("../scenes/lv.toml").replacen("tag = \"base\"", "tag = \"apex\"", 1),
+        &["fixed[0].tag: unknown tag 'apex' (known: endocardium, epicardium, base)"],
+    );
 }
 
 #[test]

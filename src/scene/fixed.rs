@@ -67,19 +67,19 @@ pub(super) fn unit_normal(plane: &PlaneSpec, item: &str, bad: &Bad) -> Result<DV
 /// The vertex-tag bit of surface tag `name`; an unknown tag, or a mesh without vertex tags,
 /// is an error naming `{item}.tag`.
 pub(super) fn tag_bit(name: &str, mesh: &TetMesh, item: &str, bad: &Bad) -> Result<u32> {
-    let bit = tags::by_name(name).ok_or_else(|| {
+    // A mesh without tags is named first: listing the known tags would suggest they exist.
+    if mesh.vertex_tags.is_empty() {
+        return Err(bad(
+            &format!("{item}.tag"),
+            format!("this mesh carries no vertex tags, so tag '{name}' selects nothing"),
+        ));
+    }
+    tags::by_name(name).ok_or_else(|| {
         bad(
             &format!("{item}.tag"),
             format!("unknown tag '{name}' (known: endocardium, epicardium, base)"),
         )
-    })?;
-    if mesh.vertex_tags.is_empty() {
-        return Err(bad(
-            &format!("{item}.tag"),
-            "this mesh carries no vertex tags".into(),
-        ));
-    }
-    Ok(bit)
+    })
 }
 
 pub(super) fn select_fixed(specs: &[FixedSpec], mesh: &TetMesh, bad: &Bad) -> Result<Vec<bool>> {
