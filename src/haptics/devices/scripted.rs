@@ -55,11 +55,17 @@ impl Trajectory {
     /// Parse trajectory CSV text; `origin` (the file name) prefixes every error, which is one
     /// line `origin: line N: what`.
     pub fn parse(text: &str, origin: &str) -> Result<Trajectory> {
+        Self::parse_rows(text, origin).map(|(trajectory, _)| trajectory)
+    }
+
+    /// [`Trajectory::parse`], with the text's line number of each row (for later errors).
+    fn parse_rows(text: &str, origin: &str) -> Result<(Trajectory, Vec<usize>)> {
         let err = |line: usize, what: String| {
             PalpateError::Usage(format!("{origin}: line {line}: {what}"))
         };
         let mut times = Vec::new();
         let mut points = Vec::new();
+        let mut lines = Vec::new();
         let mut seen_content = false;
         // A byte-order mark (spreadsheets write one) is not part of the header.
         let text = text.strip_prefix('\u{feff}').unwrap_or(text);
@@ -131,13 +137,14 @@ impl Trajectory {
             }
             times.push(row[0]);
             points.push(DVec3::new(row[1], row[2], row[3]));
+            lines.push(line_no);
         }
         if times.is_empty() {
             return Err(PalpateError::Usage(format!(
                 "{origin}: no data rows (expected lines t,x,y,z in s and m)"
             )));
         }
-        Ok(Trajectory { times, points })
+        Ok((Trajectory { times, points }, lines))
     }
 
     /// The position at time `t`, m: linear between rows, held outside them. Allocation-free
@@ -202,16 +209,27 @@ impl ScriptedDevice {
     /// from the device's origin is refused: no device moves there (within that, the physics
     /// clamps the tool to the workspace and counts it).
     pub fn from_file(path: &Path, spec: DeviceSpec) -> Result<Self> {
-        let trajectory = Trajectory::from_file(path)?;
+        let text = crate::input::read_regular_text(path, crate::input::MAX_TRAJECTORY_BYTES)
+            .map_err(|e| {
+                PalpateError::Usage(format!("{}: cannot read trajectory: {e}", path.display()))
+            })?;
+        let (trajectory, lines) = Trajectory::parse_rows(&text, &path.display().to_string())?;
         let reach = DeviceSpec::REACH * spec.workspace_radius;
-        if let Some(k) = trajectory.points.iter().position(|x| x.length() > reach) {
+        // The largest coordinate first: |x| of a row of 1e300 overflows to inf.
+        let beyond = |x: &DVec3| x.abs().max_element() > reach || x.length() > reach;
+        if let Some(k) = trajectory.points.iter().position(beyond) {
+            let (x, num) = (trajectory.points[k], crate::scene::Num);
             return Err(PalpateError::Usage(format!(
-                "{}: keyframe {} (t = {} s): |x| = {:e} m is beyond any reach of the device (workspace radius {} m)",
+                "{}: line {} (t = {} s): ({}, {}, {}) m is beyond any reach of the device ({} m, {} workspace radii of {} m)",
                 path.display(),
-                k + 1,
-                trajectory.times[k],
-                trajectory.points[k].length(),
-                spec.workspace_radius
+                lines[k],
+                num(trajectory.times[k]),
+                num(x.x),
+                num(x.y),
+                num(x.z),
+                num(reach),
+                DeviceSpec::REACH,
+                num(spec.workspace_radius)
             )));
         }
         Ok(Self::new(
@@ -250,5 +268,41 @@ impl HapticDevice for ScriptedDevice {
     }
     fn duration(&self) -> Option<f64> {
         Some(self.trajectory.end_time().max(0.0))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_row_beyond_reach_is_named_by_its_line_and_its_coordinates() {
+        let dir = std::env::temp_dir().join(format!("palpate-scripted-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let spec = DeviceSpec::TOUCH;
+        let far = 2.0 * DeviceSpec::REACH * spec.workspace_radius;
+        for (row, want) in [
+            (format!("0.5,{far},0,0"), format!("({far}, 0, 0) m")),
+            // |x| of this row overflows to inf; the coordinates are still printed.
+            (
+                "0.5,1e300,1e300,0".to_string(),
+                "(1e300, 1e300, 0) m".to_string(),
+            ),
+        ] {
+            let path = dir.join("far.csv");
+            // Header, a comment and a blank line before the far row: it is line 5.
+            std::fs::write(&path, format!("t,x,y,z\n# approach\n0,0,0,0\n\n{row}\n")).unwrap();
+            let e = ScriptedDevice::from_file(&path, spec)
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains("far.csv: line 5 (t = 0.5 s)")
+                    && e.contains(&want)
+                    && e.contains("beyond any reach")
+                    && !e.contains("inf"),
+                "{e}"
+            );
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }
