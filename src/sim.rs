@@ -230,8 +230,9 @@ pub fn choose_dt(
     match override_dt.or(scene.solver.dt) {
         None => Ok(scene.solver.safety * bound),
         Some(dt) if !(dt.is_finite() && dt > 0.0) => Err(PalpateError::Usage(format!(
-            "{} must be > 0 s, got {dt:e}",
-            dt_source(scene, override_dt)
+            "{} must be > 0 s, got {}",
+            dt_source(scene, override_dt),
+            crate::scene::Num(dt)
         ))),
         Some(dt) if dt > bound && !allow_unstable => Err(PalpateError::UnstableTimeStep {
             given: match override_dt {

@@ -191,7 +191,8 @@ fn negative_and_infinite_values_and_an_out_that_is_a_file_are_one_line_errors() 
             &["--duration", "inf"],
             &["--duration must be finite and >= 0 s"],
         ),
-        (&["--dt", "-1e-3"], &["--dt must be > 0 s"]),
+        (&["--dt", "-1e-3"], &["--dt must be > 0 s, got -0.001"]),
+        (&["--dt", "-1"], &["--dt must be > 0 s, got -1"]),
         (&["--steps", "-1"], &["--steps", "-1"]),
     ] {
         let args = run(extra);
@@ -218,6 +219,8 @@ fn negative_and_infinite_values_and_an_out_that_is_a_file_are_one_line_errors() 
         ("list.toml", "[solver]", "[[solver]]", "line 24 `[[solver]]`: [solver] is a single table: write [solver], not [[solver]]"),
         ("dt_type.toml", "dt = \"auto\"", "dt = true", "`dt = true`: dt must be \"auto\" or a time step in seconds"),
         ("huge.toml", "size = [0.1,", "size = [1e300,", "lies beyond ±1e18 m"),
+        ("tolerance.toml", "[solver]", "[solver]\nstatic_tolerance = 0.0", "solver.static_tolerance: must be > 0, got 0"),
+        ("offset.toml", "offset = 0.0 }", "offset = nan }", "fixed[0].plane.offset: must be finite, got NaN"),
         ("hysteresis.toml", "[solver]", "[particles]\nregion = 0\nspacing = 0.004\nactivation_radius = 0.004\nhysteresis = inf\n\n[solver]", "particles.hysteresis: must be finite and >= 1, got inf"),
     ] {
         assert_scene_refused(&d, name, &BEAM.replacen(from, to, 1), &[want]);

@@ -110,7 +110,10 @@ pub(super) fn select_fixed(specs: &[FixedSpec], mesh: &TetMesh, bad: &Bad) -> Re
             } else {
                 Err(bad(
                     &format!("{item}.{what}"),
-                    format!("must be finite, got {v:?}"),
+                    match v {
+                        [one] => format!("must be finite, got {}", super::Num(*one)),
+                        _ => format!("must be finite, got {v:?}"),
+                    },
                 ))
             }
         };

@@ -340,9 +340,14 @@ pub(crate) fn positive(bad: &Bad, item: &str, v: f64, unit: &str) -> Result<f64>
         Ok(v)
     } else {
         let what = if v.is_infinite() { "finite and " } else { "" };
+        let unit = if unit.is_empty() {
+            String::new()
+        } else {
+            format!(" {unit}")
+        };
         Err(bad(
             item,
-            format!("must be {what}> 0 {unit}, got {}", Num(v)),
+            format!("must be {what}> 0{unit}, got {}", Num(v)),
         ))
     }
 }
