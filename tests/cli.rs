@@ -221,6 +221,8 @@ fn negative_and_infinite_values_and_an_out_that_is_a_file_are_one_line_errors() 
         ("huge.toml", "size = [0.1,", "size = [1e300,", "lies beyond ±1e18 m"),
         ("tolerance.toml", "[solver]", "[solver]\nstatic_tolerance = 0.0", "solver.static_tolerance: must be > 0, got 0"),
         ("offset.toml", "offset = 0.0 }", "offset = nan }", "fixed[0].plane.offset: must be finite, got NaN"),
+        ("noname.toml", "name = \"beam\"", "name = \"\"", "name: \"\" is empty or holds control characters"),
+        ("tabname.toml", "name = \"beam\"", "name = \"a\\tb\"", "name: \"a\\tb\" is empty"),
         ("hysteresis.toml", "[solver]", "[particles]\nregion = 0\nspacing = 0.004\nactivation_radius = 0.004\nhysteresis = inf\n\n[solver]", "particles.hysteresis: must be finite and >= 1, got inf"),
     ] {
         assert_scene_refused(&d, name, &BEAM.replacen(from, to, 1), &[want]);

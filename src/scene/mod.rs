@@ -258,6 +258,16 @@ impl Scene {
                 ),
             ));
         }
+        if let Some(name) = &file.name {
+            if name.trim().is_empty() || name.chars().any(char::is_control) {
+                return Err(bad(
+                    "name",
+                    format!(
+                        "{name:?} is empty or holds control characters: give a short name, or leave it out to use the file's name"
+                    ),
+                ));
+            }
+        }
         Ok(Scene {
             name: file.name.unwrap_or_else(|| default_name.to_string()),
             origin: origin.to_string(),
