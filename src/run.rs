@@ -383,6 +383,7 @@ pub fn run_with_state(
     let mut residual = None;
     let start = Instant::now();
     let mut next_frame_time = frame_dt;
+    let mut long_run_noted = false;
     if until_static && target_steps > 0 {
         // Residual of the initial state: a body already in equilibrium stops at once.
         if let Guarded::Done(s) = sim.advance_with(1, DivergencePolicy::Stop)? {
@@ -433,6 +434,10 @@ pub fn run_with_state(
             let particles = sim.particle_state()?;
             frames.write(&model, &sim.state()?, particles.as_ref(), sim.time)?;
             next_frame_time += frame_dt;
+        }
+        if opts.announce && !long_run_noted && !until_static {
+            long_run_noted =
+                note_a_long_run(start.elapsed().as_secs_f64(), sim.steps_done, target_steps);
         }
         progress.update(
             sim.steps_done,
@@ -550,5 +555,58 @@ pub(crate) fn diverged_status(sim: &Simulation, step: u64, vertex: u32, dt: f64)
         wave_speeds: crate::model::SPEED_LIMIT_WAVE_SPEEDS,
         dt,
         dt_bound: m.bounds.dt_bound,
+    }
+}
+
+/// Wall seconds after which a run estimates how long it will take.
+const ESTIMATE_AFTER_SECONDS: f64 = 1.0;
+
+/// Estimated run lengths, s, from which a run says how long it will take.
+const LONG_RUN_SECONDS: f64 = 600.0;
+
+/// Once `wall` s of stepping have done `done` of `target` steps (at least
+/// [`ESTIMATE_AFTER_SECONDS`]), say on standard error how long the rest will take when that
+/// is over [`LONG_RUN_SECONDS`] (a `--steps 1e12` typo runs for years, silently where stdout
+/// is no terminal). True once the estimate has been made, said or not.
+fn note_a_long_run(wall: f64, done: u64, target: u64) -> bool {
+    if wall < ESTIMATE_AFTER_SECONDS || done == 0 {
+        return false;
+    }
+    let rate = done as f64 / wall;
+    let rest = target.saturating_sub(done) as f64 / rate;
+    if rest > LONG_RUN_SECONDS {
+        crate::say_err!(
+            "note: at {rate:.0} steps/s the {target} steps will take about {} more; Ctrl-C stops the run and writes its outputs",
+            human_duration(rest)
+        );
+    }
+    true
+}
+
+/// `seconds` in the largest fitting unit, e.g. "2.3 h" or "3.2e4 years".
+fn human_duration(seconds: f64) -> String {
+    const UNITS: [(f64, &str); 4] = [
+        (86400.0 * 365.25, "years"),
+        (86400.0, "days"),
+        (3600.0, "h"),
+        (60.0, "min"),
+    ];
+    match UNITS.iter().find(|(s, _)| seconds >= *s) {
+        Some((s, unit)) if seconds / s < 1e4 => format!("{:.1} {unit}", seconds / s),
+        Some((s, unit)) => format!("{:.1e} {unit}", seconds / s),
+        None => format!("{seconds:.0} s"),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn durations_read_in_the_largest_unit() {
+        assert_eq!(human_duration(30.0), "30 s");
+        assert_eq!(human_duration(5400.0), "1.5 h");
+        assert_eq!(human_duration(3.0 * 86400.0), "3.0 days");
+        assert_eq!(human_duration(1e12), "3.2e4 years");
     }
 }

@@ -2046,12 +2046,33 @@ fn ctrl_c_stops_after_the_batch_and_writes_the_outputs() {
             .read_exact(&mut first)
             .expect("the job announces itself");
         let drain = std::thread::spawn(move || std::io::copy(&mut stdout, &mut std::io::sink()));
-        let mut stderr = child.stderr.take().unwrap();
+        // stderr's lines come through a channel: the run's estimate of its length (a second
+        // into stepping, for a run of over ten minutes) is awaited before the signal.
+        let stderr = std::io::BufReader::new(child.stderr.take().unwrap());
+        let (line_tx, lines) = std::sync::mpsc::channel();
         let errors = std::thread::spawn(move || {
+            use std::io::BufRead;
             let mut err = String::new();
-            stderr.read_to_string(&mut err).map(|_| err)
+            for line in stderr.lines() {
+                let line = line?;
+                err.push_str(&line);
+                err.push('\n');
+                let _ = line_tx.send(line);
+            }
+            Ok::<String, std::io::Error>(err)
         });
-        std::thread::sleep(std::time::Duration::from_millis(1500));
+        if name == "run" {
+            let note = lines
+                .iter()
+                .find(|l| l.starts_with("note: at "))
+                .expect("the run says how long it will take");
+            assert!(
+                note.contains("steps/s the ") && note.contains(" more; Ctrl-C stops the run"),
+                "{note}"
+            );
+        } else {
+            std::thread::sleep(std::time::Duration::from_millis(1500));
+        }
         let killed = Command::new("kill")
             .args(["-INT", &child.id().to_string()])
             .status()
