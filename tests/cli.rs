@@ -1305,6 +1305,72 @@ fn a_haptic_scene_dt_above_the_bound_advises_only_what_haptic_takes() {
 }
 
 #[test]
+fn a_load_far_beyond_the_material_is_named_before_the_run_diverges() {
+    let d = tmp("overload");
+    let lv = include_str!("../scenes/lv.toml");
+    assert!(lv.contains("pascals = 1000.0"));
+    let path = scene_file(
+        &d,
+        "kpa.toml",
+        &lv.replacen("pascals = 1000.0", "pascals = 1.0e9", 1),
+    );
+    let out = d.join("out");
+    let (ok, _, err) = run_on_cpu(&path, "5", out.to_str().unwrap());
+    assert!(!ok && err.contains("diverged"), "{err}");
+    assert!(
+        err.contains("warning: ")
+            && err.contains("kpa.toml: loads.pressure[0].pascals = 1e9 Pa is 50000 x the material's Young's modulus (20000 Pa)"),
+        "{err}"
+    );
+    // The built-in scenes' loads are all within the bound.
+    let (ok, _, err) = run_on_cpu("lv", "1", out.to_str().unwrap());
+    assert!(ok && !err.contains("Young's modulus"), "{err}");
+    // A haptic session that diverges names the load, and no speed warning follows (its
+    // physics stopped; the rate says nothing of the machine).
+    let touch = include_str!("../scenes/lv_touch.toml");
+    let path = scene_file(
+        &d,
+        "touch_kpa.toml",
+        &touch.replacen("pascals = 1000.0", "pascals = 1.0e9", 1),
+    );
+    let (ok, _, err) = palpate(&[
+        "haptic",
+        &path,
+        "--device",
+        "null",
+        "--seconds",
+        "0.3",
+        "--backend",
+        "cpu",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!ok, "{err}");
+    assert!(
+        err.contains("loads.pressure[0].pascals = 1e9 Pa") && err.contains("diverged"),
+        "{err}"
+    );
+    assert!(!err.contains("kept up with only"), "{err}");
+}
+
+#[test]
+fn follower_pressures_with_different_ramps_are_refused() {
+    let d = tmp("ramps");
+    let land = include_str!("../scenes/land_p1.toml");
+    let item = "[[loads.follower_pressure]]\nplane = { normal = [0.0, 0.0, 1.0], offset = 0.0 }\npascals = 4.0\nramp_seconds = 0.2";
+    assert!(land.contains(item));
+    for (second, said) in [("ramp_seconds = 0.5", "0.5 s"), ("", "none")] {
+        let two = format!("{item}\n\n{}\n", item.replace("ramp_seconds = 0.2", second));
+        assert_scene_refused(
+            &d,
+            "ramps.toml",
+            &land.replacen(item, &two, 1),
+            &[&format!("loads.follower_pressure[1].ramp_seconds: is {said} but loads.follower_pressure[0]'s is 0.2 s")],
+        );
+    }
+}
+
+#[test]
 fn haptic_session_lengths_are_checked_before_the_session() {
     let d = tmp("hapticlength");
     let zero = d.join("zero.csv");

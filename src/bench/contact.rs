@@ -189,6 +189,7 @@ impl HertzCase {
             fixed,
             gravity: [0.0; 3],
             external_forces: vec![DVec3::ZERO; n],
+            load_warnings: Vec::new(),
             solver: SolverSettings {
                 dt: None,
                 safety: 0.5,

@@ -292,6 +292,9 @@ fn execute(cli: Cli) -> Result<()> {
             if let Some(tool) = &scene.tool {
                 warn_tool_overlap(&scene, tool.position_at(0.0), "at t = 0");
             }
+            for w in &scene.load_warnings {
+                palpate::say_err!("warning: {w}");
+            }
             if !scene.fixed.is_empty() && scene.fixed.iter().all(|&f| f) {
                 palpate::say_err!(
                     "warning: {}: [[fixed]] holds every vertex: nothing can move (fix a tag, box or plane of the boundary)",
@@ -421,6 +424,9 @@ fn execute(cli: Cli) -> Result<()> {
             if let Some(tool) = &scene.tool {
                 warn_tool_overlap(&scene, tool.home, "at home");
             }
+            for w in &scene.load_warnings {
+                palpate::say_err!("warning: {w}");
+            }
             let opts = palpate::haptic_run::HapticOptions {
                 backend,
                 threads,
@@ -464,7 +470,8 @@ fn execute(cli: Cli) -> Result<()> {
             }
             warn_inverted(&scene, &s.run);
             warn_inverted_in_contact(&scene, h);
-            if h.physics.realtime_capacity < 0.95 {
+            // After a divergence the physics stopped: its rate says nothing about the machine.
+            if h.physics.realtime_capacity < 0.95 && s.run.status.divergence().is_none() {
                 palpate::say_err!(
                     "warning: the physics kept up with only {:.2}x real time: the simulated tissue lags the hand, and contact can chatter (make and break) instead of settling; use a coarser mesh, a larger [solver] mass_scaling (statics unchanged) or a GPU",
                     h.physics.realtime_capacity

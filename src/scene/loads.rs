@@ -88,6 +88,20 @@ pub(super) fn follower_loads(
             }
             out.ramp_seconds = out.ramp_seconds.max(r);
         }
+        // One ramp drives every follower pressure: items that set different ones (or one
+        // where another leaves it out) would be merged silently.
+        if spec.ramp_seconds != specs[0].ramp_seconds {
+            let say =
+                |r: Option<f64>| r.map_or("none".to_string(), |r| format!("{} s", super::Num(r)));
+            return Err(bad(
+                &format!("{item}.ramp_seconds"),
+                format!(
+                    "is {} but loads.follower_pressure[0]'s is {}: one ramp drives every follower pressure, so give them all the same ramp_seconds",
+                    say(spec.ramp_seconds),
+                    say(specs[0].ramp_seconds)
+                ),
+            ));
+        }
         let select: Box<dyn Fn(u32) -> bool> = match (&spec.tag, &spec.plane) {
             (Some(name), None) => {
                 if spec.tolerance.is_some() {
@@ -171,3 +185,61 @@ pub(super) fn pressure_forces(
     }
     Ok(f)
 }
+
+/// Warnings for loads far beyond what the material bears (a unit slip, kPa written as Pa ×
+/// 1000, makes a run diverge in its first steps naming only a vertex): a pressure over
+/// [`OVERLOAD_RATIO`] × the Young's modulus `youngs_modulus`, or gravity whose weight stress
+/// ρ|g|L over the body's size L (the bounding-box diagonal) is. Each names its key.
+pub(super) fn overload_warnings(
+    loads: &LoadsSpec,
+    youngs_modulus: f64,
+    density: f64,
+    mesh: &TetMesh,
+) -> Vec<String> {
+    let mut out = Vec::new();
+    // Four significant digits: a modulus derived from λ and μ is 300000.00000000006.
+    let num = |x: f64| {
+        let scale = 10f64.powi(3 - x.abs().log10().floor() as i32);
+        super::Num(if x == 0.0 || !x.is_finite() {
+            x
+        } else {
+            (x * scale).round() / scale
+        })
+    };
+    let mut pressure = |item: String, p: f64| {
+        let ratio = p.abs() / youngs_modulus;
+        if ratio > OVERLOAD_RATIO {
+            out.push(format!(
+                "{item} = {} Pa is {} x the material's Young's modulus ({} Pa): strains far beyond 1, so the run will likely diverge at once (a unit slip?)",
+                num(p),
+                num(ratio.round()),
+                num(youngs_modulus)
+            ));
+        }
+    };
+    for (k, p) in loads.pressure.iter().enumerate() {
+        pressure(format!("loads.pressure[{k}].pascals"), p.pascals);
+    }
+    for (k, p) in loads.follower_pressure.iter().enumerate() {
+        pressure(format!("loads.follower_pressure[{k}].pascals"), p.pascals);
+    }
+    if let Some(g) = loads.gravity {
+        let g = DVec3::from(g).length();
+        let size = super::fixed::bounding_diagonal(mesh);
+        let ratio = density * g * size / youngs_modulus;
+        if ratio > OVERLOAD_RATIO {
+            out.push(format!(
+                "loads.gravity = {} m/s^2 weighs the body ({} m, {} kg/m^3) at {} x the material's Young's modulus ({} Pa): strains far beyond 1, so the run will likely diverge at once (a unit slip?)",
+                num(g),
+                num(size),
+                num(density),
+                num(ratio.round()),
+                num(youngs_modulus)
+            ));
+        }
+    }
+    out
+}
+
+/// Load stress over Young's modulus above which [`overload_warnings`] warns.
+pub const OVERLOAD_RATIO: f64 = 10.0;

@@ -104,6 +104,9 @@ pub struct Scene {
     pub tool: Option<Tool>,
     /// The particle layer, if the scene has one.
     pub particles: Option<ParticleSettings>,
+    /// Warnings, each naming the scene and its key, for loads far beyond what the material
+    /// bears ([`loads::overload_warnings`]); `run` and `haptic` print them.
+    pub load_warnings: Vec<String>,
 }
 
 /// One line per built-in scene: its name and description.
@@ -268,6 +271,15 @@ impl Scene {
                 ));
             }
         }
+        let load_warnings = loads::overload_warnings(
+            &file.loads,
+            material.youngs_modulus(),
+            material.density,
+            &mesh,
+        )
+        .into_iter()
+        .map(|w| format!("{origin}: {w}"))
+        .collect();
         Ok(Scene {
             name: file.name.unwrap_or_else(|| default_name.to_string()),
             origin: origin.to_string(),
@@ -284,6 +296,7 @@ impl Scene {
             solver,
             tool,
             particles,
+            load_warnings,
         })
     }
 }
