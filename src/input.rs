@@ -1,6 +1,6 @@
 //! Reading a user's input file (scene, mesh, trajectory): a regular file (after symlinks) of
 //! bounded size, so that a path to a device or a FIFO (`/dev/zero`, `/dev/stdin`) is a clear
-//! error instead of a read that never ends.
+//! error instead of a read that never ends. [`excerpt`] quotes a piece of one in an error.
 
 use std::io;
 use std::path::Path;
@@ -35,4 +35,54 @@ pub fn read_regular(path: &Path, max_bytes: u64) -> io::Result<Vec<u8>> {
 pub fn read_regular_text(path: &Path, max_bytes: u64) -> io::Result<String> {
     String::from_utf8(read_regular(path, max_bytes)?)
         .map_err(|e| io::Error::new(io::ErrorKind::InvalidData, e))
+}
+
+/// Characters of input an error quotes at most ([`excerpt`]).
+pub const MAX_EXCERPT_CHARS: usize = 120;
+
+/// `text` as an error may quote it on one line: control characters (a NUL, a tab, a stray
+/// escape) written as Rust escapes (`\0`, `\t`, `\u{1b}`), and cut after
+/// [`MAX_EXCERPT_CHARS`] characters with "… (N more characters)" (a 10 MB line once became
+/// a 10 MB error).
+pub fn excerpt(text: &str) -> String {
+    clip(text, MAX_EXCERPT_CHARS)
+}
+
+/// [`excerpt`] with room for `max_chars` characters (a parser's message, which may quote a
+/// value of the input, and lists of expected keys worth keeping whole).
+pub fn clip(text: &str, max_chars: usize) -> String {
+    let mut out = String::new();
+    let mut chars = text.chars();
+    for c in chars.by_ref().take(max_chars) {
+        if c.is_control() {
+            out.extend(c.escape_debug());
+        } else {
+            out.push(c);
+        }
+    }
+    let rest = chars.count();
+    if rest > 0 {
+        out.push_str(&format!("… ({rest} more characters)"));
+    }
+    out
+}
+
+#[cfg(test)]
+mod excerpt_tests {
+    use super::*;
+
+    #[test]
+    fn excerpts_escape_control_characters_and_cut_long_text() {
+        assert_eq!(excerpt("youngs_modulus = 3e5"), "youngs_modulus = 3e5");
+        assert_eq!(excerpt("foo\0bar\tx\u{1b}"), "foo\\0bar\\tx\\u{1b}");
+        let long = "a".repeat(MAX_EXCERPT_CHARS + 5000);
+        let e = excerpt(&long);
+        assert!(e.starts_with(&"a".repeat(MAX_EXCERPT_CHARS)), "{e}");
+        assert!(e.ends_with("… (5000 more characters)"), "{e}");
+        // Characters, not bytes: a multi-byte character is never split.
+        assert_eq!(
+            excerpt(&"é".repeat(MAX_EXCERPT_CHARS)),
+            "é".repeat(MAX_EXCERPT_CHARS)
+        );
+    }
 }

@@ -1371,6 +1371,55 @@ fn follower_pressures_with_different_ramps_are_refused() {
 }
 
 #[test]
+fn errors_quoting_input_stay_one_short_line() {
+    let d = tmp("excerpt");
+    // A 1 MB value and a NUL byte in a scene: the line is quoted cut and escaped.
+    let long = format!("name = \"x\"\nbogus = \"{}\"\n", "a".repeat(1 << 20));
+    let nul = "name = \"x\"\nfoo\0bar = 1\n";
+    for (name, text, want) in [
+        ("long.toml", long.as_str(), "line 2 `bogus = \"aaa"),
+        ("nul.toml", nul, "line 2 `foo\\0bar = 1`"),
+    ] {
+        let path = scene_file(&d, name, text);
+        let (ok, _, err) = run_on_cpu(&path, "1", d.to_str().unwrap());
+        assert!(
+            !ok && err.lines().count() == 1 && err.len() < 2100,
+            "{name}: {} bytes",
+            err.len()
+        );
+        assert!(err.contains(want) && !err.contains('\0'), "{err}");
+    }
+    assert!(palpate(&[
+        "run",
+        &scene_file(&d, "l.toml", &long),
+        "--out",
+        d.to_str().unwrap()
+    ])
+    .2
+    .contains("… (1048466 more characters)`: unknown field `bogus`"));
+    // A trajectory whose header is 1 MB long: the whole error is cut.
+    let csv = d.join("long.csv");
+    std::fs::write(&csv, format!("t,x,y,{}\n0,0,0,0\n", "z".repeat(1 << 20))).unwrap();
+    let (ok, _, err) = palpate(&[
+        "haptic",
+        "--device",
+        &format!("scripted:{}", csv.display()),
+        "--out",
+        d.join("out").to_str().unwrap(),
+    ]);
+    assert!(
+        !ok && err.lines().count() == 1 && err.len() < 2100,
+        "{} bytes",
+        err.len()
+    );
+    assert!(
+        err.contains("long.csv: line 1: header") && err.contains("more characters)"),
+        "{}",
+        &err[..200]
+    );
+}
+
+#[test]
 fn haptic_session_lengths_are_checked_before_the_session() {
     let d = tmp("hapticlength");
     let zero = d.join("zero.csv");

@@ -204,7 +204,8 @@ fn main() -> ExitCode {
         Ok(()) if stopped => ExitCode::from(palpate::interrupt::EXIT_STATUS),
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            palpate::say_err!("error: {e}");
+            // One line of bounded length whatever input an error quotes.
+            palpate::say_err!("error: {}", palpate::input::clip(&e.to_string(), 2000));
             ExitCode::FAILURE
         }
     }

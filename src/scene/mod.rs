@@ -171,7 +171,7 @@ impl Scene {
         dir: Option<&Path>,
     ) -> Result<Scene> {
         let file: SceneFile = toml::from_str(text).map_err(|e| {
-            let mut message = e.message().trim().replace('\n', " ");
+            let mut message = crate::input::clip(&e.message().trim().replace('\n', " "), 1000);
             let line = e.span().map(|s| {
                 let n = line_of(text, s.start);
                 let src = text.lines().nth(n - 1).unwrap_or("");
@@ -181,7 +181,7 @@ impl Scene {
                         "[{section}] is a single table: write [{section}], not [[{section}]]"
                     );
                 }
-                format!("line {n} `{src}`: ")
+                format!("line {n} `{}`: ", crate::input::excerpt(src))
             });
             PalpateError::SceneParse {
                 origin: origin.to_string(),
