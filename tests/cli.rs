@@ -815,6 +815,25 @@ fn a_scene_runs_on_a_gmsh_file_with_scale_tags_and_regions() {
         &["mesh", &path, "--out", d.join("box.vtk").to_str().unwrap()],
         &["cannot write mesh format '.vtk'"],
     );
+    // A path it cannot write is refused before the statistics (nothing on stdout).
+    for out in [
+        d.join("no_such_folder/box.vtu"),
+        d.join("box.vtk"),
+        d.clone(),
+    ] {
+        let (ok, stdout, err) = palpate(&["mesh", &path, "--out", out.to_str().unwrap()]);
+        assert!(!ok && stdout.is_empty(), "{out:?}: {stdout}");
+        assert_eq!(error_lines(&err).len(), 1, "{err}");
+    }
+    assert_one_line_error(
+        &[
+            "mesh",
+            &path,
+            "--out",
+            d.join("no_such_folder/box.vtu").to_str().unwrap(),
+        ],
+        &["cannot write: folder", "no_such_folder does not exist"],
+    );
 }
 
 #[test]

@@ -500,6 +500,9 @@ fn execute(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Mesh { scene, out } => {
+            if let Some(path) = &out {
+                palpate::mesh::io::check_writable(path)?;
+            }
             let scene = Scene::load(&scene)?;
             let report = palpate::mesh::quality::report(&scene);
             palpate::console::write_out(format_args!("{report}"));

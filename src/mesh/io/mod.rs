@@ -55,8 +55,39 @@ pub fn read(path: &Path) -> Result<TetMesh> {
 /// Write a tet mesh; the format follows the extension: `.vtu` (VTK XML, binary) or `.msh`
 /// (Gmsh 4.1 ASCII). The file is written to a temporary name and renamed into place.
 pub fn write(path: &Path, mesh: &TetMesh) -> Result<()> {
+    let writer = writer_for(path)?;
+    check_lengths(mesh).map_err(|m| file_err(path, format!("cannot write: {m}")))?;
+    let bytes = writer(mesh).map_err(|m| file_err(path, format!("cannot write: {m}")))?;
+    crate::output::write_atomic(path, &bytes)
+}
+
+/// Refuse a path [`write`] could not write a mesh to, before any work: an extension that
+/// picks no format, a directory, or a folder that does not exist.
+pub fn check_writable(path: &Path) -> Result<()> {
+    writer_for(path)?;
+    if path.is_dir() {
+        return Err(file_err(
+            path,
+            "is a directory: give a file name ending in .vtu or .msh".into(),
+        ));
+    }
+    let parent = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    if !parent.is_dir() {
+        return Err(file_err(
+            path,
+            format!("cannot write: folder {} does not exist", parent.display()),
+        ));
+    }
+    Ok(())
+}
+
+/// The writer of the format `path`'s extension picks.
+fn writer_for(path: &Path) -> Result<fn(&TetMesh) -> Result<Vec<u8>, String>> {
     let ext = extension(path);
-    let writer: fn(&TetMesh) -> Result<Vec<u8>, String> = match ext.as_str() {
+    Ok(match ext.as_str() {
         "vtu" => vtu::write,
         "msh" => gmsh::write,
         "" => {
@@ -71,10 +102,7 @@ pub fn write(path: &Path, mesh: &TetMesh) -> Result<()> {
                 format!("cannot write mesh format '.{ext}' (supported: .vtu, .msh)"),
             ))
         }
-    };
-    check_lengths(mesh).map_err(|m| file_err(path, format!("cannot write: {m}")))?;
-    let bytes = writer(mesh).map_err(|m| file_err(path, format!("cannot write: {m}")))?;
-    crate::output::write_atomic(path, &bytes)
+    })
 }
 
 fn extension(path: &Path) -> String {
