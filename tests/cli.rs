@@ -883,6 +883,29 @@ fn auto_backend_picks_the_cpu_without_a_hardware_gpu_and_says_why() {
 }
 
 #[test]
+fn an_option_of_another_command_is_named_as_such() {
+    for (args, want) in [
+        (
+            &["haptic", "--device", "null", "--steps", "5"][..],
+            "unexpected argument '--steps' found; tip: --steps is an option of `palpate run`, not of `palpate haptic`",
+        ),
+        (
+            &["run", "beam", "--seconds", "3"],
+            "tip: --seconds is an option of `palpate bench haptic` and `palpate haptic`, not of `palpate run`",
+        ),
+    ] {
+        assert_one_line_error(args, &[want]);
+        let (_, _, err) = palpate(args);
+        assert!(!err.contains("use '--"), "{err}");
+    }
+    // An option no command takes keeps clap's own message.
+    assert_one_line_error(
+        &["run", "beam", "--bogus", "3"],
+        &["unexpected argument '--bogus'"],
+    );
+}
+
+#[test]
 fn threads_are_recorded_and_bad_counts_missing_adapters_or_unknown_backends_are_one_line_errors() {
     let d = tmp("threads");
     let out = d.to_str().unwrap();

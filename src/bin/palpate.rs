@@ -227,8 +227,74 @@ fn command_line_error(e: clap::Error) -> ExitCode {
         }
         _ => {}
     }
-    palpate::say_err!("error: {}", one_line(&e.render().to_string()));
+    let mut rendered = e.render().to_string();
+    if let Some(tip) = option_of_another_command(&e) {
+        // clap's tip ("to pass '--steps' as a value, use '-- --steps'") misleads here.
+        rendered = rendered
+            .lines()
+            .filter(|l| !l.trim_start().starts_with("tip:"))
+            .chain(std::iter::once(tip.as_str()))
+            .collect::<Vec<_>>()
+            .join("\n");
+    }
+    palpate::say_err!("error: {}", one_line(&rendered));
     ExitCode::FAILURE
+}
+
+/// For an unknown `--option` that other subcommands take (`palpate haptic --steps`), a tip
+/// naming them: "tip: --steps is an option of `palpate run`, not of `palpate haptic`".
+fn option_of_another_command(e: &clap::Error) -> Option<String> {
+    use clap::error::{ContextKind, ContextValue, ErrorKind};
+    use clap::CommandFactory;
+    if e.kind() != ErrorKind::UnknownArgument {
+        return None;
+    }
+    let Some(ContextValue::String(arg)) = e.get(ContextKind::InvalidArg) else {
+        return None;
+    };
+    let long = arg.strip_prefix("--")?.split('=').next()?.to_string();
+    // The subcommand path the user typed: the leading words that name subcommands.
+    let root = Cli::command();
+    let mut typed = Vec::new();
+    let mut at = &root;
+    for word in std::env::args().skip(1) {
+        match at.find_subcommand(&word) {
+            Some(sub) => {
+                typed.push(word);
+                at = sub;
+            }
+            None => break,
+        }
+    }
+    let mut takers = Vec::new();
+    let mut visit = vec![(String::new(), &root)];
+    while let Some((path, command)) = visit.pop() {
+        for sub in command.get_subcommands() {
+            let name = format!("{path} {}", sub.get_name()).trim().to_string();
+            if sub
+                .get_arguments()
+                .any(|a| a.get_long() == Some(long.as_str()))
+            {
+                takers.push(name.clone());
+            }
+            visit.push((name, sub));
+        }
+    }
+    takers.retain(|t| *t != typed.join(" "));
+    takers.sort();
+    if takers.is_empty() {
+        return None;
+    }
+    let mut takers: Vec<String> = takers.iter().map(|t| format!("`palpate {t}`")).collect();
+    let last = takers.pop()?;
+    let takers = match takers.is_empty() {
+        true => last,
+        false => format!("{} and {last}", takers.join(", ")),
+    };
+    Some(format!(
+        "tip: --{long} is an option of {takers}, not of `palpate {}`",
+        typed.join(" ")
+    ))
 }
 
 /// clap's rendered error on one line: the message, its detail lines after ": " or "; ",
