@@ -499,6 +499,31 @@ fn bad_scene_values_give_one_line_errors_naming_file_and_key() {
             want,
         );
     }
+    // Types are named in a scene's terms, not Rust's (usize, f64, struct MeshSpec).
+    for (i, (from, to, want)) in [
+        (
+            "cells = [20, 4, 4]",
+            "cells = [1.5, 4, 4]",
+            "number `1.5`, expected a whole number >= 0",
+        ),
+        ("cells = [20, 4, 4]", "cells = 4", "expected an array"),
+        (
+            "youngs_modulus = 3.0e5",
+            "youngs_modulus = \"soft\"",
+            "expected a number",
+        ),
+        ("[mesh]", "mesh = 3\n[meshx]", "expected a table"),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let path = scene_file(&d, &format!("types{i}.toml"), &BEAM.replacen(from, to, 1));
+        let (ok, _, err) = run_on_cpu(&path, "1", d.to_str().unwrap());
+        assert!(!ok && err.contains(want), "{err}");
+        for rust in ["usize", "f64", "struct", "sequence"] {
+            assert!(!err.contains(rust), "{err}");
+        }
+    }
     // A tagged mesh (the lv) with a tag it does not know: the known ones are listed.
     assert_scene_refused(
         &d,

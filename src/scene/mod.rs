@@ -171,7 +171,8 @@ impl Scene {
         dir: Option<&Path>,
     ) -> Result<Scene> {
         let file: SceneFile = toml::from_str(text).map_err(|e| {
-            let mut message = crate::input::clip(&e.message().trim().replace('\n', " "), 1000);
+            let mut message =
+                crate::input::clip(&plain_types(&e.message().trim().replace('\n', " ")), 1000);
             let line = e.span().map(|s| {
                 let n = line_of(text, s.start);
                 let src = text.lines().nth(n - 1).unwrap_or("");
@@ -326,6 +327,34 @@ impl std::fmt::Display for Num {
             write!(f, "{:e}", self.0)
         }
     }
+}
+
+/// A parser message with Rust's type names in a scene's terms: "expected usize" is "expected
+/// a whole number >= 0", "expected struct MeshSpec" is "expected a table ([mesh] …)".
+fn plain_types(message: &str) -> String {
+    let mut out = message.to_string();
+    for (rust, plain) in [
+        ("expected usize", "expected a whole number >= 0"),
+        ("expected u64", "expected a whole number >= 0"),
+        ("expected u32", "expected a whole number >= 0"),
+        ("expected i64", "expected a whole number"),
+        ("expected f64", "expected a number"),
+        ("expected f32", "expected a number"),
+        ("expected a sequence", "expected an array [ … ]"),
+        ("expected a map", "expected a table"),
+        ("floating point `", "number `"),
+    ] {
+        out = out.replace(rust, plain);
+    }
+    // "expected struct MeshSpec": a section written as a value.
+    while let Some(at) = out.find("expected struct ") {
+        let rest = &out[at + "expected struct ".len()..];
+        let end = rest
+            .find(|c: char| !c.is_alphanumeric() && c != '_')
+            .unwrap_or(rest.len());
+        out = format!("{}expected a table{}", &out[..at], &rest[end..]);
+    }
+    out
 }
 
 /// The section of a header line `[[name]]` whose section is one table, not a list (serde's
