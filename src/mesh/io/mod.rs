@@ -84,8 +84,11 @@ pub fn check_writable(path: &Path) -> Result<()> {
     Ok(())
 }
 
+/// A mesh format's writer: the file's bytes, or why it cannot write the mesh.
+type MeshWriter = fn(&TetMesh) -> Result<Vec<u8>, String>;
+
 /// The writer of the format `path`'s extension picks.
-fn writer_for(path: &Path) -> Result<fn(&TetMesh) -> Result<Vec<u8>, String>> {
+fn writer_for(path: &Path) -> Result<MeshWriter> {
     let ext = extension(path);
     Ok(match ext.as_str() {
         "vtu" => vtu::write,
