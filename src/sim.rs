@@ -293,6 +293,18 @@ impl Simulation {
             let n = crate::scene::particles::estimated_count(&scene.mesh, p);
             crate::cpu::memory::check_particles_fit(n, true, p, free, &scene.origin)?;
         }
+        // On the GPU backend, one too big for the adapter likewise (its context opened here
+        // and handed on).
+        let mut opts = opts;
+        if let (Backend::Gpu, Some(p)) = (backend, scene.particles.as_ref()) {
+            let ctx = match opts.gpu.take() {
+                Some(c) => c,
+                None => Arc::new(GpuContext::new()?),
+            };
+            let n = crate::scene::particles::estimated_count(&scene.mesh, p);
+            crate::gpu::buffers::check_particle_estimate(&ctx, n, p)?;
+            opts.gpu = Some(ctx);
+        }
         if let Some(note) = large_particle_layer_note(scene) {
             crate::say_err!("{note}");
         }

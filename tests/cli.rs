@@ -802,6 +802,48 @@ fn a_particle_layer_too_big_for_the_adapter_names_the_keys_that_size_it() {
 }
 
 #[test]
+fn a_particle_layer_far_too_big_for_the_adapter_is_refused_before_sampling() {
+    // hm1 at a 0.05 lattice: about 1.4e7 particles, whose neighbour lists (~1.5 GB) are far
+    // over the software adapter's 128 MiB binding; sampling them would take minutes first.
+    let d = tmp("estimate");
+    let hm1 = include_str!("../scenes/hm1.toml");
+    assert!(hm1.contains("spacing = 0.4\n"));
+    let path = scene_file(
+        &d,
+        "fine.toml",
+        &hm1.replacen("spacing = 0.4\n", "spacing = 0.05\n", 1),
+    );
+    assert_one_line_error(
+        &[
+            "run",
+            &path,
+            "--backend",
+            "gpu",
+            "--steps",
+            "1",
+            "--out",
+            d.to_str().unwrap(),
+        ],
+        &[
+            "particle layer (the scene's estimate, before sampling) too big for the GPU adapter",
+            "buffer 'neighbours'",
+            "particles.spacing",
+        ],
+    );
+    let (_, stdout, _) = palpate(&[
+        "run",
+        &path,
+        "--backend",
+        "gpu",
+        "--steps",
+        "1",
+        "--out",
+        d.to_str().unwrap(),
+    ]);
+    assert!(stdout.is_empty(), "{stdout}");
+}
+
+#[test]
 fn a_scene_runs_on_a_gmsh_file_with_scale_tags_and_regions() {
     let d = tmp("gmsh");
     let fixture = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))

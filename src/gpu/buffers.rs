@@ -110,6 +110,48 @@ const PARTICLE_GROUPS: [&str; 5] = [
     "exact coupling",
 ];
 
+/// How far the scene's estimate of a particle layer's largest binding must exceed the
+/// adapter's limit for [`check_particle_estimate`] to refuse it before sampling (the estimate
+/// counts every particle with a full lattice of neighbours; the exact check after sampling
+/// decides the cases in between).
+pub const ESTIMATE_MARGIN: f64 = 1.25;
+
+/// The advice of a particle layer too big for the adapter.
+const PARTICLE_ADVICE: &str =
+    "; raise particles.spacing or lower particles.kernel_radius, or run with --backend cpu";
+
+/// Refuse, before any sampling, a particle layer of about `n` particles of `settings` (the
+/// scene's estimate, zone volume / spacing³) whose largest per-particle binding would exceed
+/// the adapter's storage-binding limit by over [`ESTIMATE_MARGIN`]: its neighbour lists
+/// (4 bytes × the lattice's neighbours per particle) or its 3×3 matrices (36 bytes).
+pub fn check_particle_estimate(
+    ctx: &GpuContext,
+    n: f64,
+    settings: &crate::scene::ParticleSettings,
+) -> Result<()> {
+    let l = &ctx.limits;
+    let limit = l.max_storage_buffer_binding_size.min(l.max_buffer_size);
+    let slots = crate::cpu::memory::lattice_neighbours(settings.kernel_radius) as f64;
+    let (per_particle, buffer) = if 4.0 * slots > 36.0 {
+        (4.0 * slots, "neighbours")
+    } else {
+        (36.0, "particle_stress")
+    };
+    let bytes = n * per_particle;
+    if bytes <= ESTIMATE_MARGIN * limit as f64 {
+        return Ok(());
+    }
+    Err(PalpateError::TooBigForAdapter {
+        subject: "particle layer (the scene's estimate, before sampling)",
+        advice: PARTICLE_ADVICE,
+        adapter: ctx.info.name.clone(),
+        buffer: buffer.into(),
+        bytes: bytes.min(u64::MAX as f64) as u64,
+        limit,
+        what: "storage binding",
+    })
+}
+
 /// Refuse a set of groups that does not fit the adapter: a storage buffer above the
 /// storage-binding limit, a uniform above the uniform-binding limit, any buffer above the
 /// buffer-size limit. The largest offender is named, and a particle layer's overflow names
@@ -136,11 +178,7 @@ pub fn check_limits(ctx: &GpuContext, groups: &[BufferGroup]) -> Result<()> {
             let particles = PARTICLE_GROUPS.contains(&group);
             return Err(PalpateError::TooBigForAdapter {
                 subject: if particles { "particle layer" } else { "mesh" },
-                advice: if particles {
-                    "; raise particles.spacing or lower particles.kernel_radius, or run with --backend cpu"
-                } else {
-                    ""
-                },
+                advice: if particles { PARTICLE_ADVICE } else { "" },
                 adapter: ctx.info.name.clone(),
                 buffer: s.name.into(),
                 bytes: s.bytes,
