@@ -2052,7 +2052,7 @@ fn bad_haptic_arguments_are_one_line_errors() {
             vec![scene.clone(), "--device".into(), scripted(&far)],
             vec![
                 far.display().to_string(),
-                "keyframe 2".into(),
+                "line 3 (t = 0.1 s): (0, 0, -1e30) m".into(),
                 "workspace".into(),
             ],
         ),
