@@ -88,20 +88,6 @@ pub(super) fn follower_loads(
             }
             out.ramp_seconds = out.ramp_seconds.max(r);
         }
-        // One ramp drives every follower pressure: items that set different ones (or one
-        // where another leaves it out) would be merged silently.
-        if spec.ramp_seconds != specs[0].ramp_seconds {
-            let say =
-                |r: Option<f64>| r.map_or("none".to_string(), |r| format!("{} s", super::Num(r)));
-            return Err(bad(
-                &format!("{item}.ramp_seconds"),
-                format!(
-                    "is {} but loads.follower_pressure[0]'s is {}: one ramp drives every follower pressure, so give them all the same ramp_seconds",
-                    say(spec.ramp_seconds),
-                    say(specs[0].ramp_seconds)
-                ),
-            ));
-        }
         let select: Box<dyn Fn(u32) -> bool> = match (&spec.tag, &spec.plane) {
             (Some(name), None) => {
                 if spec.tolerance.is_some() {
@@ -136,6 +122,21 @@ pub(super) fn follower_loads(
         }
         if out.faces.len() == before {
             return Err(bad(&item, "selects no boundary face".into()));
+        }
+        // One ramp drives every follower pressure: items that set different ones (or one
+        // where another leaves it out) would be merged silently. Checked after the item's
+        // own keys, whose errors come first.
+        if spec.ramp_seconds != specs[0].ramp_seconds {
+            let say =
+                |r: Option<f64>| r.map_or("none".to_string(), |r| format!("{} s", super::Num(r)));
+            return Err(bad(
+                &format!("{item}.ramp_seconds"),
+                format!(
+                    "is {} but loads.follower_pressure[0]'s is {}: one ramp drives every follower pressure, so give them all the same ramp_seconds",
+                    say(spec.ramp_seconds),
+                    say(specs[0].ramp_seconds)
+                ),
+            ));
         }
     }
     Ok(Some(out))
