@@ -90,6 +90,13 @@ pub fn large_particle_layer_note(scene: &Scene) -> Option<String> {
     })
 }
 
+/// The error of `--threads` with `--backend gpu`.
+fn threads_on_gpu() -> PalpateError {
+    PalpateError::Usage(
+        "--threads sets the CPU backend's threads; it does not apply to --backend gpu".into(),
+    )
+}
+
 /// Options for [`Simulation::new`].
 #[derive(Clone, Default)]
 pub struct SimOptions {
@@ -272,7 +279,8 @@ impl Simulation {
         if let Some(why) = crate::cpu::memory::available_memory().and_then(|free| {
             crate::cpu::memory::tets_over_memory(
                 scene.mesh.tets.len() as f64,
-                crate::cpu::memory::RUN_BYTES_PER_TET,
+                // The mesh is in memory already: what building and running adds.
+                crate::cpu::memory::RUN_BYTES_PER_TET - crate::cpu::memory::MESH_BYTES_PER_TET,
                 "build and run",
                 free,
             )
@@ -293,8 +301,11 @@ impl Simulation {
             let n = crate::scene::particles::estimated_count(&scene.mesh, p);
             crate::cpu::memory::check_particles_fit(n, true, p, free, &scene.origin)?;
         }
-        // On the GPU backend, one too big for the adapter likewise (its context opened here
-        // and handed on).
+        // On --backend gpu, one far too big for the adapter likewise (its context opened here
+        // and handed on; `auto` choosing a GPU is checked only after sampling, exactly).
+        if backend == Backend::Gpu && opts.threads.is_some() {
+            return Err(threads_on_gpu());
+        }
         let mut opts = opts;
         if let (Backend::Gpu, Some(p)) = (backend, scene.particles.as_ref()) {
             let ctx = match opts.gpu.take() {
@@ -358,10 +369,7 @@ impl Simulation {
         }
         let params = model.step_params(dt, damping);
         if backend == Backend::Gpu && opts.threads.is_some() {
-            return Err(PalpateError::Usage(
-                "--threads sets the CPU backend's threads; it does not apply to --backend gpu"
-                    .into(),
-            ));
+            return Err(threads_on_gpu());
         }
         let (backend, backend_reason, adapter) = match backend {
             Backend::Auto if crate::gpu::stepper::exact_activates_on_cpu(&model) => (

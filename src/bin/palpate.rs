@@ -257,10 +257,10 @@ fn option_of_another_command(e: &clap::Error) -> Option<String> {
     let root = Cli::command();
     let mut typed = Vec::new();
     let mut at = &root;
-    for word in std::env::args().skip(1) {
-        match at.find_subcommand(&word) {
+    for word in std::env::args_os().skip(1) {
+        match word.to_str().and_then(|w| at.find_subcommand(w)) {
             Some(sub) => {
-                typed.push(word);
+                typed.push(sub.get_name().to_string());
                 at = sub;
             }
             None => break,
@@ -291,10 +291,13 @@ fn option_of_another_command(e: &clap::Error) -> Option<String> {
         true => last,
         false => format!("{} and {last}", takers.join(", ")),
     };
-    Some(format!(
-        "tip: --{long} is an option of {takers}, not of `palpate {}`",
-        typed.join(" ")
-    ))
+    Some(match typed.is_empty() {
+        true => format!("tip: --{long} is an option of {takers}, after its command name"),
+        false => format!(
+            "tip: --{long} is an option of {takers}, not of `palpate {}`",
+            typed.join(" ")
+        ),
+    })
 }
 
 /// clap's rendered error on one line: the message, its detail lines after ": " or "; ",
@@ -326,6 +329,7 @@ fn execute(cli: Cli) -> Result<()> {
     // error whichever backend this command ends up on.
     palpate::plan::Fusions::from_env()?;
     palpate::gpu::stepper::prerecord_from_env()?;
+    palpate::cpu::memory::memory_from_env()?;
     match cli.command {
         Command::Run {
             scene,

@@ -28,7 +28,8 @@ pub const BYTES_PER_NEIGHBOUR: f64 = 35.0;
 pub const MESH_BYTES_PER_TET: f64 = 250.0;
 
 /// Bytes per tet to build and step the model, the mesh included: the GPU backend's figure on
-/// a software adapter (measured ≤ 670; the CPU backend ≤ 410).
+/// a software adapter (measured ≤ 670; the CPU backend ≤ 410). Checked once the mesh is in
+/// memory, against [`RUN_BYTES_PER_TET`] − [`MESH_BYTES_PER_TET`].
 pub const RUN_BYTES_PER_TET: f64 = 750.0;
 
 /// Lattice neighbours within `kernel_radius` spacings of a particle of a full cubic lattice
@@ -60,20 +61,53 @@ pub fn particle_bytes(n: f64, settings: &ParticleSettings) -> f64 {
 /// the machine's `MemAvailable` (for a shared machine, or a test of these checks).
 pub const MEMORY_ENV: &str = "PALPATE_MEMORY_BYTES";
 
-/// The memory palpate may plan to use, bytes: [`MEMORY_ENV`] where it is set to a positive
-/// number, else `MemAvailable` of `/proc/meminfo` (None where neither can be read).
+/// The memory [`MEMORY_ENV`] plans for, bytes: None where it is unset or empty; a one-line
+/// error naming it where it is not a finite number > 0 (read by every command at its start).
+pub fn memory_from_env() -> Result<Option<f64>> {
+    let Ok(text) = std::env::var(MEMORY_ENV) else {
+        return Ok(None);
+    };
+    let text = text.trim();
+    if text.is_empty() {
+        return Ok(None);
+    }
+    match text.parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 => Ok(Some(v)),
+        _ => Err(PalpateError::Usage(format!(
+            "{MEMORY_ENV} = {:?} is not a number of bytes > 0 (e.g. 8e9)",
+            crate::input::excerpt(text)
+        ))),
+    }
+}
+
+/// The memory palpate may plan to use, bytes: [`MEMORY_ENV`] where it is set, else
+/// `MemAvailable` of `/proc/meminfo` (None where neither can be read).
 pub fn available_memory() -> Option<f64> {
-    if let Some(v) = std::env::var(MEMORY_ENV)
-        .ok()
-        .and_then(|v| v.trim().parse::<f64>().ok())
-        .filter(|v| v.is_finite() && *v > 0.0)
-    {
+    if let Ok(Some(v)) = memory_from_env() {
         return Some(v);
     }
     let text = std::fs::read_to_string("/proc/meminfo").ok()?;
     let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
     let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
     Some(kib * 1024.0)
+}
+
+/// "this machine has 3.2 GB available", or "PALPATE_MEMORY_BYTES plans for 50.0 MB" where
+/// the figure came from [`MEMORY_ENV`].
+fn available_text(available: f64) -> String {
+    match memory_from_env() {
+        Ok(Some(_)) => format!("{MEMORY_ENV} plans for {}", bytes_text(available)),
+        _ => format!("this machine has {} available", bytes_text(available)),
+    }
+}
+
+/// Bytes as GB from 1 GB up, else MB (a small figure in GB reads "0.0 GB").
+pub fn bytes_text(bytes: f64) -> String {
+    if bytes >= 1e9 {
+        format!("{:.1} GB", bytes / 1e9)
+    } else {
+        format!("{:.1} MB", bytes / 1e6)
+    }
 }
 
 /// Refuse `n` particles of `settings` (`about`: n is the scene's estimate, zone volume /
@@ -94,13 +128,13 @@ pub fn check_particles_fit(
         origin: origin.to_string(),
         item: "particles.spacing".into(),
         message: format!(
-            "{} m makes {}{n:.3e} particles, which the CPU backend needs about {:.1} GB for ({} neighbours each at kernel_radius {}); this machine has {:.1} GB available: use a larger spacing, a smaller kernel_radius or zone, or --backend gpu",
+            "{} m makes {}{n:.3e} particles, which the CPU backend needs about {} for ({} neighbours each at kernel_radius {}); {}: use a larger spacing, a smaller kernel_radius or zone, or --backend gpu",
             crate::scene::Num(settings.spacing),
             if about { "about " } else { "" },
-            need / 1e9,
+            bytes_text(need),
             lattice_neighbours(settings.kernel_radius),
             settings.kernel_radius,
-            available / 1e9
+            available_text(available)
         ),
     })
 }
@@ -117,9 +151,9 @@ pub fn tets_over_memory(
     let need = tets * bytes_per_tet;
     (need > available).then(|| {
         format!(
-            "makes {tets:.3e} tets, which need about {:.1} GB to {purpose}; this machine has {:.1} GB available (set {MEMORY_ENV} to plan for another amount): use a coarser mesh",
-            need / 1e9,
-            available / 1e9
+            "makes {tets:.3e} tets, which need about {} to {purpose}; {} (set {MEMORY_ENV} to plan for another amount): use a coarser mesh",
+            bytes_text(need),
+            available_text(available)
         )
     })
 }
@@ -176,8 +210,8 @@ mod tests {
             tets_over_memory(1e6, MESH_BYTES_PER_TET, "generate and validate", 0.5 * need).unwrap();
         assert!(
             e.contains("1.000e6 tets")
-                && e.contains("0.2 GB to generate and validate")
-                && e.contains("0.1 GB available")
+                && e.contains("250.0 MB to generate and validate")
+                && e.contains("125.0 MB")
                 && e.contains(MEMORY_ENV),
             "{e}"
         );

@@ -58,7 +58,7 @@ pub struct FollowerLoads {
     pub faces: Vec<[u32; 3]>,
     /// Pressure per face, Pa.
     pub face_pressure: Vec<f64>,
-    /// Ramp time, s (0: none). With several items, the longest ramp scales all of them.
+    /// Ramp time, s (0: none); items that set different ramps are refused.
     pub ramp_seconds: f64,
 }
 
@@ -200,12 +200,12 @@ pub(super) fn overload_warnings(
     let mut out = Vec::new();
     // Four significant digits: a modulus derived from λ and μ is 300000.00000000006.
     let num = |x: f64| {
-        let scale = 10f64.powi(3 - x.abs().log10().floor() as i32);
-        super::Num(if x == 0.0 || !x.is_finite() {
-            x
-        } else {
-            (x * scale).round() / scale
-        })
+        if x == 0.0 || !x.is_finite() {
+            return super::Num(x);
+        }
+        let scale = 10f64.powi((3 - x.abs().log10().floor() as i32).clamp(-300, 300));
+        let rounded = (x * scale).round() / scale;
+        super::Num(if rounded.is_finite() { rounded } else { x })
     };
     let mut pressure = |item: String, p: f64| {
         let ratio = p.abs() / youngs_modulus;
