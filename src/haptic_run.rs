@@ -571,18 +571,26 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
     stats.batch_wall_ms = Spread::of(&mut batch_ms);
     stats.stiffness_refresh_ms = Spread::of(&mut refresh_ms);
 
-    servo_report.log.write_csv(&opts.out.join("haptic.csv"))?;
+    // Every output is tried even after one fails (a full disk may still take the small
+    // summary.json); the first failure is the session's error.
+    let mut output_error = None;
+    let mut keep = |r: Result<()>| {
+        if let Err(e) = r {
+            output_error.get_or_insert(e);
+        }
+    };
+    keep(servo_report.log.write_csv(&opts.out.join("haptic.csv")));
     let state = sim.state()?;
-    write_atomic(
+    keep(write_atomic(
         &opts.out.join("final.vtu"),
         state_vtu(&model, &state).as_bytes(),
-    )?;
+    ));
     let particles = sim.particle_state()?;
     if let Some(snap) = &particles {
-        write_atomic(
+        keep(write_atomic(
             &opts.out.join("particles_final.vtu"),
             crate::output::particles::particles_vtu(&model, &state, snap).as_bytes(),
-        )?;
+        ));
     }
     let summary = HapticSummary {
         run: summarize(scene, &sim, &state, particles.as_ref(), wall, status, None),
@@ -595,7 +603,10 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
         },
     };
     summary.write(&opts.out)?;
-    Ok(summary)
+    match output_error {
+        Some(e) => Err(e),
+        None => Ok(summary),
+    }
 }
 
 /// Wait until the servo publishes a tool command newer than `seen`, at most `period`: sleep

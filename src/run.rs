@@ -384,6 +384,7 @@ pub fn run_with_state(
     let start = Instant::now();
     let mut next_frame_time = frame_dt;
     let mut long_run_noted = false;
+    let mut output_error: Option<PalpateError> = None;
     if until_static && target_steps > 0 {
         // Residual of the initial state: a body already in equilibrium stops at once.
         if let Guarded::Done(s) = sim.advance_with(1, DivergencePolicy::Stop)? {
@@ -401,7 +402,10 @@ pub fn run_with_state(
             break;
         }
         let mut batch = (target_steps - sim.steps_done).min(opts.batch.max(1) as u64);
-        if next_frame_time.is_finite() {
+        // Batches end at frame times, except under --until-static, whose relaxation acts
+        // after each batch: there frames go at the batch ends they fall in, so that writing
+        // them leaves the physics as it is without.
+        if next_frame_time.is_finite() && !until_static {
             let to_frame = ((next_frame_time - sim.time) / sim.dt - 1e-6)
                 .ceil()
                 .max(1.0);
@@ -431,9 +435,17 @@ pub fn run_with_state(
             }
         }
         if sim.time >= next_frame_time - 0.5 * sim.dt {
-            let particles = sim.particle_state()?;
-            frames.write(&model, &sim.state()?, particles.as_ref(), sim.time)?;
-            next_frame_time += frame_dt;
+            // A frame that cannot be written ends the series, not the run: its final state
+            // and summary are still written, then the error is returned.
+            if output_error.is_none() {
+                let particles = sim.particle_state()?;
+                if let Err(e) = frames.write(&model, &sim.state()?, particles.as_ref(), sim.time) {
+                    output_error = Some(e);
+                }
+            }
+            while next_frame_time <= sim.time + 0.5 * sim.dt {
+                next_frame_time += frame_dt;
+            }
         }
         if opts.announce && !long_run_noted && !until_static {
             long_run_noted =
@@ -459,20 +471,28 @@ pub fn run_with_state(
     let particles = sim.particle_state()?;
     // The final state closes the series (with --frames 1 it is the only frame).
     let final_missing = frames.last_time().is_none_or(|t| t < sim.time);
-    if opts.frames == 1 || (opts.frames >= 2 && final_missing) {
-        frames.write(&model, &state, particles.as_ref(), sim.time)?;
+    // Every output is tried even after one fails (a full disk may still take the small
+    // summary.json); the first failure is the run's error.
+    let series_ok = output_error.is_none();
+    let mut keep = |r: Result<()>| {
+        if let Err(e) = r {
+            output_error.get_or_insert(e);
+        }
+    };
+    if series_ok && (opts.frames == 1 || (opts.frames >= 2 && final_missing)) {
+        keep(frames.write(&model, &state, particles.as_ref(), sim.time));
     }
-    write_atomic(
+    keep(write_atomic(
         &opts.out.join("final.vtu"),
         state_vtu(&model, &state).as_bytes(),
-    )?;
+    ));
     if let Some(snap) = &particles {
-        write_atomic(
+        keep(write_atomic(
             &opts.out.join("particles_final.vtu"),
             crate::output::particles::particles_vtu(&model, &state, snap).as_bytes(),
-        )?;
+        ));
     }
-    frames.finish()?;
+    keep(frames.finish());
     let summary = summarize(
         scene,
         &sim,
@@ -483,7 +503,10 @@ pub fn run_with_state(
         until_static.then_some((residual, tolerance)),
     );
     summary.write(&opts.out)?;
-    Ok((summary, state))
+    match output_error {
+        Some(e) => Err(e),
+        None => Ok((summary, state)),
+    }
 }
 
 /// The summary of a finished run of `sim` (its final `state` and `particles`, `wall`

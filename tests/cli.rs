@@ -1328,9 +1328,10 @@ fn a_new_run_removes_the_outputs_an_earlier_run_left_and_nothing_else() {
     assert!(out.join("particles_series.pvd").exists() && out.join("frame_0002.vtu").exists());
     let (ok, _, err) = palpate(&["run", "beam", "--steps", "1", "--out", o]);
     assert!(ok, "{err}");
-    // Its series, frames and particle files; final.vtu and summary.json are rewritten.
+    // Its series, frames and particle files, final.vtu and summary.json (the beam run
+    // writes its own).
     assert!(
-        err.contains("note: removed 9 output files of an earlier run"),
+        err.contains("note: removed 11 output files of an earlier run"),
         "{err}"
     );
     let mut left: Vec<String> = std::fs::read_dir(&out)
@@ -1367,6 +1368,80 @@ fn a_new_run_removes_the_outputs_an_earlier_run_left_and_nothing_else() {
     assert!(ok, "{err}");
     assert!(!err.contains("note: removed"), "{err}");
     assert!(mine.join("frame_0001.vtu").exists());
+}
+
+#[test]
+fn an_output_that_cannot_be_written_loses_nothing_else() {
+    // A folder where final.vtu or frame_0001.vtu should go makes that write fail: the run
+    // still writes the rest (summary.json above all), leaves no .partial file, and fails
+    // naming the file.
+    let d = tmp("writefail");
+    for (blocked, frames) in [("final.vtu", "0"), ("frame_0001.vtu", "3")] {
+        let out = d.join(blocked.replace('.', "_"));
+        std::fs::create_dir_all(out.join(blocked)).unwrap();
+        let (ok, _, err) = palpate(&[
+            "run",
+            "beam",
+            "--backend",
+            "cpu",
+            "--steps",
+            "20",
+            "--frames",
+            frames,
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert!(!ok, "{blocked}: {err}");
+        let lines = error_lines(&err);
+        assert!(lines.len() == 1 && lines[0].contains(blocked), "{err}");
+        assert_eq!(summary(&out)["steps"], 20, "{blocked}");
+        let names: Vec<String> = std::fs::read_dir(&out)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        assert!(!names.iter().any(|n| n.ends_with(".partial")), "{names:?}");
+        if blocked != "final.vtu" {
+            assert!(names.contains(&"final.vtu".to_string()), "{names:?}");
+        }
+    }
+}
+
+#[test]
+fn frames_do_not_change_an_until_static_run() {
+    // The relaxation acts after each batch; frames must not cut batches there.
+    let d = tmp("staticframes");
+    let scene = scene_file(
+        &d,
+        "small.toml",
+        &BEAM.replacen("cells = [20, 4, 4]", "cells = [5, 1, 1]", 1),
+    );
+    let run = |frames: &str| {
+        let out = d.join(format!("f{frames}"));
+        let (ok, _, err) = palpate(&[
+            "run",
+            &scene,
+            "--backend",
+            "cpu",
+            "--until-static",
+            "--max-steps",
+            "20000",
+            "--frames",
+            frames,
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert!(ok, "{err}");
+        let s = summary(&out);
+        (
+            s["steps"].clone(),
+            s["max_displacement"].clone(),
+            s["status"].clone(),
+        )
+    };
+    let plain = run("0");
+    for frames in ["3", "20"] {
+        assert_eq!(run(frames), plain, "--frames {frames}");
+    }
 }
 
 #[test]

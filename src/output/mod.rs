@@ -50,8 +50,9 @@ pub fn is_run_output(name: &str) -> bool {
 /// Remove what an earlier run left in `dir`, so that its frames or particle files are not
 /// mixed with the new run's in ParaView: only when `dir` holds an earlier run's
 /// `summary.json` (a JSON object with `scene`, `backend` and `status`), and only files
-/// [`is_run_output`] names other than `final.vtu` and `summary.json` (every run rewrites
-/// those), nothing else. Returns how many files were removed.
+/// [`is_run_output`] names, nothing else: its `final.vtu` and `summary.json` too, so that a
+/// run that fails half-way leaves none of the earlier run's results beside its own.
+/// Returns how many files were removed.
 pub fn remove_earlier_outputs(dir: &Path) -> Result<usize> {
     let err = |source| PalpateError::OutputIo {
         path: dir.to_path_buf(),
@@ -73,9 +74,7 @@ pub fn remove_earlier_outputs(dir: &Path) -> Result<usize> {
         let entry = entry.map_err(err)?;
         let name = entry.file_name();
         let is_file = entry.file_type().map_err(err)?.is_file();
-        let stale = name
-            .to_str()
-            .is_some_and(|n| is_run_output(n) && !matches!(n, "final.vtu" | "summary.json"));
+        let stale = name.to_str().is_some_and(is_run_output);
         if is_file && stale {
             let path = entry.path();
             std::fs::remove_file(&path)
@@ -119,9 +118,16 @@ pub fn write_atomic_with(
             .unwrap_or_default()
     ));
     let mut w = std::io::BufWriter::new(std::fs::File::create(&tmp).map_err(err)?);
-    fill(&mut w).and_then(|()| w.flush()).map_err(err)?;
+    let written = fill(&mut w).and_then(|()| w.flush());
     drop(w);
-    std::fs::rename(&tmp, path).map_err(err)
+    // A failed write leaves no temporary file behind.
+    match written.and_then(|()| std::fs::rename(&tmp, path)) {
+        Ok(()) => Ok(()),
+        Err(e) => {
+            let _ = std::fs::remove_file(&tmp);
+            Err(err(e))
+        }
+    }
 }
 
 /// A ParaView collection (`.pvd`) listing `(time, file name)` pairs.
@@ -136,4 +142,28 @@ pub fn pvd(frames: &[(f64, String)]) -> String {
     }
     s.push_str("  </Collection>\n</VTKFile>\n");
     s
+}
+
+#[cfg(test)]
+mod write_tests {
+    use super::*;
+
+    #[test]
+    fn a_failed_atomic_write_leaves_no_temporary_file() {
+        let dir = std::env::temp_dir().join(format!("palpate-atomic-{}", std::process::id()));
+        // A folder where the file should go: the rename onto it fails.
+        std::fs::create_dir_all(dir.join("final.vtu")).unwrap();
+        let path = dir.join("final.vtu");
+        let e = write_atomic(&path, b"data").unwrap_err().to_string();
+        assert!(e.contains("final.vtu"), "{e}");
+        assert!(!dir.join("final.vtu.partial").exists());
+        // And a writer that fails half-way.
+        let other = dir.join("summary.json");
+        let failed = write_atomic_with(&other, |w| {
+            std::io::Write::write_all(w, b"{")?;
+            Err(std::io::Error::other("disk full"))
+        });
+        assert!(failed.is_err() && !dir.join("summary.json.partial").exists() && !other.exists());
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }
