@@ -1679,9 +1679,15 @@ fn a_tool_that_starts_inside_the_tissue_is_warned_about() {
             "[0.0525, 0.0125, 0.0235]",
             Some("the surface reaches 5.000e-4 into it"),
         ),
+        // 2 mm below the top face: the sphere reaches the surface and shoves it.
+        (
+            "[0.05, 0.01, 0.018]",
+            Some("its centre lies inside the tissue (tet"),
+        ),
+        // In the middle of the beam (10 mm from its faces): it touches nothing.
         (
             "[0.05, 0.01, 0.01]",
-            Some("its centre lies inside the tissue (tet"),
+            Some("it lies wholly inside the tissue (its centre in tet"),
         ),
     ];
     for (i, (at, want)) in cases.iter().enumerate() {

@@ -902,7 +902,7 @@ fn warn_tool_overlap(scene: &Scene, centre: glam::DVec3, when: &str) {
         .and_then(|t| t.overlap(&scene.mesh, centre))
     {
         palpate::say_err!(
-            "warning: {}: {when} the tool overlaps the tissue at rest: {overlap}; its contact shoves the tissue out at once (start the tool clear of the surface)",
+            "warning: {}: {when} the tool overlaps the tissue at rest: {overlap} (start the tool clear of the surface)",
             scene.origin
         );
     }

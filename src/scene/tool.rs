@@ -79,9 +79,6 @@ impl Tool {
             let b = m.inverse() * (centre - p[0]);
             b.min_element() >= 0.0 && b.x + b.y + b.z <= 1.0
         });
-        if let Some(tet) = inside {
-            return Some(ToolOverlap::CentreInside { tet });
-        }
         let nearest = crate::particles::sampling::distance_to_triangles(
             mesh.boundary_faces()
                 .into_iter()
@@ -89,7 +86,11 @@ impl Tool {
             centre,
         );
         let depth = self.radius - nearest;
-        (depth > 0.0).then_some(ToolOverlap::Surface { depth })
+        match inside {
+            Some(tet) if depth <= 0.0 => Some(ToolOverlap::Embedded { tet, gap: -depth }),
+            Some(tet) => Some(ToolOverlap::CentreInside { tet }),
+            None => (depth > 0.0).then_some(ToolOverlap::Surface { depth }),
+        }
     }
 }
 
@@ -101,6 +102,14 @@ pub enum ToolOverlap {
         /// The tet holding the centre.
         tet: usize,
     },
+    /// The whole sphere lies inside the tissue (its centre in tet `tet`), `gap` clear of the
+    /// surface: the contact, which acts on the surface, cannot reach it.
+    Embedded {
+        /// The tet holding the centre.
+        tet: usize,
+        /// The distance from the sphere to the nearest boundary point, scene length units.
+        gap: f64,
+    },
     /// The boundary surface reaches `depth` into the sphere.
     Surface {
         /// R − the distance from the centre to the nearest boundary point, scene length units.
@@ -111,12 +120,18 @@ pub enum ToolOverlap {
 impl std::fmt::Display for ToolOverlap {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
-            ToolOverlap::CentreInside { tet } => {
-                write!(f, "its centre lies inside the tissue (tet {tet})")
-            }
-            ToolOverlap::Surface { depth } => {
-                write!(f, "the surface reaches {depth:.3e} into it")
-            }
+            ToolOverlap::CentreInside { tet } => write!(
+                f,
+                "its centre lies inside the tissue (tet {tet}); its contact shoves the tissue out at once"
+            ),
+            ToolOverlap::Embedded { tet, gap } => write!(
+                f,
+                "it lies wholly inside the tissue (its centre in tet {tet}, {gap:.3e} clear of the surface), where the contact, which acts on the surface, cannot reach: it touches nothing until it comes out"
+            ),
+            ToolOverlap::Surface { depth } => write!(
+                f,
+                "the surface reaches {depth:.3e} into it; its contact shoves the tissue out at once"
+            ),
         }
     }
 }
