@@ -858,6 +858,43 @@ fn a_particle_layer_far_too_big_for_the_adapter_is_refused_before_sampling() {
 }
 
 #[test]
+fn palpate_mesh_warns_of_reoriented_tets_as_run_does() {
+    let d = tmp("reorient");
+    std::fs::write(
+        d.join("t.node"),
+        "4 3 0 0\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 0 0 1\n",
+    )
+    .unwrap();
+    // Vertices 2 and 3 swapped: negative orientation.
+    std::fs::write(d.join("t.ele"), "1 4 0\n1 1 3 2 4\n").unwrap();
+    let scene = scene_file(
+        &d,
+        "t.toml",
+        "[mesh]\nfile = \"t.ele\"\n[material]\nyoungs_modulus = 1e4\npoisson_ratio = 0.3\ndensity = 1000.0\n",
+    );
+    for args in [
+        vec!["mesh", &scene],
+        vec![
+            "run",
+            &scene,
+            "--backend",
+            "cpu",
+            "--steps",
+            "1",
+            "--out",
+            d.to_str().unwrap(),
+        ],
+    ] {
+        let (ok, _, err) = palpate(&args);
+        assert!(ok, "{args:?}: {err}");
+        assert!(
+            err.contains("tet 0 was inverted and has been reoriented"),
+            "{args:?}: {err}"
+        );
+    }
+}
+
+#[test]
 fn a_scene_runs_on_a_gmsh_file_with_scale_tags_and_regions() {
     let d = tmp("gmsh");
     let fixture = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -914,6 +951,17 @@ fn a_scene_runs_on_a_gmsh_file_with_scale_tags_and_regions() {
             d.join("no_such_folder/box.vtu").to_str().unwrap(),
         ],
         &["cannot write: folder", "no_such_folder does not exist"],
+    );
+    let file = d.join("a_file");
+    std::fs::write(&file, "").unwrap();
+    assert_one_line_error(
+        &[
+            "mesh",
+            &path,
+            "--out",
+            file.join("box.vtu").to_str().unwrap(),
+        ],
+        &["cannot write: folder", "a_file is not a folder"],
     );
 }
 

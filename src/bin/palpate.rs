@@ -151,7 +151,7 @@ enum BenchStudy {
         out: PathBuf,
     },
     /// The Land et al. 2015 cardiac benchmark, problems 1 and 2, solved to a static state
-    /// over a mesh-refinement series: land.csv, land.md, land.png.
+    /// over a mesh-refinement series: land.csv, land.md, land.png, land_pareto.png.
     Land {
         /// Backend.
         #[arg(long, value_enum, default_value = "cpu")]
@@ -347,19 +347,7 @@ fn execute(cli: Cli) -> Result<()> {
         } => {
             let scene = Scene::load(&scene)?;
             palpate::interrupt::install();
-            for t in scene.mesh_report.reoriented.iter().take(3) {
-                palpate::say_err!(
-                    "warning: {}: tet {t} was inverted and has been reoriented",
-                    scene.mesh_report.origin
-                );
-            }
-            if scene.mesh_report.reoriented.len() > 3 {
-                palpate::say_err!(
-                    "warning: {}: {} tets reoriented in all",
-                    scene.mesh_report.origin,
-                    scene.mesh_report.reoriented.len()
-                );
-            }
+            warn_reoriented(&scene);
             if let Some(tool) = &scene.tool {
                 warn_tool_overlap(&scene, tool.position_at(0.0), "at t = 0");
             }
@@ -492,6 +480,7 @@ fn execute(cli: Cli) -> Result<()> {
         } => {
             let scene = Scene::load(&scene)?;
             palpate::interrupt::install();
+            warn_reoriented(&scene);
             if let Some(tool) = &scene.tool {
                 warn_tool_overlap(&scene, tool.home, "at home");
             }
@@ -574,6 +563,7 @@ fn execute(cli: Cli) -> Result<()> {
                 palpate::mesh::io::check_writable(path)?;
             }
             let scene = Scene::load(&scene)?;
+            warn_reoriented(&scene);
             let report = palpate::mesh::quality::report(&scene);
             palpate::console::write_out(format_args!("{report}"));
             if let Some(path) = out {
@@ -785,7 +775,7 @@ fn bench(study: BenchStudy) -> Result<()> {
             );
             land::write(&out, &rows, &header)?;
             palpate::say!(
-                "wrote {0}/land.csv, {0}/land.md, {0}/land.png",
+                "wrote {0}/land.csv, {0}/land.md, {0}/land.png, {0}/land_pareto.png",
                 out.display()
             );
             Ok(())
@@ -895,6 +885,24 @@ fn inversion_advice(scene: &Scene, particles: bool) -> &'static str {
 
 /// Warn when the tool at `centre` starts inside the tissue at rest: its contact then shoves
 /// the tissue out at once (or through the wall).
+/// Warn of the tets the mesh validation reoriented (the first three, then the count).
+fn warn_reoriented(scene: &Scene) {
+    let r = &scene.mesh_report;
+    for t in r.reoriented.iter().take(3) {
+        palpate::say_err!(
+            "warning: {}: tet {t} was inverted and has been reoriented",
+            r.origin
+        );
+    }
+    if r.reoriented.len() > 3 {
+        palpate::say_err!(
+            "warning: {}: {} tets reoriented in all",
+            r.origin,
+            r.reoriented.len()
+        );
+    }
+}
+
 fn warn_tool_overlap(scene: &Scene, centre: glam::DVec3, when: &str) {
     if let Some(overlap) = scene
         .tool

@@ -198,15 +198,9 @@ pub(super) fn overload_warnings(
     mesh: &TetMesh,
 ) -> Vec<String> {
     let mut out = Vec::new();
-    // Four significant digits: a modulus derived from λ and μ is 300000.00000000006.
-    let num = |x: f64| {
-        if x == 0.0 || !x.is_finite() {
-            return super::Num(x);
-        }
-        let scale = 10f64.powi((3 - x.abs().log10().floor() as i32).clamp(-300, 300));
-        let rounded = (x * scale).round() / scale;
-        super::Num(if rounded.is_finite() { rounded } else { x })
-    };
+    // Four significant digits: a modulus derived from λ and μ is 300000.00000000006 (the
+    // shortest decimal of the rounded value, which reads 1e-20, not 1.0000000000000001e-20).
+    let num = |x: f64| super::Num(format!("{x:.3e}").parse().unwrap_or(x));
     let mut pressure = |item: String, p: f64| {
         let ratio = p.abs() / youngs_modulus;
         if ratio > OVERLOAD_RATIO {

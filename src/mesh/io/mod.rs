@@ -76,9 +76,14 @@ pub fn check_writable(path: &Path) -> Result<()> {
         _ => Path::new("."),
     };
     if !parent.is_dir() {
+        let what = if parent.exists() {
+            "is not a folder"
+        } else {
+            "does not exist"
+        };
         return Err(file_err(
             path,
-            format!("cannot write: folder {} does not exist", parent.display()),
+            format!("cannot write: folder {} {what}", parent.display()),
         ));
     }
     Ok(())
