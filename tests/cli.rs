@@ -1237,13 +1237,20 @@ fn a_mesh_files_bad_tets_are_named_with_the_file() {
     std::fs::write(d.join("t.ele"), "1 4 0\n0 0 1 2 2\n").unwrap();
     assert_one_line_error(
         &["run", &scene, "--out", out],
-        &["t.toml: mesh file", "t.ele: tet 0", "repeats vertex 2"],
+        &[
+            "t.toml: mesh file",
+            "t.ele (elements and nodes counted from 0 in file order): tet 0",
+            "repeats vertex 2",
+        ],
     );
     std::fs::write(d.join("t.ele"), "1 4 0\n0 0 2 1 3\n").unwrap();
     let (ok, _, err) = palpate(&["run", &scene, "--backend", "cpu", "--out", out]);
     assert!(ok, "{err}");
     assert!(
-        err.contains("t.toml: mesh file") && err.contains("t.ele: tet 0 was inverted"),
+        err.contains("t.toml: mesh file")
+            && err.contains(
+                "t.ele (elements and nodes counted from 0 in file order): tet 0 was inverted"
+            ),
         "{err}"
     );
     // An empty name and a directory are named as such, not as an unknown format '.'.

@@ -108,8 +108,12 @@ pub(super) fn build_mesh(
                 _ => file.clone(),
             };
             let mesh = crate::mesh::io::read(&path)?;
-            // Its tets' errors name the file they are in.
-            let from = format!("{origin}: mesh file {}", path.display());
+            // Its tets' errors name the file they are in. Its tets and vertices are named by their place in the file, which need not be
+            // the file's own numbers (1-based TetGen, Gmsh tags).
+            let from = format!(
+                "{origin}: mesh file {} (elements and nodes counted from 0 in file order)",
+                path.display()
+            );
             check_memory(mesh.tets.len(), "mesh.file", "validate", bad)?;
             return finish(mesh, spec, &from, bad);
         }
