@@ -774,3 +774,38 @@ fn mutation_fuzz_never_panics() {
         "mutations mostly caught: {stats:?}"
     );
 }
+
+#[test]
+fn gmsh_ascii_records_are_read_one_line_each_and_errors_name_that_line() {
+    // TET_V22's lines: 6-9 the nodes, 13 the element.
+    for (test, from, to, place) in [
+        (
+            "extra_node_value",
+            "2 1 0 0\n",
+            "2 1 0 0 7\n",
+            "line 7 ($Nodes): unexpected \" 7\" at the end of the line",
+        ),
+        (
+            "missing_coordinate",
+            "2 1 0 0\n",
+            "2 1 0\n",
+            "line 7 ($Nodes): the line ends where the z coordinate was expected",
+        ),
+        (
+            "extra_element_value",
+            "1 2 3 4\n$End",
+            "1 2 3 4 4\n$End",
+            "line 13 ($Elements): unexpected \" 4\" at the end of the line",
+        ),
+        (
+            "missing_node_tag",
+            "1 2 3 4\n$End",
+            "1 2 3\n$End",
+            "line 13 ($Elements): the line ends where a node tag of the element was expected",
+        ),
+    ] {
+        assert!(TET_V22.contains(from), "{test}");
+        let e = read_err(test, &[("t.msh", TET_V22.replacen(from, to, 1).as_bytes())]);
+        assert_located(&e, "t.msh", place);
+    }
+}

@@ -395,6 +395,33 @@ impl Reader<'_> {
         self.c.pos
     }
 
+    /// In an ASCII file, refuse a record's next value that is not on the record's line (a
+    /// value missing there would otherwise be taken from the next line, and the error blame
+    /// a later line and item).
+    fn on_line(&self, what: &str) -> Result<()> {
+        if self.c.binary || self.c.peek_on_line().is_some() {
+            return Ok(());
+        }
+        Err(self.err(
+            self.c.pos,
+            format!("the line ends where {what} was expected"),
+        ))
+    }
+
+    /// In an ASCII file, the end of a record's line: nothing but blanks may follow it.
+    fn end_record(&mut self) -> Result<()> {
+        if self.c.binary {
+            return Ok(());
+        }
+        self.c.end_line()
+    }
+
+    /// A coordinate on the record's line: a finite double.
+    fn coordinate_on_line(&mut self, axis: &str) -> Result<f64> {
+        self.on_line(&format!("the {axis} coordinate"))?;
+        self.coordinate()
+    }
+
     /// A coordinate: a finite double.
     fn coordinate(&mut self) -> Result<f64> {
         let pos = self.next_value_at();
@@ -530,8 +557,14 @@ impl Reader<'_> {
         }
         self.reserve_nodes(n);
         for _ in 0..n {
+            // One node a line in ASCII: tag x y z.
             let t = self.int_tag("node tag")?;
-            let p = DVec3::new(self.coordinate()?, self.coordinate()?, self.coordinate()?);
+            let p = DVec3::new(
+                self.coordinate_on_line("x")?,
+                self.coordinate_on_line("y")?,
+                self.coordinate_on_line("z")?,
+            );
+            self.end_record()?;
             self.node_tags.push(t);
             self.positions.push(p);
         }
@@ -583,6 +616,7 @@ impl Reader<'_> {
     fn element_nodes(&mut self, n: usize) -> Result<()> {
         self.buf.clear();
         for _ in 0..n {
+            self.on_line("a node tag of the element")?;
             let t = if self.version == Some(Version::V41) {
                 self.size("node tag")?
             } else {
@@ -590,7 +624,8 @@ impl Reader<'_> {
             };
             self.buf.push(t);
         }
-        Ok(())
+        // One element a line in ASCII.
+        self.end_record()
     }
 
     /// Record the element whose node tags are in `buf`.
@@ -707,12 +742,15 @@ impl Reader<'_> {
             for _ in 0..m {
                 let pos = self.next_value_at();
                 let elem = self.int_tag("element number")?;
-                let tpos = self.c.pos;
+                self.on_line("the element type")?;
+                let tpos = self.next_value_at();
                 let ty = self.int("element type")?;
                 let (nn, kind) = self.element_kind(tpos, ty)?;
+                self.on_line("the number of tags")?;
                 let n_tags = self.size("number of tags")?;
                 element_tags.clear();
                 for _ in 0..n_tags {
+                    self.on_line("an element tag")?;
                     element_tags.push(self.int("element tag")?);
                 }
                 self.element_nodes(nn)?;
