@@ -106,3 +106,34 @@ fn repeated_tets_and_overshared_faces_are_named() {
     // Two tets on each side of a face are fine.
     TetMesh::new("pair", p, vec![[0, 1, 2, 3], [0, 1, 2, 5]], None).unwrap();
 }
+
+#[test]
+fn overlapping_tets_are_refused_and_coincident_vertices_reported() {
+    // Two tets on the same side of their shared face [0, 1, 2]: they overlap.
+    let mut p = unit();
+    p.push(DVec3::new(0.2, 0.2, 0.5));
+    let err = TetMesh::new("overlap.msh", p, vec![[0, 1, 2, 3], [0, 1, 2, 5]], None)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("overlap.msh: tets 0 and 1 overlap: they share face [0, 1, 2]"),
+        "{err}"
+    );
+    // On opposite sides they are a valid pair (tet 1 is reoriented, as any inverted tet).
+    let mut p = unit();
+    p.push(DVec3::new(0.2, 0.2, -0.5));
+    let (_, report) = TetMesh::new("pair", p, vec![[0, 1, 2, 3], [0, 1, 2, 5]], None).unwrap();
+    assert_eq!(report.coincident, (vec![], 0));
+    // The same pair with the lower tet's face vertices duplicated (and -0.0 for 0.0): the
+    // mesh is split there, which is reported pair by pair; an unused duplicate is not.
+    let mut p = unit();
+    p.extend([
+        DVec3::new(-0.0, 0.0, 0.0),
+        DVec3::X,
+        DVec3::Y,
+        DVec3::new(0.2, 0.2, -0.5),
+        DVec3::Z,
+    ]);
+    let (_, report) = TetMesh::new("split", p, vec![[0, 1, 2, 3], [5, 6, 7, 8]], None).unwrap();
+    assert_eq!(report.coincident, (vec![(0, 5), (2, 7), (1, 6)], 3));
+}

@@ -885,9 +885,18 @@ fn inversion_advice(scene: &Scene, particles: bool) -> &'static str {
 
 /// Warn when the tool at `centre` starts inside the tissue at rest: its contact then shoves
 /// the tissue out at once (or through the wall).
-/// Warn of the tets the mesh validation reoriented (the first three, then the count).
+/// Warn of the tets the mesh validation reoriented (the first three, then the count) and of
+/// coincident vertices (a mesh split where it looks joined).
 fn warn_reoriented(scene: &Scene) {
     let r = &scene.mesh_report;
+    let (pairs, count) = &r.coincident;
+    if let Some((a, b)) = pairs.first() {
+        palpate::say_err!(
+            "warning: {}: vertices {a} and {b} lie at the same position{}: the tets on either side share no vertex there, so the mesh is split (merge the duplicates)",
+            r.origin,
+            if *count > 1 { format!(" ({count} such pairs)") } else { String::new() }
+        );
+    }
     for t in r.reoriented.iter().take(3) {
         palpate::say_err!(
             "warning: {}: tet {t} was inverted and has been reoriented",

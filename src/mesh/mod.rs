@@ -52,6 +52,9 @@ pub mod tags {
 pub struct ValidationReport {
     /// Tets whose orientation was negative and that were reoriented (two nodes swapped).
     pub reoriented: Vec<usize>,
+    /// Up to three pairs of distinct vertices at the same position that tets use, and how
+    /// many pairs in all ([`TetMesh::coincident_vertices`]).
+    pub coincident: (Vec<(u32, u32)>, usize),
     /// Vertices referenced by no tet (they get no mass and are held fixed).
     pub unused_vertices: usize,
     /// Where the mesh came from, as its errors and warnings name it (a scene, or a scene
@@ -237,6 +240,7 @@ impl TetMesh {
         }
         self.check_connectivity().map_err(err)?;
         report.unused_vertices = used.iter().filter(|u| !**u).count();
+        report.coincident = self.coincident_vertices(3);
         report.origin = origin.to_string();
         Ok(report)
     }
@@ -284,7 +288,61 @@ impl TetMesh {
                 sharing.len()
             ));
         }
+        // The two tets of a shared face lie on its two sides; on one side they overlap (the
+        // mesh then counts that volume, and its mass, twice).
+        let side = |face: [u32; 3], t: u32| {
+            let tet = self.tets[t as usize];
+            let apex = tet
+                .into_iter()
+                .find(|v| !face.contains(v))
+                .unwrap_or(face[0]);
+            let [a, b, c] = face.map(|v| self.positions[v as usize]);
+            signed_volume(a, b, c, self.positions[apex as usize]).signum()
+        };
+        if let Some(w) = faces
+            .windows(2)
+            .find(|w| w[0].0 == w[1].0 && side(w[0].0, w[0].1) == side(w[1].0, w[1].1))
+        {
+            return Err(format!(
+                "tets {} and {} overlap: they share face {:?} and lie on the same side of it",
+                w[0].1.min(w[1].1),
+                w[0].1.max(w[1].1),
+                w[0].0
+            ));
+        }
         Ok(())
+    }
+
+    /// Pairs of distinct vertices at the same position that tets use (the mesh is not joined
+    /// there: the tets on either side share no vertex), in order; at most `limit`, and how
+    /// many there are in all.
+    pub fn coincident_vertices(&self, limit: usize) -> (Vec<(u32, u32)>, usize) {
+        let mut used = vec![false; self.positions.len()];
+        for tet in &self.tets {
+            for &v in tet {
+                used[v as usize] = true;
+            }
+        }
+        let mut at: Vec<([u64; 3], u32)> = (0..self.positions.len() as u32)
+            .filter(|&v| used[v as usize])
+            .map(|v| {
+                // +0.0 and -0.0 are one place.
+                let p = self.positions[v as usize] + DVec3::ZERO;
+                (p.to_array().map(f64::to_bits), v)
+            })
+            .collect();
+        at.sort_unstable();
+        let mut pairs = Vec::new();
+        let mut count = 0;
+        for w in at.windows(2) {
+            if w[0].0 == w[1].0 {
+                count += 1;
+                if pairs.len() < limit {
+                    pairs.push((w[0].1, w[1].1));
+                }
+            }
+        }
+        (pairs, count)
     }
 
     /// Boundary triangles: faces that belong to exactly one tet, oriented outward.
