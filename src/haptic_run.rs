@@ -574,11 +574,7 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
     // Every output is tried even after one fails (a full disk may still take the small
     // summary.json); the first failure is the session's error.
     let mut output_error = None;
-    let mut keep = |r: Result<()>| {
-        if let Err(e) = r {
-            output_error.get_or_insert(e);
-        }
-    };
+    let mut keep = |r| crate::output::keep_first_error(&mut output_error, r);
     keep(servo_report.log.write_csv(&opts.out.join("haptic.csv")));
     let state = sim.state()?;
     keep(write_atomic(

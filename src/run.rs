@@ -474,11 +474,7 @@ pub fn run_with_state(
     // Every output is tried even after one fails (a full disk may still take the small
     // summary.json); the first failure is the run's error.
     let series_ok = output_error.is_none();
-    let mut keep = |r: Result<()>| {
-        if let Err(e) = r {
-            output_error.get_or_insert(e);
-        }
-    };
+    let mut keep = |r| crate::output::keep_first_error(&mut output_error, r);
     if series_ok && (opts.frames == 1 || (opts.frames >= 2 && final_missing)) {
         keep(frames.write(&model, &state, particles.as_ref(), sim.time));
     }

@@ -276,15 +276,12 @@ impl Simulation {
     pub fn new(scene: &Scene, backend: Backend, opts: SimOptions) -> Result<Simulation> {
         // A mesh too big for this machine's memory to build and step is refused before the
         // model is built (an allocation failure aborts with nothing written).
-        if let Some(why) = crate::cpu::memory::available_memory().and_then(|free| {
-            crate::cpu::memory::tets_over_memory(
-                scene.mesh.tets.len() as f64,
-                // The mesh is in memory already: what building and running adds.
-                crate::cpu::memory::RUN_BYTES_PER_TET - crate::cpu::memory::MESH_BYTES_PER_TET,
-                "build and run",
-                free,
-            )
-        }) {
+        if let Some(why) = crate::cpu::memory::tets_over_available_memory(
+            scene.mesh.tets.len() as f64,
+            // The mesh is in memory already: what building and running adds.
+            crate::cpu::memory::RUN_BYTES_PER_TET - crate::cpu::memory::MESH_BYTES_PER_TET,
+            "build and run",
+        ) {
             return Err(PalpateError::SceneValue {
                 origin: scene.origin.clone(),
                 item: "mesh".into(),

@@ -90,6 +90,23 @@ fn run_on_cpu(scene: &str, steps: &str, out: &str) -> (bool, String, String) {
     ])
 }
 
+/// `palpate haptic SCENE --device null --seconds SECONDS --backend cpu --out OUT`: success,
+/// stdout, stderr.
+fn haptic_null_on_cpu(scene: &str, seconds: &str, out: &str) -> (bool, String, String) {
+    palpate(&[
+        "haptic",
+        scene,
+        "--device",
+        "null",
+        "--seconds",
+        seconds,
+        "--backend",
+        "cpu",
+        "--out",
+        out,
+    ])
+}
+
 /// The beam scene with `sections` (TOML) added before its `[solver]`.
 fn beam_with(sections: &str) -> String {
     BEAM.replacen("[solver]", &format!("{sections}\n\n[solver]"), 1)
@@ -1534,18 +1551,7 @@ fn a_haptic_scene_dt_above_the_bound_advises_only_what_haptic_takes() {
         &include_str!("../scenes/lv_touch.toml").replacen("dt = \"auto\"", "dt = 1.0e-2", 1),
     );
     let out = d.join("out");
-    let (ok, _, err) = palpate(&[
-        "haptic",
-        &scene,
-        "--device",
-        "null",
-        "--seconds",
-        "0.1",
-        "--backend",
-        "cpu",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    let (ok, _, err) = haptic_null_on_cpu(&scene, "0.1", out.to_str().unwrap());
     let lines = error_lines(&err);
     assert!(!ok && lines.len() == 1, "{err}");
     assert!(
@@ -1586,18 +1592,7 @@ fn a_load_far_beyond_the_material_is_named_before_the_run_diverges() {
         "touch_kpa.toml",
         &touch.replacen("pascals = 1000.0", "pascals = 1.0e9", 1),
     );
-    let (ok, _, err) = palpate(&[
-        "haptic",
-        &path,
-        "--device",
-        "null",
-        "--seconds",
-        "0.3",
-        "--backend",
-        "cpu",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    let (ok, _, err) = haptic_null_on_cpu(&path, "0.3", out.to_str().unwrap());
     assert!(!ok, "{err}");
     assert!(
         err.contains("loads.pressure[0].pascals = 1e9 Pa") && err.contains("diverged"),
@@ -2257,18 +2252,7 @@ fn a_haptic_session_whose_physics_never_recovers_is_not_ok() {
     let engulf = beam_with("[tool]\nradius = 1e30\nstiffness = 2e7\nhome = [0.08, 0.01, 0.032]");
     let scene = scene_file(&d, "engulf.toml", &engulf);
     let out = d.join("out");
-    let (ok, _, err) = palpate(&[
-        "haptic",
-        &scene,
-        "--device",
-        "null",
-        "--seconds",
-        "0.3",
-        "--backend",
-        "cpu",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    let (ok, _, err) = haptic_null_on_cpu(&scene, "0.3", out.to_str().unwrap());
     assert!(!ok, "the session ended ok: {err}");
     assert!(err.contains("diverged"), "{err}");
     let status = summary(&out)["status"].as_str().unwrap().to_string();

@@ -347,13 +347,13 @@ fn execute(cli: Cli) -> Result<()> {
         } => {
             let scene = Scene::load(&scene)?;
             palpate::interrupt::install();
-            warn_reoriented(&scene);
-            if let Some(tool) = &scene.tool {
-                warn_tool_overlap(&scene, tool.position_at(0.0), "at t = 0");
-            }
-            for w in &scene.load_warnings {
-                palpate::say_err!("warning: {w}");
-            }
+            warn_scene(
+                &scene,
+                scene
+                    .tool
+                    .as_ref()
+                    .map(|t| (t.position_at(0.0), "at t = 0")),
+            );
             if !scene.fixed.is_empty() && scene.fixed.iter().all(|&f| f) {
                 palpate::say_err!(
                     "warning: {}: [[fixed]] holds every vertex: nothing can move (fix a tag, box or plane of the boundary)",
@@ -480,13 +480,7 @@ fn execute(cli: Cli) -> Result<()> {
         } => {
             let scene = Scene::load(&scene)?;
             palpate::interrupt::install();
-            warn_reoriented(&scene);
-            if let Some(tool) = &scene.tool {
-                warn_tool_overlap(&scene, tool.home, "at home");
-            }
-            for w in &scene.load_warnings {
-                palpate::say_err!("warning: {w}");
-            }
+            warn_scene(&scene, scene.tool.as_ref().map(|t| (t.home, "at home")));
             let opts = palpate::haptic_run::HapticOptions {
                 backend,
                 threads,
@@ -885,6 +879,19 @@ fn inversion_advice(scene: &Scene, particles: bool) -> &'static str {
 
 /// Warn when the tool at `centre` starts inside the tissue at rest: its contact then shoves
 /// the tissue out at once (or through the wall).
+/// What `run` and `haptic` warn of before they start: [`warn_reoriented`], a tool
+/// overlapping the tissue at `tool_at` (its centre, and when: "at t = 0"), and the scene's
+/// loads far beyond its material.
+fn warn_scene(scene: &Scene, tool_at: Option<(glam::DVec3, &str)>) {
+    warn_reoriented(scene);
+    if let Some((centre, when)) = tool_at {
+        warn_tool_overlap(scene, centre, when);
+    }
+    for w in &scene.load_warnings {
+        palpate::say_err!("warning: {w}");
+    }
+}
+
 /// Warn of the tets the mesh validation reoriented (the first three, then the count) and of
 /// coincident vertices (a mesh split where it looks joined).
 fn warn_reoriented(scene: &Scene) {

@@ -139,6 +139,12 @@ pub fn check_particles_fit(
     })
 }
 
+/// [`tets_over_memory`] against the memory available ([`available_memory`]; None where it
+/// cannot be read).
+pub fn tets_over_available_memory(tets: f64, bytes_per_tet: f64, purpose: &str) -> Option<String> {
+    available_memory().and_then(|free| tets_over_memory(tets, bytes_per_tet, purpose, free))
+}
+
 /// Why a mesh of `tets` tets cannot be afforded: it would need more than `available` bytes
 /// at `bytes_per_tet` to `purpose` (e.g. "generate and validate"); None where it fits. The
 /// caller names the key or file that sizes the mesh.

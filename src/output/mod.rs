@@ -130,6 +130,14 @@ pub fn write_atomic_with(
     }
 }
 
+/// Keep the first error of a set of outputs that are all tried even after one fails (a full
+/// disk may still take the small summary.json): `r`'s error into `first` unless it holds one.
+pub fn keep_first_error(first: &mut Option<PalpateError>, r: Result<()>) {
+    if let Err(e) = r {
+        first.get_or_insert(e);
+    }
+}
+
 /// A ParaView collection (`.pvd`) listing `(time, file name)` pairs.
 pub fn pvd(frames: &[(f64, String)]) -> String {
     let mut s = String::from(

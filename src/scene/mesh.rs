@@ -272,10 +272,8 @@ fn check_count(factors: &[usize], item: &str, bad: &Bad) -> Result<()> {
 /// Refuse a mesh of `tets` tets that the memory available could not take to `purpose`,
 /// naming `item`.
 fn check_memory(tets: usize, item: &str, purpose: &str, bad: &Bad) -> Result<()> {
-    use crate::cpu::memory::{available_memory, tets_over_memory, MESH_BYTES_PER_TET};
-    match available_memory()
-        .and_then(|free| tets_over_memory(tets as f64, MESH_BYTES_PER_TET, purpose, free))
-    {
+    use crate::cpu::memory::{tets_over_available_memory, MESH_BYTES_PER_TET};
+    match tets_over_available_memory(tets as f64, MESH_BYTES_PER_TET, purpose) {
         Some(why) => Err(bad(item, why)),
         None => Ok(()),
     }

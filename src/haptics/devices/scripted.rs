@@ -45,11 +45,16 @@ impl Trajectory {
 
     /// Read a trajectory CSV; errors name the file and the line.
     pub fn from_file(path: &Path) -> Result<Trajectory> {
+        Self::read_rows(path).map(|(trajectory, _)| trajectory)
+    }
+
+    /// [`Trajectory::from_file`], with the file's line number of each row.
+    fn read_rows(path: &Path) -> Result<(Trajectory, Vec<usize>)> {
         let text = crate::input::read_regular_text(path, crate::input::MAX_TRAJECTORY_BYTES)
             .map_err(|e| {
                 PalpateError::Usage(format!("{}: cannot read trajectory: {e}", path.display()))
             })?;
-        Self::parse(&text, &path.display().to_string())
+        Self::parse_rows(&text, &path.display().to_string())
     }
 
     /// Parse trajectory CSV text; `origin` (the file name) prefixes every error, which is one
@@ -209,11 +214,7 @@ impl ScriptedDevice {
     /// from the device's origin is refused: no device moves there (within that, the physics
     /// clamps the tool to the workspace and counts it).
     pub fn from_file(path: &Path, spec: DeviceSpec) -> Result<Self> {
-        let text = crate::input::read_regular_text(path, crate::input::MAX_TRAJECTORY_BYTES)
-            .map_err(|e| {
-                PalpateError::Usage(format!("{}: cannot read trajectory: {e}", path.display()))
-            })?;
-        let (trajectory, lines) = Trajectory::parse_rows(&text, &path.display().to_string())?;
+        let (trajectory, lines) = Trajectory::read_rows(path)?;
         let reach = DeviceSpec::REACH * spec.workspace_radius;
         // The largest coordinate first: |x| of a row of 1e300 overflows to inf.
         let beyond = |x: &DVec3| x.abs().max_element() > reach || x.length() > reach;
