@@ -305,6 +305,10 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
     )?;
     let model = sim.model.clone();
     let home = model.tool.as_ref().map_or(DVec3::ZERO, |t| t.tool.home);
+    let (tool_stiffness, tool_damping) = model
+        .tool
+        .as_ref()
+        .map_or((0.0, 0.0), |t| (t.tool.stiffness, t.tool.damping));
     sim.tool_position = home;
     sim.tool_target = Some(home);
     let mut stiffness = match ContactCompliance::new(&model) {
@@ -431,6 +435,7 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                 continue;
             }
             let t0 = Instant::now();
+            let batch_seconds = steps as f64 * sim.dt;
             let result = sim.advance_with(steps, DivergencePolicy::HalveDt)?;
             let elapsed = t0.elapsed().as_secs_f64();
             busy_seconds += elapsed;
@@ -521,7 +526,12 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                 force: if diverged { DVec3::ZERO } else { report.force },
                 stiffness: published_k,
                 contact_stiffness: if in_contact {
-                    report.stiffness
+                    haptics::model::batch_contact_stiffness(
+                        report.stiffness,
+                        tool_stiffness,
+                        tool_damping,
+                        batch_seconds,
+                    )
                 } else {
                     DMat3::ZERO
                 },

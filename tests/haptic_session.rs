@@ -1,6 +1,7 @@
 //! `palpate haptic` end to end: a scripted press held still gives the static reaction that
 //! `--until-static` finds with the tool at the same place, the published stiffness matches a
-//! finite difference of that static force, the loop holds about 1 kHz, and a UDP device
+//! finite difference of that static force (also with a contact damper far stiffer than the
+//! springs over a batch), the loop holds about 1 kHz, and a UDP device
 //! (examples/udp_device.rs) drives a whole session over loopback.
 
 use glam::DVec3;
@@ -182,6 +183,13 @@ fn held_still_matches_statics(
         "{name}: passivity observer reached {} J",
         servo.passivity_min_energy_j
     );
+    // A press of a few tenths of a newton never reaches the device's force limit; a proxy
+    // that runs away from the device does.
+    assert_eq!(
+        servo.force_clamps, 0,
+        "{name}: the servo clamped the force {} times (max {} N)",
+        servo.force_clamps, servo.max_force_n
+    );
     // Each batch starts on the newest tick's pose, so the model a tick renders is as many
     // periods old as a batch takes ticks: one when batches take less than a period (it was
     // one more when the physics read the pose before waiting for the clock). On a host that
@@ -266,6 +274,30 @@ fn beam_held_still_matches_the_static_reaction_and_its_stiffness() {
         2.0,
         0.12,
         "beam",
+    );
+}
+
+/// The beam with contact springs a tenth and dampers ten times the shipped ones (b/k = 5 ms,
+/// five 1 ms batches): over one batch the dampers push back b A/T, five times the springs'
+/// k A, so a proxy solved with the springs alone overshot at every batch and ran away until
+/// the device's force clamp held it (~400 clamps at 3.3 N, the held force off by 60 %); with
+/// the dampers in the batch's contact stiffness the press settles on the static reaction.
+/// (Dampers as stiff against the shipped springs would need steps too small for real time.)
+#[test]
+fn beam_with_a_damper_stiffer_than_its_springs_over_a_batch_still_settles() {
+    held_still_matches_statics(
+        &|tool| {
+            beam_scene(tool)
+                .replace("stiffness = 2.0e7", "stiffness = 2.0e6")
+                .replace("damping = 1.0e3", "damping = 1.0e4")
+        },
+        DVec3::new(0.08, 0.01, 0.032),
+        DVec3::NEG_Z,
+        0.006,
+        0.0005,
+        2.0,
+        0.12,
+        "beam_damped",
     );
 }
 

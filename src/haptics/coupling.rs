@@ -27,7 +27,9 @@
 //! e·(K_true − K)/(k_c − K), K_true the physics' response over one batch. That factor is
 //! below one in magnitude only when K is close to K_true, which over a millisecond is the
 //! contact springs' stiffness with the tissue held (the tissue has not moved yet), not the
-//! settled static stiffness: with the static one (softer) in the solve, a contact spring
+//! settled static stiffness, plus the contact dampers' b A/T (the tool crosses Δx in a batch
+//! of T, [`super::model::batch_contact_stiffness`]): with the static one (softer) in the
+//! solve, a contact spring
 //! stiffer than about 2k_c makes the proxy and the tissue ring (measured: a cantilever at
 //! 47 N/m static, 500 N/m contact, k_c = 360 N/m bounced in and out of contact at ≈ 10 Hz).
 //! K is not capped for the same reason (a capped K in the proxy solve would make the fixed
