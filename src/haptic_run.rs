@@ -260,7 +260,8 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
     let seconds = match opts.seconds {
         Some(s) if !(s.is_finite() && s >= MIN_SECONDS) => {
             return Err(PalpateError::Usage(format!(
-                "--seconds {s}: must be a number of seconds, at least {MIN_SECONDS} (ten servo ticks)"
+                "--seconds {}: must be a number of seconds, at least {MIN_SECONDS} (ten servo ticks)",
+                crate::scene::Num(s)
             )))
         }
         Some(s) => s,
@@ -305,10 +306,7 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
     )?;
     let model = sim.model.clone();
     let home = model.tool.as_ref().map_or(DVec3::ZERO, |t| t.tool.home);
-    let (tool_stiffness, tool_damping) = model
-        .tool
-        .as_ref()
-        .map_or((0.0, 0.0), |t| (t.tool.stiffness, t.tool.damping));
+    let tool_damping = model.tool.as_ref().map_or(0.0, |t| t.tool.damping);
     sim.tool_position = home;
     sim.tool_target = Some(home);
     let mut stiffness = match ContactCompliance::new(&model) {
@@ -528,8 +526,9 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                 contact_stiffness: if in_contact {
                     haptics::model::batch_contact_stiffness(
                         report.stiffness,
-                        tool_stiffness,
+                        report.force,
                         tool_damping,
+                        report.contact_area,
                         batch_seconds,
                     )
                 } else {

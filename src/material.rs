@@ -655,7 +655,7 @@ impl HyperelasticParams {
             let len2 = f.iter().map(|c| c * c).sum::<f32>();
             if !(len2.is_finite() && len2 > 1e-12) {
                 return Err(format!(
-                    "material.fibre: tet {e} has a zero or non-finite fibre direction {f:?}"
+                    "mesh.file: the fibre of tet {e} (elements counted from 0 in file order) is zero or not finite, {f:?}: the fibred law needs one in every tet (or give material.fibre = [x, y, z])"
                 ));
             }
         }

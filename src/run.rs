@@ -156,7 +156,8 @@ pub fn check_duration(t: f64) -> Result<()> {
     }
     let what = if t.is_infinite() { "finite and " } else { "" };
     Err(PalpateError::Usage(format!(
-        "--duration must be {what}>= 0 s, got {t}"
+        "--duration must be {what}>= 0 s, got {}",
+        crate::scene::Num(t)
     )))
 }
 
@@ -379,6 +380,12 @@ pub fn run_with_state(
         .max(model.follower.as_ref().map_or(0.0, |f| f.ramp_seconds));
     let is_static =
         |r: Option<f64>, time: f64| time >= loads_settle_at && r.is_some_and(|r| r <= tolerance);
+    if opts.announce && until_static && (max_steps as f64) * dt0 < loads_settle_at {
+        crate::say_err!(
+            "warning: --max-steps {max_steps} at dt = {dt0:.3e} s ends at t = {:.3e} s, before the loads settle at t = {loads_settle_at:.3e} s (the tool's path or a pressure ramp): the run cannot become static; raise --max-steps",
+            max_steps as f64 * dt0,
+        );
+    }
     let mut status = RunStatus::Ok;
     let mut residual = None;
     let start = Instant::now();
@@ -465,6 +472,8 @@ pub fn run_with_state(
             steps: sim.steps_done,
             residual: residual.unwrap_or(f64::NAN),
             tolerance,
+            loads_still_changing: (sim.time < loads_settle_at)
+                .then_some((loads_settle_at, sim.time)),
         };
     }
     let state = sim.state()?;

@@ -2577,3 +2577,64 @@ fn hm1_exact_runs_on_the_cpu_and_presses_without_inverting() {
     assert_eq!(s["backend"], "gpu", "{s}");
     assert_eq!(s["status"], "ok", "{s}");
 }
+
+#[test]
+fn an_until_static_run_cut_off_before_its_loads_settle_says_so() {
+    // A tool path that ends at t = 0.2 s: no state before then is static, whatever the
+    // residual, and the status said only "residual … > tolerance" (even "0 > 1e-3").
+    let d = tmp("staticloads");
+    let scene = scene_file(
+        &d,
+        "moving.toml",
+        &beam_with(
+            "[tool]\nradius = 0.005\nstiffness = 1.0e7\npath = [[0.0, 0.05, 0.01, 0.04], [0.2, 0.05, 0.01, 0.035]]",
+        )
+        .replacen("cells = [20, 4, 4]", "cells = [5, 1, 1]", 1),
+    );
+    let out = d.join("out");
+    let (ok, _, err) = palpate(&[
+        "run",
+        &scene,
+        "--backend",
+        "cpu",
+        "--until-static",
+        "--max-steps",
+        "20",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!ok, "20 steps cannot reach t = 0.2 s: {err}");
+    assert!(
+        err.contains("warning: --max-steps 20")
+            && err.contains("before the loads settle at t = 2.000e-1 s"),
+        "{err}"
+    );
+    let status = summary(&out)["status"].as_str().unwrap().to_string();
+    assert!(
+        status.contains("the loads change until t = 2.000e-1 s"),
+        "{status}"
+    );
+}
+
+#[test]
+fn numbers_far_from_one_on_the_command_line_are_printed_in_exponent_form() {
+    assert_one_line_error(
+        &[
+            "haptic",
+            "lv_touch",
+            "--device",
+            "null",
+            "--seconds",
+            "1e-300",
+            "--backend",
+            "cpu",
+        ],
+        &["--seconds 1e-300:"],
+    );
+    assert_one_line_error(
+        &["run", "beam", "--duration", "-1e-300", "--backend", "cpu"],
+        &["got -1e-300"],
+    );
+    let (_, _, err) = palpate(&["run", "beam", "--duration", "-1e-300"]);
+    assert!(err.len() < 200, "{err}");
+}

@@ -809,3 +809,43 @@ fn gmsh_ascii_records_are_read_one_line_each_and_errors_name_that_line() {
         assert_located(&e, "t.msh", place);
     }
 }
+
+#[test]
+fn fibres_of_any_finite_length_keep_their_direction_and_a_zero_one_names_the_mesh_file() {
+    // Lengths that over- or underflow when squared (1e300, 1e-200) were read as zero.
+    let dir = scratch("fibre_lengths");
+    let pts = format!("{}1 1 1\n", PTS_4.replacen('4', "5", 1));
+    std::fs::write(dir.join("c.pts"), pts).unwrap();
+    std::fs::write(dir.join("c.elem"), "2\nTt 0 1 2 3\nTt 1 2 3 4\n").unwrap();
+    std::fs::write(dir.join("c.lon"), "1\n1e300 1e300 0\n1e-200 0 0\n").unwrap();
+    let m = read(&dir.join("c.pts")).unwrap();
+    let h = std::f64::consts::FRAC_1_SQRT_2;
+    assert!(
+        m.fibres[0].distance(DVec3::new(h, h, 0.0)) < 1e-12,
+        "{}",
+        m.fibres[0]
+    );
+    assert_eq!(m.fibres[1], DVec3::X);
+    // A zero fibre under a fibred law: the error names the mesh file's key and the tet, not
+    // material.fibre (which the scene does not give).
+    std::fs::write(dir.join("c.lon"), "1\n1 0 0\n0 0 0\n").unwrap();
+    let scene = r#"name = "fibred"
+[mesh]
+file = "c.pts"
+[material]
+model = "guccione"
+guccione_c = 2000.0
+guccione_bf = 8.0
+guccione_bt = 2.0
+guccione_bfs = 4.0
+bulk_modulus = 2.0e5
+density = 1000.0
+"#;
+    let e = palpate::Scene::from_toml(scene, "fibred.toml", "fibred.toml", Some(&dir))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("mesh.file") && e.contains("fibre of tet 1") && !e.contains("material.fibre:"),
+        "{e}"
+    );
+}

@@ -132,24 +132,29 @@ impl LocalModel {
 
 /// The contact's stiffness within one physics batch of `batch_seconds` (s), N/m, for
 /// [`LocalModel::contact_stiffness`]: the contact springs' `springs` (ToolForce's
-/// k Σ A [(R/r)(I − n nᵀ) − I], normal part −k Σ A n nᵀ) scaled by 1 + b/(k T), k and b the
-/// tool's penalty and damping per unit area, T the batch's duration.
+/// k Σ A [(R/r)(I − n nᵀ) − I], normal part −k Σ A n nᵀ) plus the dampers',
+/// −(b A_c / T) f̂ f̂ᵀ, b the tool's damping per unit area, A_c the contact's area, T the
+/// batch's duration and f̂ the direction of the tool force `force` (the contact's mean
+/// normal; exact for one contact point).
 ///
 /// Within a batch the tool moves from where it was to the proxy at Δx/T, so the contact
-/// dampers push back b A (Δx·n)/T: a spring b A/T along each contact normal, which the scale
-/// adds to the normal part (−(k + b/T) Σ A n nᵀ); the small tangential part (R/r − 1) is
-/// scaled too. Without it a damper much stiffer than the springs over one batch (b/k ≫ T)
-/// makes the servo ↔ physics fixed point diverge (the proxy runs away until the device's
-/// force clamp holds it; see [`super::coupling`]); overestimating this stiffness only slows
-/// the proxy, and where it settles (f0 balanced by the coupling spring) does not depend on it.
+/// dampers push back b A (Δx·n)/T: a spring b A/T along each contact normal. Without it a
+/// damper much stiffer than the springs over one batch (b/k ≫ T) makes the servo ↔ physics
+/// fixed point diverge (the proxy runs away until the device's force clamp holds it; see
+/// [`super::coupling`]); overestimating this stiffness only slows the proxy, and where it
+/// settles (f0 balanced by the coupling spring) does not depend on it.
 pub fn batch_contact_stiffness(
     springs: DMat3,
-    stiffness: f64,
+    force: DVec3,
     damping: f64,
+    contact_area: f64,
     batch_seconds: f64,
 ) -> DMat3 {
-    if stiffness > 0.0 && damping > 0.0 && batch_seconds > 0.0 {
-        springs * (1.0 + damping / (stiffness * batch_seconds))
+    let normal = force.normalize_or_zero();
+    if damping > 0.0 && contact_area > 0.0 && batch_seconds > 0.0 && normal != DVec3::ZERO {
+        springs
+            - DMat3::from_cols(normal * normal.x, normal * normal.y, normal * normal.z)
+                * (damping * contact_area / batch_seconds)
     } else {
         springs
     }
@@ -238,14 +243,20 @@ mod tests {
 
     #[test]
     fn the_batch_contact_stiffness_adds_the_dampers_along_the_normal() {
-        // One contact along z with area A: springs −k A n nᵀ (R/r = 1).
+        // One contact along z with area A: springs −k A n nᵀ (R/r = 1), force along +z.
         let (k, b, t, area) = (2.0e6, 1.0e4, 1.0e-3, 3.0e-5);
         let springs = DMat3::from_diagonal(DVec3::new(0.0, 0.0, -k * area));
-        let kc = batch_contact_stiffness(springs, k, b, t);
+        let f = DVec3::new(0.0, 0.0, 0.5);
+        let kc = batch_contact_stiffness(springs, f, b, area, t);
         assert!((kc.z_axis.z - (-(k + b / t) * area)).abs() <= 1e-9 * k * area);
         assert_eq!(kc.x_axis, DVec3::ZERO);
-        // No damper, or no batch: the springs alone.
-        assert_eq!(batch_contact_stiffness(springs, k, 0.0, t), springs);
-        assert_eq!(batch_contact_stiffness(springs, k, b, 0.0), springs);
+        assert_eq!(kc.y_axis, DVec3::ZERO);
+        // No damper, no batch or no force: the springs alone.
+        assert_eq!(batch_contact_stiffness(springs, f, 0.0, area, t), springs);
+        assert_eq!(batch_contact_stiffness(springs, f, b, area, 0.0), springs);
+        assert_eq!(
+            batch_contact_stiffness(springs, DVec3::ZERO, b, area, t),
+            springs
+        );
     }
 }

@@ -41,6 +41,9 @@ pub enum RunStatus {
         residual: f64,
         /// Tolerance asked for.
         tolerance: f64,
+        /// When the run ended before its loads settled (the tool's path or a follower
+        /// pressure's ramp still going): (the time they settle at, the time reached), s.
+        loads_still_changing: Option<(f64, f64)>,
     },
 }
 
@@ -96,6 +99,16 @@ impl fmt::Display for RunStatus {
                 steps,
                 residual,
                 tolerance,
+                loads_still_changing: Some((settle, reached)),
+            } => write!(
+                f,
+                "not static after {steps} steps: the loads change until t = {settle:.3e} s (the tool's path or a pressure ramp) and the run reached {reached:.3e} s; residual {residual:.3e}, tolerance {tolerance:.1e}"
+            ),
+            RunStatus::NotStatic {
+                steps,
+                residual,
+                tolerance,
+                loads_still_changing: None,
             } => write!(
                 f,
                 "not static after {steps} steps: residual {residual:.3e} > tolerance {tolerance:.1e}"

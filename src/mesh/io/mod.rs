@@ -188,7 +188,9 @@ fn finish(path: &Path, mesh: &mut TetMesh) -> Result<()> {
                 format!("fibre of tet {t} is not finite: {f:?}"),
             ));
         }
-        *f = f.normalize_or_zero();
+        // Scaled first (crate::scene::unit_direction): a direction whose length over- or
+        // underflows (1e300, 1e-200) keeps its direction instead of becoming zero.
+        *f = crate::scene::unit_direction(f.to_array()).unwrap_or(glam::DVec3::ZERO);
     }
     Ok(())
 }
