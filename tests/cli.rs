@@ -2081,6 +2081,15 @@ fn bad_particle_sections_are_one_line_errors_naming_the_key() {
             &["particles.kernel_radius", "√4", "1.95"],
         ),
         (
+            // The √16 shell: refused, with the one in-range suggestion (4.05 is out of range).
+            "region = 0\nspacing = 0.002\nactivation_radius = 0.004\nkernel_radius = 4.0",
+            &["particles.kernel_radius", "[1.5, 4)", "got 4"],
+        ),
+        (
+            "region = 0\nspacing = 0.002\nactivation_radius = 0.004\nkernel_radius = 3.0001",
+            &["particles.kernel_radius", "√9", "(e.g. 2.95 or 3.05)"],
+        ),
+        (
             "region = 0\nspacing = 0.002",
             &[
                 "particles.activation_radius",
@@ -2637,4 +2646,29 @@ fn numbers_far_from_one_on_the_command_line_are_printed_in_exponent_form() {
     );
     let (_, _, err) = palpate(&["run", "beam", "--duration", "-1e-300"]);
     assert!(err.len() < 200, "{err}");
+}
+
+#[test]
+fn the_mesh_report_gives_the_dt_bound_with_the_scenes_mass_scaling() {
+    // lv_touch scales its mass by 700: the run's bound (summary.json's dt_bound) is over
+    // the mesh report's only by what the particles and the tool's springs take off it.
+    let (ok, out, err) = palpate(&["mesh", "lv_touch"]);
+    assert!(ok, "{err}");
+    let line = out.lines().find(|l| l.starts_with("stable dt: ")).unwrap();
+    assert!(line.contains("mass scaling 700"), "{line}");
+    let mesh_bound: f64 = line["stable dt: ".len()..]
+        .split(' ')
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!(out.contains("particle layer: region 1"), "{out}");
+    let d = tmp("meshdt");
+    let (ok, _, err) = run_on_cpu("lv_touch", "1", d.to_str().unwrap());
+    assert!(ok, "{err}");
+    let run_bound = summary(&d)["dt_bound"].as_f64().unwrap();
+    assert!(
+        run_bound <= mesh_bound * 1.001 && run_bound > 0.5 * mesh_bound,
+        "run {run_bound} s against the report's {mesh_bound} s"
+    );
 }

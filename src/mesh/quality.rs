@@ -32,7 +32,10 @@ pub fn worst_altitude(mesh: &super::TetMesh) -> (usize, f64) {
 pub fn report(scene: &Scene) -> String {
     let mesh = &scene.mesh;
     let s = mesh.stats();
-    let b = TimeStepBounds::new(&scene.material, s.min_altitude, s.min_edge);
+    // The run's inertia: density × mass scaling (as `Model::try_from_scene`).
+    let mut material = scene.material;
+    material.density *= scene.solver.mass_scaling;
+    let b = TimeStepBounds::new(&material, s.min_altitude, s.min_edge);
     let (worst, _) = worst_altitude(mesh);
     let regions = {
         let mut r: Vec<u32> = mesh.regions.clone();
@@ -72,15 +75,36 @@ pub fn report(scene: &Scene) -> String {
         lo = ASPECT_BINS[k];
     }
     let _ = writeln!(out);
+    let scaling = scene.solver.mass_scaling;
     let _ = writeln!(
         out,
-        "stable dt: {:.3e} s (h / c_p with viscosity; c_p = {:.3e} m/s); auto dt {:.3e} s (safety {}); paper eq. 14: {:.3e} s",
+        "stable dt: {:.3e} s (h / c_p with viscosity; c_p = {:.3e} m/s{}); auto dt {:.3e} s (safety {}); paper eq. 14: {:.3e} s",
         b.dt_bound,
         b.p_wave_speed,
+        if scaling != 1.0 {
+            format!(", mass scaling {scaling}")
+        } else {
+            String::new()
+        },
         scene.solver.safety * b.dt_bound,
         scene.solver.safety,
         b.dt_paper_eq14
     );
+    if let Some(p) = &scene.particles {
+        let _ = writeln!(
+            out,
+            "particle layer: region {}, spacing {:.3e} m, about {:.0} particles (sampled by `run`)",
+            p.region,
+            p.spacing,
+            crate::scene::particles::estimated_count(mesh, p)
+        );
+    }
+    if scene.particles.is_some() || scene.tool.is_some() {
+        let _ = writeln!(
+            out,
+            "`run` and `haptic` also bound dt by the particle layer and the tool's contact springs: their dt can be smaller than this one"
+        );
+    }
     if !mesh.fibres.is_empty() {
         let _ = writeln!(out, "fibres: one per tet (helix-angle rule)");
     }

@@ -188,11 +188,12 @@ pub(super) fn resolve_particles(
         )?,
     };
     let kernel_radius = spec.kernel_radius.unwrap_or(2.4);
-    if !(kernel_radius.is_finite() && (1.5..=4.0).contains(&kernel_radius)) {
+    // Below 4: at 4 the √16 shell sits on the support's edge (refused below).
+    if !(kernel_radius.is_finite() && (1.5..4.0).contains(&kernel_radius)) {
         return Err(bad(
             "particles.kernel_radius",
             format!(
-                "must be in [1.5, 4] spacings, got {}",
+                "must be in [1.5, 4) spacings, got {}",
                 super::Num(kernel_radius)
             ),
         ));
@@ -201,9 +202,13 @@ pub(super) fn resolve_particles(
         return Err(bad(
             "particles.kernel_radius",
             format!(
-                "{kernel_radius} puts the lattice's neighbours at √{k} spacings on the support's edge, where rounding decides on each device which of them count; use a value at least 0.1 % away from √{k} (e.g. {:.2} or {:.2})",
-                (k as f64).sqrt() - 0.05,
-                (k as f64).sqrt() + 0.05
+                "{kernel_radius} puts the lattice's neighbours at √{k} spacings on the support's edge, where rounding decides on each device which of them count; use a value at least 0.1 % away from √{k} (e.g. {})",
+                [(k as f64).sqrt() - 0.05, (k as f64).sqrt() + 0.05]
+                    .iter()
+                    .filter(|r| (1.5..4.0).contains(*r))
+                    .map(|r| format!("{r:.2}"))
+                    .collect::<Vec<_>>()
+                    .join(" or ")
             ),
         ));
     }
