@@ -581,9 +581,9 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
     stats.stiffness_refresh_ms = Spread::of(&mut refresh_ms);
 
     // Every output is tried even after one fails (a full disk may still take the small
-    // summary.json); the first failure is the session's error.
-    let mut output_error = None;
-    let mut keep = |r| crate::output::keep_first_error(&mut output_error, r);
+    // summary.json, which lists the failures); the session's error names them all.
+    let mut output_errors = crate::output::OutputErrors::default();
+    let mut keep = |r| output_errors.keep(r);
     keep(servo_report.log.write_csv(&opts.out.join("haptic.csv")));
     let state = sim.state()?;
     keep(write_atomic(
@@ -597,7 +597,7 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
             crate::output::particles::particles_vtu(&model, &state, snap).as_bytes(),
         ));
     }
-    let summary = HapticSummary {
+    let mut summary = HapticSummary {
         run: summarize(scene, &sim, &state, particles.as_ref(), wall, status, None),
         haptic: HapticStats {
             device: servo_report.device_name,
@@ -607,11 +607,9 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
             physics: stats,
         },
     };
-    summary.write(&opts.out)?;
-    match output_error {
-        Some(e) => Err(e),
-        None => Ok(summary),
-    }
+    summary.run.output_errors = output_errors.messages();
+    output_errors.keep(summary.write(&opts.out));
+    output_errors.into_result().map(|()| summary)
 }
 
 /// Wait until the servo publishes a tool command newer than `seen`, at most `period`: sleep

@@ -391,7 +391,7 @@ pub fn run_with_state(
     let start = Instant::now();
     let mut next_frame_time = frame_dt;
     let mut long_run_noted = false;
-    let mut output_error: Option<PalpateError> = None;
+    let mut output_errors = crate::output::OutputErrors::default();
     if until_static && target_steps > 0 {
         // Residual of the initial state: a body already in equilibrium stops at once.
         if let Guarded::Done(s) = sim.advance_with(1, DivergencePolicy::Stop)? {
@@ -444,11 +444,14 @@ pub fn run_with_state(
         if sim.time >= next_frame_time - 0.5 * sim.dt {
             // A frame that cannot be written ends the series, not the run: its final state
             // and summary are still written, then the error is returned.
-            if output_error.is_none() {
+            if output_errors.is_empty() {
                 let particles = sim.particle_state()?;
-                if let Err(e) = frames.write(&model, &sim.state()?, particles.as_ref(), sim.time) {
-                    output_error = Some(e);
-                }
+                output_errors.keep(frames.write(
+                    &model,
+                    &sim.state()?,
+                    particles.as_ref(),
+                    sim.time,
+                ));
             }
             while next_frame_time <= sim.time + 0.5 * sim.dt {
                 next_frame_time += frame_dt;
@@ -481,9 +484,9 @@ pub fn run_with_state(
     // The final state closes the series (with --frames 1 it is the only frame).
     let final_missing = frames.last_time().is_none_or(|t| t < sim.time);
     // Every output is tried even after one fails (a full disk may still take the small
-    // summary.json); the first failure is the run's error.
-    let series_ok = output_error.is_none();
-    let mut keep = |r| crate::output::keep_first_error(&mut output_error, r);
+    // summary.json, which lists the failures); the run's error names them all.
+    let series_ok = output_errors.is_empty();
+    let mut keep = |r| output_errors.keep(r);
     if series_ok && (opts.frames == 1 || (opts.frames >= 2 && final_missing)) {
         keep(frames.write(&model, &state, particles.as_ref(), sim.time));
     }
@@ -498,7 +501,7 @@ pub fn run_with_state(
         ));
     }
     keep(frames.finish());
-    let summary = summarize(
+    let mut summary = summarize(
         scene,
         &sim,
         &state,
@@ -507,11 +510,9 @@ pub fn run_with_state(
         status,
         until_static.then_some((residual, tolerance)),
     );
-    summary.write(&opts.out)?;
-    match output_error {
-        Some(e) => Err(e),
-        None => Ok((summary, state)),
-    }
+    summary.output_errors = output_errors.messages();
+    output_errors.keep(summary.write(&opts.out));
+    output_errors.into_result().map(|()| (summary, state))
 }
 
 /// The summary of a finished run of `sim` (its final `state` and `particles`, `wall`
@@ -551,6 +552,7 @@ pub fn summarize(
         steps_per_second: sim.steps_done as f64 / wall.max(1e-9),
         realtime_factor: sim.time / wall.max(1e-9),
         max_displacement: max_displacement(&state.displacements),
+        max_particle_displacement: particles.map(|p| max_displacement(&p.displacements)),
         kinetic_energy: sim.last.kinetic_energy()
             + sim.last_particles.map_or(0.0, |p| p.kinetic_energy),
         elastic_energy: sim.last.elastic_energy()
@@ -570,6 +572,7 @@ pub fn summarize(
             .as_ref()
             .map(|_| sim.last_tool.map_or([0.0; 3], |t| t.force.to_array())),
         status,
+        output_errors: Vec::new(),
     }
 }
 

@@ -358,7 +358,22 @@ fn frames_of_a_particle_scene_include_the_particles() {
         std::fs::read(d.join("particles_final.vtu")).unwrap(),
         "the last particle frame is the final state"
     );
-    assert!(summary(&d)["active_particles_max"].as_u64().unwrap() > 0);
+    let s = summary(&d);
+    assert!(s["active_particles_max"].as_u64().unwrap() > 0);
+    // The particles' largest displacement is summary.json's, as particles_final.vtu has it.
+    let u = common::vtu_point_vectors(
+        &std::fs::read_to_string(d.join("particles_final.vtu")).unwrap(),
+        "displacement",
+    );
+    let largest = u
+        .chunks_exact(3)
+        .map(|c| (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt())
+        .fold(0.0f32, f32::max) as f64;
+    let reported = s["max_particle_displacement"].as_f64().unwrap();
+    assert!(
+        largest > 0.0 && (reported - largest).abs() <= 1e-6 * largest,
+        "summary {reported} against the file's {largest}"
+    );
 }
 
 #[test]
@@ -1448,9 +1463,15 @@ fn an_output_that_cannot_be_written_loses_nothing_else() {
     // still writes the rest (summary.json above all), leaves no .partial file, and fails
     // naming the file.
     let d = tmp("writefail");
-    for (blocked, frames) in [("final.vtu", "0"), ("frame_0001.vtu", "3")] {
-        let out = d.join(blocked.replace('.', "_"));
-        std::fs::create_dir_all(out.join(blocked)).unwrap();
+    for (blocked, frames) in [
+        ("final.vtu", "0"),
+        ("frame_0001.vtu", "3"),
+        ("frame_0001.vtu+final.vtu", "3"),
+    ] {
+        let out = d.join(blocked.replace(['.', '+'], "_"));
+        for b in blocked.split('+') {
+            std::fs::create_dir_all(out.join(b)).unwrap();
+        }
         let (ok, _, err) = palpate(&[
             "run",
             "beam",
@@ -1465,14 +1486,25 @@ fn an_output_that_cannot_be_written_loses_nothing_else() {
         ]);
         assert!(!ok, "{blocked}: {err}");
         let lines = error_lines(&err);
-        assert!(lines.len() == 1 && lines[0].contains(blocked), "{err}");
-        assert_eq!(summary(&out)["steps"], 20, "{blocked}");
+        assert_eq!(lines.len(), 1, "{err}");
+        let s = summary(&out);
+        assert_eq!(s["steps"], 20, "{blocked}");
+        // The error and summary.json's output_errors name every output that failed.
+        let listed = s["output_errors"].as_array().unwrap();
+        assert_eq!(listed.len(), blocked.split('+').count(), "{listed:?}");
+        for b in blocked.split('+') {
+            assert!(lines[0].contains(b), "{b}: {err}");
+            assert!(
+                listed.iter().any(|e| e.as_str().unwrap().contains(b)),
+                "{b}: {listed:?}"
+            );
+        }
         let names: Vec<String> = std::fs::read_dir(&out)
             .unwrap()
             .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
             .collect();
         assert!(!names.iter().any(|n| n.ends_with(".partial")), "{names:?}");
-        if blocked != "final.vtu" {
+        if !blocked.contains("final.vtu") {
             assert!(names.contains(&"final.vtu".to_string()), "{names:?}");
         }
     }

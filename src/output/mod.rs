@@ -130,11 +130,39 @@ pub fn write_atomic_with(
     }
 }
 
-/// Keep the first error of a set of outputs that are all tried even after one fails (a full
-/// disk may still take the small summary.json): `r`'s error into `first` unless it holds one.
-pub fn keep_first_error(first: &mut Option<PalpateError>, r: Result<()>) {
-    if let Err(e) = r {
-        first.get_or_insert(e);
+/// The failures of a set of outputs that are all tried even after one fails (a full disk may
+/// still take the small summary.json, which lists them as `output_errors`).
+#[derive(Debug, Default)]
+pub struct OutputErrors(Vec<PalpateError>);
+
+impl OutputErrors {
+    /// Keep `r`'s error, if any.
+    pub fn keep(&mut self, r: Result<()>) {
+        if let Err(e) = r {
+            self.0.push(e);
+        }
+    }
+
+    /// None failed so far.
+    pub fn is_empty(&self) -> bool {
+        self.0.is_empty()
+    }
+
+    /// Each failure as its one-line message.
+    pub fn messages(&self) -> Vec<String> {
+        self.0.iter().map(|e| e.to_string()).collect()
+    }
+
+    /// Ok when none failed; the one failure; or one error naming them all.
+    pub fn into_result(mut self) -> Result<()> {
+        match self.0.len() {
+            0 => Ok(()),
+            1 => Err(self.0.remove(0)),
+            n => Err(PalpateError::Usage(format!(
+                "{n} outputs could not be written: {}",
+                self.messages().join("; ")
+            ))),
+        }
     }
 }
 

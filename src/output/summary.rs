@@ -178,8 +178,12 @@ pub struct RunSummary {
     pub steps_per_second: f64,
     /// Simulated seconds per wall-clock second (≥ 1: faster than real time).
     pub realtime_factor: f64,
-    /// Largest vertex displacement, m.
+    /// Largest vertex displacement, m (the tet mesh's vertices).
     pub max_displacement: f64,
+    /// Largest particle displacement, m (scenes with particles; under the tool it can be
+    /// several times the vertices' largest).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_particle_displacement: Option<f64>,
     /// Kinetic energy at the end, J.
     pub kinetic_energy: f64,
     /// Elastic energy at the end, J.
@@ -211,6 +215,9 @@ pub struct RunSummary {
     pub tool_force: Option<[f64; 3]>,
     /// `ok`, or why the run stopped.
     pub status: RunStatus,
+    /// The outputs that could not be written, each as its one-line error (empty when every
+    /// one was; the run then fails naming them).
+    pub output_errors: Vec<String>,
 }
 
 impl RunSummary {
