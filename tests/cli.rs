@@ -2704,3 +2704,76 @@ fn the_mesh_report_gives_the_dt_bound_with_the_scenes_mass_scaling() {
         "run {run_bound} s against the report's {mesh_bound} s"
     );
 }
+
+#[test]
+fn a_killed_runs_frames_are_an_indexed_series_and_the_next_run_removes_them() {
+    // SIGKILL (or running out of memory) writes no summary.json: the series index written
+    // after every frame makes what is there a series ParaView opens, and tells the next run
+    // into the folder that these frames are palpate's, so it removes them instead of leaving
+    // hm1's frames beside its own.
+    let d = tmp("killed");
+    let out = d.join("out");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_palpate"))
+        .args([
+            "run",
+            "hm1",
+            "--backend",
+            "cpu",
+            "--steps",
+            "100000",
+            "--frames",
+            "400",
+            "--out",
+            out.to_str().unwrap(),
+        ])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let start = std::time::Instant::now();
+    while !out.join("frame_0002.vtu").exists() {
+        assert!(
+            start.elapsed().as_secs() < 120,
+            "no third frame after 120 s"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    child.kill().unwrap();
+    child.wait().unwrap();
+    assert!(!out.join("summary.json").exists());
+    let pvd = std::fs::read_to_string(out.join("series.pvd")).unwrap();
+    let listed = pvd.matches("<DataSet").count();
+    assert!(listed >= 2, "{pvd}");
+    for k in 0..listed {
+        assert!(out.join(format!("frame_{k:04}.vtu")).exists(), "{pvd}");
+    }
+    let (ok, _, err) = palpate(&[
+        "run",
+        "beam",
+        "--backend",
+        "cpu",
+        "--steps",
+        "2",
+        "--frames",
+        "2",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    assert!(err.contains("note: removed"), "{err}");
+    let mut left: Vec<String> = std::fs::read_dir(&out)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    left.sort();
+    assert_eq!(
+        left,
+        [
+            "final.vtu",
+            "frame_0000.vtu",
+            "frame_0001.vtu",
+            "series.pvd",
+            "summary.json"
+        ]
+    );
+}

@@ -49,9 +49,10 @@ pub fn is_run_output(name: &str) -> bool {
 
 /// Remove what an earlier run left in `dir`, so that its frames or particle files are not
 /// mixed with the new run's in ParaView: only when `dir` holds an earlier run's
-/// `summary.json` (a JSON object with `scene`, `backend` and `status`), and only files
-/// [`is_run_output`] names, nothing else: its `final.vtu` and `summary.json` too, so that a
-/// run that fails half-way leaves none of the earlier run's results beside its own.
+/// `summary.json` (a JSON object with `scene`, `backend` and `status`) or a `series.pvd` /
+/// `particles_series.pvd` marked [`PVD_MARK`] (a run killed before its summary), and only
+/// files [`is_run_output`] names, nothing else: its `final.vtu` and `summary.json` too, so
+/// that a run that fails half-way leaves none of the earlier run's results beside its own.
 /// Returns how many files were removed.
 pub fn remove_earlier_outputs(dir: &Path) -> Result<usize> {
     let err = |source| PalpateError::OutputIo {
@@ -66,7 +67,10 @@ pub fn remove_earlier_outputs(dir: &Path) -> Result<usize> {
                 .iter()
                 .all(|k| v.get(k).is_some())
         });
-    if !earlier_run {
+    let killed_run = ["series.pvd", "particles_series.pvd"]
+        .iter()
+        .any(|name| std::fs::read_to_string(dir.join(name)).is_ok_and(|t| t.contains(PVD_MARK)));
+    if !(earlier_run || killed_run) {
         return Ok(0);
     }
     let mut removed = 0;
@@ -166,10 +170,13 @@ impl OutputErrors {
     }
 }
 
-/// A ParaView collection (`.pvd`) listing `(time, file name)` pairs.
+/// The comment that marks a `.pvd` as written by palpate (see [`remove_earlier_outputs`]).
+pub const PVD_MARK: &str = "<!-- written by palpate -->";
+
+/// A ParaView collection (`.pvd`) listing `(time, file name)` pairs, marked [`PVD_MARK`].
 pub fn pvd(frames: &[(f64, String)]) -> String {
-    let mut s = String::from(
-        "<?xml version=\"1.0\"?>\n<VTKFile type=\"Collection\" version=\"0.1\" byte_order=\"LittleEndian\">\n  <Collection>\n",
+    let mut s = format!(
+        "<?xml version=\"1.0\"?>\n<VTKFile type=\"Collection\" version=\"0.1\" byte_order=\"LittleEndian\">\n  {PVD_MARK}\n  <Collection>\n",
     );
     for (t, file) in frames {
         s.push_str(&format!(

@@ -44,7 +44,9 @@ impl FrameSeries {
             self.particle_frames.push((time, name));
         }
         self.frames.push((time, name));
-        Ok(())
+        // The index after every frame: a run killed half-way (SIGKILL, out of memory) leaves
+        // a series ParaView opens, and the next run into the folder knows it for palpate's.
+        self.finish()
     }
 
     /// Time of the last frame written, if any.
@@ -53,7 +55,8 @@ impl FrameSeries {
     }
 
     /// Write `series.pvd` listing the frames, and `particles_series.pvd` listing the
-    /// particles' (nothing when there are none).
+    /// particles' (nothing when there are none). [`FrameSeries::write`] does it after each
+    /// frame too.
     pub fn finish(&self) -> Result<()> {
         if !self.particle_frames.is_empty() {
             write_atomic(
