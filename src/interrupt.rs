@@ -28,10 +28,21 @@ pub fn clear() {
     REQUESTED.store(false, Ordering::SeqCst);
 }
 
+/// What the first signal prints (on stderr).
+pub const FIRST_NOTE: &str =
+    "\nnote: stopping after the current batch and writing the outputs (a second Ctrl-C stops at once)\n";
+
+/// What the second signal prints (on stderr) before ending the process.
+pub const SECOND_NOTE: &str = "\nerror: interrupted twice: stopped at once, outputs not written (the next run into the folder removes what is left)\n";
+
 #[cfg(unix)]
 extern "C" fn on_signal(_: libc::c_int) {
-    // Only async-signal-safe calls here: an atomic swap and _exit.
-    if REQUESTED.swap(true, Ordering::SeqCst) {
+    // Only async-signal-safe calls here: an atomic swap, write(2) and _exit.
+    let second = REQUESTED.swap(true, Ordering::SeqCst);
+    let note = if second { SECOND_NOTE } else { FIRST_NOTE };
+    // SAFETY: write(2) on stderr with a valid buffer and length; its result is not needed.
+    unsafe { libc::write(2, note.as_ptr().cast(), note.len()) };
+    if second {
         unsafe { libc::_exit(EXIT_STATUS as libc::c_int) };
     }
 }
@@ -42,7 +53,7 @@ pub fn install() -> bool {
     #[cfg(unix)]
     {
         let handler = on_signal as extern "C" fn(libc::c_int) as libc::sighandler_t;
-        // SAFETY: `on_signal` only touches an atomic and calls `_exit`, both
+        // SAFETY: `on_signal` only touches an atomic and calls `write` and `_exit`, all
         // async-signal-safe; `signal` is called with valid signal numbers and with the
         // disposition it returned.
         let installed = [libc::SIGINT, libc::SIGTERM].map(|sig| unsafe {

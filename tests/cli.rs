@@ -2504,6 +2504,10 @@ fn ctrl_c_stops_after_the_batch_and_writes_the_outputs() {
         assert_eq!(status.code(), Some(130), "{name}: {err}");
         assert!(start.elapsed().as_secs_f64() < 10.0, "{name}: slow to stop");
         assert!(err.contains("interrupted at t = "), "{name}: {err}");
+        assert!(
+            err.contains("note: stopping after the current batch and writing the outputs"),
+            "{name}: {err}"
+        );
         let s = summary(&out);
         let text = s["status"].as_str().unwrap();
         assert!(text.starts_with("interrupted at t = "), "{name}: {text}");
@@ -2775,5 +2779,55 @@ fn a_killed_runs_frames_are_an_indexed_series_and_the_next_run_removes_them() {
             "series.pvd",
             "summary.json"
         ]
+    );
+}
+
+#[test]
+fn a_second_ctrl_c_stops_at_once_and_says_so() {
+    use std::io::Read;
+    use std::os::unix::process::CommandExt;
+    let d = tmp("interrupt_twice");
+    let mut command = Command::new(env!("CARGO_BIN_EXE_palpate"));
+    command
+        .args([
+            "run",
+            "lv",
+            "--duration",
+            "1e6",
+            "--backend",
+            "cpu",
+            "--out",
+        ])
+        .arg(d.join("out"))
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped());
+    // SAFETY: runs in the forked child before exec; signal(2) is async-signal-safe.
+    unsafe {
+        command.pre_exec(|| {
+            libc::signal(libc::SIGINT, libc::SIG_DFL);
+            Ok(())
+        });
+    }
+    let mut child = command.spawn().expect("start palpate");
+    let mut first = [0u8; 1];
+    child
+        .stdout
+        .take()
+        .unwrap()
+        .read_exact(&mut first)
+        .expect("the run announces itself");
+    for _ in 0..2 {
+        let killed = Command::new("kill")
+            .args(["-INT", &child.id().to_string()])
+            .status()
+            .expect("kill");
+        assert!(killed.success());
+    }
+    let out = child.wait_with_output().expect("wait");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(130), "{err}");
+    assert!(
+        err.contains("error: interrupted twice: stopped at once"),
+        "{err}"
     );
 }
