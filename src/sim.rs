@@ -243,7 +243,7 @@ pub fn choose_dt(
         ))),
         Some(dt) if dt > bound && !allow_unstable => Err(PalpateError::UnstableTimeStep {
             given: match override_dt {
-                Some(_) => "--dt".into(),
+                Some(_) => format!("{}: --dt", scene.origin),
                 None => format!("{}: solver.dt", scene.origin),
             },
             dt,

@@ -626,7 +626,7 @@ fn dt_above_the_bound_is_refused_unless_allowed_and_divergence_is_caught() {
             out,
         ],
         &[
-            "--dt = 1.000e-3 s",
+            "built-in scene 'beam': --dt = 1.000e-3 s",
             "above the stability bound",
             "--allow-unstable",
         ],
@@ -2830,4 +2830,22 @@ fn a_second_ctrl_c_stops_at_once_and_says_so() {
         err.contains("error: interrupted twice: stopped at once"),
         "{err}"
     );
+}
+
+#[test]
+fn bench_haptic_refuses_its_seconds_before_making_the_folder() {
+    let d = tmp("benchseconds");
+    let out = d.join("not_made");
+    assert_one_line_error(
+        &[
+            "bench",
+            "haptic",
+            "--seconds",
+            "0.3",
+            "--out",
+            out.to_str().unwrap(),
+        ],
+        &["--seconds 0.3 must be between 1 and 3600 s"],
+    );
+    assert!(!out.exists());
 }

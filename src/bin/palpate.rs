@@ -36,7 +36,8 @@ enum Command {
         /// Number of steps (0 writes the initial state).
         #[arg(long, allow_negative_numbers = true, conflicts_with_all = ["duration", "until_static"])]
         steps: Option<u64>,
-        /// Simulated time, s.
+        /// Simulated time, s (rounded up to whole steps: summary.json's sim_seconds may be a
+        /// fraction of a step longer).
         #[arg(long, allow_hyphen_values = true, conflicts_with = "until_static")]
         duration: Option<f64>,
         /// Run with critical viscous damping until the residual force is below the scene's tolerance.
@@ -72,7 +73,7 @@ enum Command {
         /// home) or udp:ADDR (see docs/haptic-protocol.md).
         #[arg(long)]
         device: String,
-        /// Device specification: touch, omni, desktop, omega3 or falcon.
+        /// Device specification: touch (the default), omni, desktop, omega3 or falcon.
         #[arg(long)]
         device_spec: Option<String>,
         /// Run length, s (default: the scripted trajectory's length, else 10 s).
@@ -81,7 +82,8 @@ enum Command {
         /// Backend that steps the model (auto: a hardware GPU, else the CPU).
         #[arg(long, value_enum, default_value = "auto")]
         backend: Backend,
-        /// CPU backend threads (default: one fewer than the cores, at least one).
+        /// CPU backend threads (default: one fewer than the cores, at least one; refused with
+        /// --backend gpu).
         #[arg(long)]
         threads: Option<usize>,
         /// Keep stepping while the body is at rest and the tool clear of it (by default the
@@ -92,11 +94,12 @@ enum Command {
         #[arg(long, default_value = "out")]
         out: PathBuf,
     },
-    /// Mesh statistics and quality of a scene; optionally export the mesh (.vtu).
+    /// Mesh statistics and quality of a scene; optionally export the mesh (.vtu or .msh).
     Mesh {
         /// Built-in scene name or path to a scene TOML file.
         scene: String,
-        /// Write the mesh to this file (.vtu, or any format `palpate::mesh::io::write` takes).
+        /// Write the mesh to this file: .vtu (VTK XML, opens in ParaView) or .msh (Gmsh 4.1),
+        /// the extension picks the format.
         #[arg(long)]
         out: Option<PathBuf>,
     },
@@ -143,7 +146,7 @@ enum BenchStudy {
     /// The 1 kHz servo loop with the physics thread on lv, ed0 and lv_touch, per backend:
     /// haptic_bench.csv, haptic_bench.md.
     Haptic {
-        /// Seconds per session.
+        /// Seconds per session (1 to 3600).
         #[arg(long, default_value_t = 10.0)]
         seconds: f64,
         /// Output directory.
@@ -567,6 +570,15 @@ fn execute(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Bench { study } => {
+            // Options checked before the output folder is made.
+            if let BenchStudy::Haptic { seconds, .. } = &study {
+                if !(1.0..=3600.0).contains(seconds) {
+                    return Err(PalpateError::Usage(format!(
+                        "bench haptic: --seconds {} must be between 1 and 3600 s",
+                        palpate::scene::Num(*seconds)
+                    )));
+                }
+            }
             palpate::output::prepare_out_dir(study.out())?;
             bench(study)
         }
@@ -714,12 +726,6 @@ fn bench(study: BenchStudy) -> Result<()> {
         }
         BenchStudy::Haptic { seconds, out } => {
             use palpate::bench::haptic;
-            if !(1.0..=3600.0).contains(&seconds) {
-                return Err(PalpateError::Usage(format!(
-                    "bench haptic: --seconds {} must be between 1 and 3600 s",
-                    palpate::scene::Num(seconds)
-                )));
-            }
             let cores = palpate::cpu::stepper::available_cores();
             let mut runs = vec![(Backend::Cpu, Some(cores))];
             if cores > 1 {
