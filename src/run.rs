@@ -171,7 +171,8 @@ fn steps_for(length: RunLength, dt: f64) -> Result<u64> {
             let x = t / dt;
             if x > MAX_RUN_STEPS as f64 {
                 return Err(PalpateError::Usage(format!(
-                    "the run would take {x:.3e} steps of {dt:.3e} s (more than {MAX_RUN_STEPS}); use a larger --dt or a shorter run"
+                    "a run of {} s (--duration, or the scene's solver.duration) would take {x:.3e} steps of {dt:.3e} s (more than {MAX_RUN_STEPS}); use a larger dt or a shorter run",
+                    crate::scene::Num(t)
                 )));
             }
             let n = if (x - x.round()).abs() < 1e-9 * x.max(1.0) {
@@ -189,9 +190,15 @@ fn steps_for(length: RunLength, dt: f64) -> Result<u64> {
         RunLength::UntilStatic { max_steps } => max_steps,
     };
     if n > MAX_RUN_STEPS {
-        return Err(PalpateError::Usage(format!(
-            "the run would take {n} steps of {dt:.3e} s (more than {MAX_RUN_STEPS}); use a larger --dt or a shorter run"
-        )));
+        return Err(PalpateError::Usage(match length {
+            RunLength::UntilStatic { .. } => {
+                format!("--max-steps {n}: at most {MAX_RUN_STEPS} (2^40) steps")
+            }
+            RunLength::Steps(_) => format!("--steps {n}: at most {MAX_RUN_STEPS} (2^40) steps"),
+            RunLength::Duration(_) => format!(
+                "the run would take {n} steps of {dt:.3e} s (more than {MAX_RUN_STEPS}); use a larger dt or a shorter run"
+            ),
+        }));
     }
     Ok(n)
 }

@@ -480,6 +480,11 @@ fn bad_scene_values_give_one_line_errors_naming_file_and_key() {
             "offset = nan }",
             &["fixed[0].plane.offset", "finite"],
         ),
+        (
+            "plane = { normal = [1.0, 0.0, 0.0], offset = 0.0 }",
+            "box = { min = [1, 1, 1], max = [-1, 1, 2] }",
+            &["fixed[0].box", "min [1.0, 1.0, 1.0] is above max", "along x"],
+        ),
         ("[loads]", "[loadz]", &["loadz"]),
         (
             "cells = [20, 4, 4]",
@@ -2848,4 +2853,41 @@ fn bench_haptic_refuses_its_seconds_before_making_the_folder() {
         &["--seconds 0.3 must be between 1 and 3600 s"],
     );
     assert!(!out.exists());
+}
+
+#[test]
+fn a_run_too_long_names_the_option_that_made_it() {
+    let huge = "18446744073709551615";
+    assert_one_line_error(
+        &[
+            "run",
+            "beam",
+            "--until-static",
+            "--max-steps",
+            huge,
+            "--backend",
+            "cpu",
+        ],
+        &["--max-steps 18446744073709551615: at most"],
+    );
+    assert_one_line_error(
+        &["run", "beam", "--steps", huge, "--backend", "cpu"],
+        &["--steps 18446744073709551615: at most"],
+    );
+    assert_one_line_error(
+        &["run", "beam", "--duration", "1e300", "--backend", "cpu"],
+        &["a run of 1e300 s (--duration, or the scene's solver.duration)"],
+    );
+}
+
+#[test]
+fn an_empty_scene_and_a_table_given_twice_say_so() {
+    let d = tmp("emptyscene");
+    assert_scene_refused(&d, "empty.toml", "  \n\n", &["the file is empty"]);
+    assert_scene_refused(
+        &d,
+        "twice.toml",
+        &format!("{BEAM}\n[material]\nmodel = \"stvk\"\n"),
+        &["`[material]`", "the table [material] is given twice"],
+    );
 }

@@ -124,6 +124,17 @@ pub(super) fn select_fixed(specs: &[FixedSpec], mesh: &TetMesh, bad: &Bad) -> Re
         if let Some(b) = &spec.bbox {
             finite("box.min", &b.min)?;
             finite("box.max", &b.max)?;
+            if let Some(k) = (0..3).find(|&k| b.min[k] > b.max[k]) {
+                return Err(bad(
+                    &format!("{item}.box"),
+                    format!(
+                        "min {:?} is above max {:?} along {} (the box holds no point)",
+                        b.min,
+                        b.max,
+                        ["x", "y", "z"][k]
+                    ),
+                ));
+            }
         }
         if let Some(t) = spec.tolerance {
             super::at_least(bad, &format!("{item}.tolerance"), t, 0.0, "m")?;

@@ -170,6 +170,12 @@ impl Scene {
         default_name: &str,
         dir: Option<&Path>,
     ) -> Result<Scene> {
+        if text.trim().is_empty() {
+            return Err(PalpateError::SceneParse {
+                origin: origin.to_string(),
+                message: "the file is empty (a scene needs at least [mesh] and [material])".into(),
+            });
+        }
         let file: SceneFile = toml::from_str(text).map_err(|e| {
             let mut message =
                 crate::input::clip(&plain_types(&e.message().trim().replace('\n', " ")), 1000);
@@ -181,6 +187,8 @@ impl Scene {
                     message = format!(
                         "[{section}] is a single table: write [{section}], not [[{section}]]"
                     );
+                } else if message == "duplicate key" && src.starts_with('[') {
+                    message = format!("the table {src} is given twice");
                 }
                 format!("line {n} `{}`: ", crate::input::excerpt(src))
             });
