@@ -31,10 +31,24 @@ pub fn read_regular(path: &Path, max_bytes: u64) -> io::Result<Vec<u8>> {
     std::fs::read(path)
 }
 
-/// [`read_regular`] as UTF-8 text.
+/// [`read_regular`] as UTF-8 text; bytes that are not say the line and column where they
+/// start ("line 3, column 9: not UTF-8 text (byte 0xff)").
 pub fn read_regular_text(path: &Path, max_bytes: u64) -> io::Result<String> {
-    String::from_utf8(read_regular(path, max_bytes)?)
-        .map_err(|e| io::Error::new(io::ErrorKind::InvalidData, e))
+    String::from_utf8(read_regular(path, max_bytes)?).map_err(|e| {
+        let at = e.utf8_error().valid_up_to();
+        let bytes = e.as_bytes();
+        let before = &bytes[..at];
+        let line = 1 + before.iter().filter(|&&b| b == b'\n').count();
+        let line_start = before.iter().rposition(|&b| b == b'\n').map_or(0, |k| k + 1);
+        let column = 1 + String::from_utf8_lossy(&before[line_start..]).chars().count();
+        io::Error::new(
+            io::ErrorKind::InvalidData,
+            format!(
+                "line {line}, column {column}: not UTF-8 text (byte 0x{:02x}); save the file as UTF-8",
+                bytes[at]
+            ),
+        )
+    })
 }
 
 /// Characters of input an error quotes at most ([`excerpt`]).

@@ -2891,3 +2891,31 @@ fn an_empty_scene_and_a_table_given_twice_say_so() {
         &["`[material]`", "the table [material] is given twice"],
     );
 }
+
+#[test]
+fn a_scene_or_trajectory_that_is_not_utf8_names_the_line_and_column() {
+    let d = tmp("notutf8");
+    let scene = d.join("latin1.toml");
+    // "café" in Latin-1 on line 2.
+    std::fs::write(&scene, b"name = \"x\"\n# caf\xe9\n[mesh]\n").unwrap();
+    assert_one_line_error(
+        &["run", scene.to_str().unwrap(), "--backend", "cpu"],
+        &[
+            "latin1.toml",
+            "line 2, column 6: not UTF-8 text (byte 0xe9)",
+        ],
+    );
+    let csv = d.join("press.csv");
+    std::fs::write(&csv, b"t,x,y,z\n0,0,0,0\n1,0,\xff,0\n").unwrap();
+    assert_one_line_error(
+        &[
+            "haptic",
+            "lv_touch",
+            "--device",
+            &format!("scripted:{}", csv.display()),
+            "--backend",
+            "cpu",
+        ],
+        &["press.csv", "line 3, column 5: not UTF-8 text (byte 0xff)"],
+    );
+}
