@@ -88,6 +88,10 @@
 use bytemuck::{Pod, Zeroable};
 use glam::{Mat3, Quat, Vec3};
 
+/// Largest Guccione exponent b_f, b_t, b_fs accepted: with Q = b E² the law's e^Q leaves
+/// single precision (e^88) at a strain of 0.3 for b = 1000 (published values: 1 to 50).
+pub const MAX_GUCCIONE_EXPONENT: f64 = 1000.0;
+
 /// Constitutive model; the value is the `MATERIAL` pipeline constant of `fem_forces.wgsl`.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
@@ -609,6 +613,12 @@ impl HyperelasticParams {
                 if !(b.is_finite() && b >= 0.0) {
                     return Err(format!(
                         "material.{key} must be a finite exponent ≥ 0 (got {b})"
+                    ));
+                }
+                if b > MAX_GUCCIONE_EXPONENT {
+                    return Err(format!(
+                        "material.{key} must be at most {MAX_GUCCIONE_EXPONENT} (got {}): e^Q, Q = b E², would overflow single precision below a strain of 0.3 (published values are 1 to 50)",
+                        crate::scene::Num(b)
                     ));
                 }
             }

@@ -131,6 +131,11 @@ fn bad_cardiac_input_is_one_line_naming_the_key() {
         &cardiac_beam(GOOD_MATERIAL, "").replace("guccione_bt = 2.0", "guccione_bt = -2.0"),
         "material.guccione_bt",
     );
+    // An exponent whose e^Q leaves single precision at small strains.
+    refuses(
+        &cardiac_beam(GOOD_MATERIAL, "").replace("guccione_bf = 8.0", "guccione_bf = 1.0e30"),
+        "material.guccione_bf: must be at most 1000",
+    );
     // Fibred law (b_f, b_t, b_fs differ) on a beam mesh, which has no fibres, and no `fibre`.
     refuses(&cardiac_beam("bulk_modulus = 2.0e5", ""), "material.fibre");
     refuses(
@@ -382,4 +387,21 @@ fn land_p1_reaches_a_static_state_converging_toward_the_reference() {
     }
     assert!(values[0] > 1.5 && values[0] < values[1], "{values:?}");
     assert!(values[1] > 2.8 && values[1] < 4.19, "{values:?}");
+}
+
+/// A split law whose constants make the derived Young's modulus 0 (λ = K − 2μ/3 cancelling
+/// at K = 1e-30 Pa) gives no overload warning: it read "4 Pa is inf x the material's Young's
+/// modulus (0 Pa)".
+#[test]
+fn no_overload_warning_from_a_modulus_that_is_not_positive() {
+    let text = Scene::builtin_text("land_p1")
+        .unwrap()
+        .replace("bulk_modulus = 2.0e5", "bulk_modulus = 1e-30");
+    assert!(text.contains("bulk_modulus = 1e-30"));
+    let scene = load(&text).unwrap();
+    assert!(
+        scene.load_warnings.iter().all(|w| !w.contains("inf x")),
+        "{:?}",
+        scene.load_warnings
+    );
 }

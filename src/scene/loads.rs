@@ -198,6 +198,11 @@ pub(super) fn overload_warnings(
     mesh: &TetMesh,
 ) -> Vec<String> {
     let mut out = Vec::new();
+    // A modulus that is not a positive number (a split law's λ cancelling its K at extreme
+    // constants) gives no ratio worth a warning.
+    if !(youngs_modulus.is_finite() && youngs_modulus > 0.0) {
+        return out;
+    }
     // Four significant digits: a modulus derived from λ and μ is 300000.00000000006 (the
     // shortest decimal of the rounded value, which reads 1e-20, not 1.0000000000000001e-20).
     let num = |x: f64| super::Num(format!("{x:.3e}").parse().unwrap_or(x));
