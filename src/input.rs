@@ -55,11 +55,18 @@ pub fn read_regular_text(path: &Path, max_bytes: u64) -> io::Result<String> {
 pub const MAX_EXCERPT_CHARS: usize = 120;
 
 /// `text` as an error may quote it on one line: control characters (a NUL, a tab, a stray
-/// escape) written as Rust escapes (`\0`, `\t`, `\u{1b}`), and cut after
+/// escape) and bidirectional controls written as Rust escapes (`\0`, `\t`, `\u{1b}`,
+/// `\u{202e}`), and cut after
 /// [`MAX_EXCERPT_CHARS`] characters with "… (N more characters)" (a 10 MB line once became
 /// a 10 MB error).
 pub fn excerpt(text: &str) -> String {
     clip(text, MAX_EXCERPT_CHARS)
+}
+
+/// A bidirectional override or isolate (U+202A–U+202E, U+2066–U+2069): printed as it is,
+/// it reorders the rest of the console line.
+pub fn is_bidi_control(c: char) -> bool {
+    matches!(c, '\u{202a}'..='\u{202e}' | '\u{2066}'..='\u{2069}')
 }
 
 /// [`excerpt`] with room for `max_chars` characters (a parser's message, which may quote a
@@ -68,7 +75,7 @@ pub fn clip(text: &str, max_chars: usize) -> String {
     let mut out = String::new();
     let mut chars = text.chars();
     for c in chars.by_ref().take(max_chars) {
-        if c.is_control() {
+        if c.is_control() || is_bidi_control(c) {
             out.extend(c.escape_debug());
         } else {
             out.push(c);

@@ -241,6 +241,7 @@ fn negative_and_infinite_values_and_an_out_that_is_a_file_are_one_line_errors() 
         ("offset.toml", "offset = 0.0 }", "offset = nan }", "fixed[0].plane.offset: must be finite, got NaN"),
         ("noname.toml", "name = \"beam\"", "name = \"\"", "name: \"\" is empty or holds control characters"),
         ("tabname.toml", "name = \"beam\"", "name = \"a\\tb\"", "name: \"a\\tb\" is empty"),
+        ("rtlname.toml", "name = \"beam\"", "name = \"a\u{202e}b\"", "name: \"a\\u{202e}b\" is empty or holds control characters"),
         ("hysteresis.toml", "[solver]", "[particles]\nregion = 0\nspacing = 0.004\nactivation_radius = 0.004\nhysteresis = inf\n\n[solver]", "particles.hysteresis: must be finite and >= 1, got inf"),
     ] {
         assert_scene_refused(&d, name, &BEAM.replacen(from, to, 1), &[want]);
@@ -282,6 +283,14 @@ fn fixing_every_vertex_or_pressing_only_fixed_ones_warns_that_nothing_moves() {
     let lv = include_str!("../scenes/lv.toml");
     assert_eq!(lv.matches("tag = \"endocardium\"").count(), 1);
     let on_base = lv.replace("tag = \"endocardium\"", "tag = \"base\"");
+    // land_p1's follower pressure on its clamped end (x = 0) instead of its bottom face.
+    let land = include_str!("../scenes/land_p1.toml");
+    let follower_on_clamp = land.replacen(
+        "plane = { normal = [0.0, 0.0, 1.0], offset = 0.0 }\npascals",
+        "plane = { normal = [1.0, 0.0, 0.0], offset = 0.0 }\npascals",
+        1,
+    );
+    assert_ne!(follower_on_clamp, land);
     for (name, text, warning) in [
         ("all.toml", all.as_str(), Some("holds every vertex")),
         ("beam.toml", BEAM, None),
@@ -291,6 +300,12 @@ fn fixing_every_vertex_or_pressing_only_fixed_ones_warns_that_nothing_moves() {
             Some("acts only on fixed vertices"),
         ),
         ("lv.toml", lv, None),
+        (
+            "follower_on_clamp.toml",
+            follower_on_clamp.as_str(),
+            Some("[[loads.follower_pressure]] acts only on fixed vertices"),
+        ),
+        ("land.toml", land, None),
     ] {
         let scene = scene_file(&d, name, text);
         let (ok, out, err) = run_on_cpu(&scene, "2", d.to_str().unwrap());
@@ -2917,5 +2932,17 @@ fn a_scene_or_trajectory_that_is_not_utf8_names_the_line_and_column() {
             "cpu",
         ],
         &["press.csv", "line 3, column 5: not UTF-8 text (byte 0xff)"],
+    );
+}
+
+#[test]
+fn a_scene_name_longer_than_two_hundred_characters_is_refused() {
+    let d = tmp("longname");
+    let long = "x".repeat(201);
+    assert_scene_refused(
+        &d,
+        "long.toml",
+        &BEAM.replacen("name = \"beam\"", &format!("name = \"{long}\""), 1),
+        &["name: 201 characters, more than 200"],
     );
 }

@@ -375,6 +375,17 @@ fn execute(cli: Cli) -> Result<()> {
                         scene.origin
                     );
                 }
+                if scene.follower.as_ref().is_some_and(|f| {
+                    f.faces
+                        .iter()
+                        .flatten()
+                        .all(|&v| scene.fixed.get(v as usize).copied().unwrap_or(false))
+                }) {
+                    palpate::say_err!(
+                        "warning: {}: [[loads.follower_pressure]] acts only on fixed vertices: it moves nothing",
+                        scene.origin
+                    );
+                }
             }
             if scene
                 .particles

@@ -271,11 +271,23 @@ impl Scene {
             ));
         }
         if let Some(name) = &file.name {
-            if name.trim().is_empty() || name.chars().any(char::is_control) {
+            // Bidirectional controls reorder the console line the name is printed on.
+            let odd = |c: char| c.is_control() || crate::input::is_bidi_control(c);
+            if name.trim().is_empty() || name.chars().any(odd) {
                 return Err(bad(
                     "name",
                     format!(
-                        "{name:?} is empty or holds control characters: give a short name, or leave it out to use the file's name"
+                        "\"{}\" is empty or holds control characters: give a short name, or leave it out to use the file's name",
+                        crate::input::excerpt(name)
+                    ),
+                ));
+            }
+            if name.chars().count() > MAX_NAME_CHARS {
+                return Err(bad(
+                    "name",
+                    format!(
+                        "{} characters, more than {MAX_NAME_CHARS}: give a short name (it heads every console line and summary)",
+                        name.chars().count()
                     ),
                 ));
             }
@@ -321,6 +333,9 @@ pub fn unit_direction(v: [f64; 3]) -> Option<glam::DVec3> {
     }
     Some((v / scale).normalize())
 }
+
+/// Longest scene `name` accepted, in characters.
+pub const MAX_NAME_CHARS: usize = 200;
 
 /// A scene value in an error message: as written for everyday magnitudes, in exponent form
 /// beyond them (1e-300 is not printed as 300 digits).
