@@ -2946,3 +2946,23 @@ fn a_scene_name_longer_than_two_hundred_characters_is_refused() {
         &["name: 201 characters, more than 200"],
     );
 }
+
+#[test]
+fn an_out_folder_that_is_a_dangling_link_says_so() {
+    let d = tmp("dangling");
+    let link = d.join("out");
+    std::os::unix::fs::symlink(d.join("gone"), &link).unwrap();
+    assert_one_line_error(
+        &[
+            "run",
+            "beam",
+            "--steps",
+            "1",
+            "--backend",
+            "cpu",
+            "--out",
+            link.to_str().unwrap(),
+        ],
+        &["--out is a symbolic link to", "gone, which does not exist"],
+    );
+}

@@ -26,6 +26,14 @@ pub fn prepare_out_dir(dir: &Path) -> Result<()> {
             dir.display()
         )));
     }
+    if !dir.exists() && dir.symlink_metadata().is_ok() {
+        let target = std::fs::read_link(dir).unwrap_or_default();
+        return Err(PalpateError::Usage(format!(
+            "{}: --out is a symbolic link to {}, which does not exist; create that folder or give another",
+            dir.display(),
+            target.display()
+        )));
+    }
     std::fs::create_dir_all(dir).map_err(err)?;
     let probe = dir.join(format!(".palpate-write-probe-{}", std::process::id()));
     std::fs::write(&probe, b"").map_err(err)?;
