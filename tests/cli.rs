@@ -2966,3 +2966,67 @@ fn an_out_folder_that_is_a_dangling_link_says_so() {
         &["--out is a symbolic link to", "gone, which does not exist"],
     );
 }
+
+#[test]
+fn a_tool_path_faster_than_its_radius_a_step_is_warned_of() {
+    let d = tmp("fasttool");
+    let lv_touch = include_str!("../scenes/lv_touch.toml");
+    let shipped = "path = [[0.0, 0.0147, 0.0, -0.005], [0.5, 0.0117, 0.0, -0.005], [2.0, 0.0117, 0.0, -0.005]]";
+    assert!(lv_touch.contains(shipped));
+    // 50 mm in 1 ms: through the wall in a step or two.
+    let fast = lv_touch.replacen(
+        shipped,
+        "path = [[0.0, 0.0147, 0.0, -0.005], [0.001, -0.0353, 0.0, -0.005]]",
+        1,
+    );
+    for (name, text, warned) in [
+        ("fast.toml", fast.as_str(), true),
+        ("shipped.toml", lv_touch, false),
+    ] {
+        let scene = scene_file(&d, name, text);
+        let (ok, out, err) =
+            run_on_cpu(&scene, "2", d.join(format!("{name}_out")).to_str().unwrap());
+        assert!(ok, "{name}: {out}{err}");
+        assert_eq!(
+            err.contains("tool.path moves the tool at 5.000e1 m/s from t = 0 to 0.001 s")
+                && err.contains("so it can pass through the surface"),
+            warned,
+            "{name}: {err}"
+        );
+    }
+}
+
+#[test]
+fn a_scripted_hand_faster_than_the_tools_radius_a_tick_is_warned_of() {
+    let d = tmp("fasthand");
+    for (name, rows, warned) in [
+        (
+            "fast.csv",
+            "0,0,0,0\n0.001,-0.05,0,0\n0.1,-0.05,0,0\n",
+            true,
+        ),
+        ("slow.csv", "0,0,0,0\n0.1,-0.002,0,0\n", false),
+    ] {
+        let csv = d.join(name);
+        std::fs::write(&csv, format!("t,x,y,z\n{rows}")).unwrap();
+        let (ok, out, err) = palpate(&[
+            "haptic",
+            "lv_touch",
+            "--device",
+            &format!("scripted:{}", csv.display()),
+            "--seconds",
+            "0.05",
+            "--backend",
+            "cpu",
+            "--out",
+            d.join(format!("{name}_out")).to_str().unwrap(),
+        ]);
+        assert!(ok, "{name}: {out}{err}");
+        assert_eq!(
+            err.contains("the trajectory moves the device at 5.000e1 m/s from t = 0 to 0.001 s")
+                && err.contains("more than the tool's radius"),
+            warned,
+            "{name}: {err}"
+        );
+    }
+}

@@ -59,6 +59,21 @@ impl Tool {
         }
     }
 
+    /// The path's fastest leg between keyframes: (speed m/s, its start, its end s); None
+    /// with fewer than two keyframes.
+    pub fn fastest_leg(&self) -> Option<(f64, f64, f64)> {
+        self.path
+            .windows(2)
+            .map(|w| {
+                (
+                    (w[1].1 - w[0].1).length() / (w[1].0 - w[0].0),
+                    w[0].0,
+                    w[1].0,
+                )
+            })
+            .max_by(|a, b| a.0.total_cmp(&b.0))
+    }
+
     /// Time of the last keyframe (0 without a path).
     pub fn path_end(&self) -> f64 {
         self.path.last().map_or(0.0, |(t, _)| *t)

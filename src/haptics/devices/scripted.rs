@@ -168,6 +168,17 @@ impl Trajectory {
         self.points[i - 1].lerp(self.points[i], s)
     }
 
+    /// The fastest leg between rows: (speed m/s, its start, its end s); None with one row.
+    pub fn fastest_leg(&self) -> Option<(f64, f64, f64)> {
+        (1..self.times.len())
+            .map(|i| {
+                let dt = self.times[i] - self.times[i - 1];
+                let speed = (self.points[i] - self.points[i - 1]).length() / dt;
+                (speed, self.times[i - 1], self.times[i])
+            })
+            .max_by(|a, b| a.0.total_cmp(&b.0))
+    }
+
     /// The last row's time, s.
     pub fn end_time(&self) -> f64 {
         self.times[self.times.len() - 1]
@@ -269,6 +280,9 @@ impl HapticDevice for ScriptedDevice {
     }
     fn duration(&self) -> Option<f64> {
         Some(self.trajectory.end_time().max(0.0))
+    }
+    fn trajectory(&self) -> Option<&Trajectory> {
+        Some(&self.trajectory)
     }
 }
 
