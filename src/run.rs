@@ -171,7 +171,7 @@ fn steps_for(length: RunLength, dt: f64) -> Result<u64> {
             let x = t / dt;
             if x > MAX_RUN_STEPS as f64 {
                 return Err(PalpateError::Usage(format!(
-                    "a run of {} s (--duration, or the scene's solver.duration) would take {x:.3e} steps of {dt:.3e} s (more than {MAX_RUN_STEPS}); use a larger dt or a shorter run",
+                    "a run of {} s (--duration, or the scene's solver.duration) would take {x:.3e} steps of {dt:.3e} s (more than {MAX_RUN_STEPS}); use a larger --dt or a shorter run",
                     crate::scene::Num(t)
                 )));
             }
@@ -196,7 +196,7 @@ fn steps_for(length: RunLength, dt: f64) -> Result<u64> {
             }
             RunLength::Steps(_) => format!("--steps {n}: at most {MAX_RUN_STEPS} (2^40) steps"),
             RunLength::Duration(_) => format!(
-                "the run would take {n} steps of {dt:.3e} s (more than {MAX_RUN_STEPS}); use a larger dt or a shorter run"
+                "the run would take {n} steps of {dt:.3e} s (more than {MAX_RUN_STEPS}); use a larger --dt or a shorter run"
             ),
         }));
     }

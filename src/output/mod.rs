@@ -42,8 +42,11 @@ pub fn prepare_out_dir(dir: &Path) -> Result<()> {
 
 /// Whether `name` is a file `palpate run` or `palpate haptic` writes: `final.vtu`,
 /// `summary.json`, `haptic.csv`, `series.pvd`, `frame_NNNN.vtu` (four digits or more), and
-/// the particles' `particles_final.vtu`, `particles_series.pvd`, `particles_frame_NNNN.vtu`.
+/// the particles' `particles_final.vtu`, `particles_series.pvd`, `particles_frame_NNNN.vtu`,
+/// or one of their temporary `.partial` files.
 pub fn is_run_output(name: &str) -> bool {
+    // A write that a kill cut short leaves its temporary file.
+    let name = name.strip_suffix(".partial").unwrap_or(name);
     let frame = |rest: &str| {
         rest.strip_prefix("frame_")
             .and_then(|r| r.strip_suffix(".vtu"))
@@ -216,5 +219,30 @@ mod write_tests {
         });
         assert!(failed.is_err() && !dir.join("summary.json.partial").exists() && !other.exists());
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn run_outputs_and_their_temporary_files_are_named_and_nothing_else() {
+        for name in [
+            "final.vtu",
+            "summary.json",
+            "haptic.csv",
+            "series.pvd",
+            "frame_0012.vtu",
+            "particles_frame_0002.vtu",
+            "particles_frame_0002.vtu.partial",
+            "final.vtu.partial",
+        ] {
+            assert!(is_run_output(name), "{name}");
+        }
+        for name in [
+            "frame_1.vtu",
+            "notes.txt",
+            "frame_0001.vtu.bak",
+            "x.partial",
+            ".partial",
+        ] {
+            assert!(!is_run_output(name), "{name}");
+        }
     }
 }
