@@ -451,6 +451,7 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
             }
             let t0 = Instant::now();
             let batch_seconds = steps as f64 * sim.dt;
+            let tool_before = sim.tool_position;
             let result = sim.advance_with(steps, DivergencePolicy::HalveDt)?;
             let elapsed = t0.elapsed().as_secs_f64();
             busy_seconds += elapsed;
@@ -537,28 +538,31 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                     last_check = Some(t);
                 }
             }
-            physics.publish(LocalModel {
-                force: if diverged { DVec3::ZERO } else { report.force },
-                stiffness: published_k,
-                contact_stiffness: if in_contact {
-                    haptics::model::batch_contact_stiffness(
-                        report.stiffness,
-                        report.force,
-                        tool_damping,
-                        report.contact_area,
-                        batch_seconds,
-                    )
-                } else {
-                    DMat3::ZERO
-                },
-                proxy: sim.tool_position - home,
-                stamp: command.stamp,
-                sim_time: sim.time,
-                diverged,
-                in_contact,
-                penetration: report.max_penetration,
-                active_particles: sim.last_particles.map_or(0, |p| p.dynamic),
-            });
+            physics.publish(
+                LocalModel {
+                    force: if diverged { DVec3::ZERO } else { report.force },
+                    stiffness: published_k,
+                    contact_stiffness: if in_contact {
+                        report.stiffness
+                    } else {
+                        DMat3::ZERO
+                    },
+                    proxy: sim.tool_position - home,
+                    stamp: command.stamp,
+                    sim_time: sim.time,
+                    diverged,
+                    in_contact,
+                    penetration: report.max_penetration,
+                    active_particles: sim.last_particles.map_or(0, |p| p.dynamic),
+                    ..Default::default()
+                }
+                .with_batch_damper(
+                    if in_contact { tool_damping } else { 0.0 },
+                    report.contact_area,
+                    batch_seconds,
+                    sim.tool_position - tool_before,
+                ),
+            );
             if let Some((state, particles)) = to_check {
                 let t = Instant::now();
                 let n = match &probe {

@@ -68,6 +68,7 @@ impl Wall {
             in_contact,
             penetration: pen.max(0.0),
             active_particles: 0,
+            ..Default::default()
         }
     }
 }

@@ -27,15 +27,22 @@
 //! e·(K_true − K)/(k_c − K), K_true the physics' response over one batch. That factor is
 //! below one in magnitude only when K is close to K_true, which over a millisecond is the
 //! contact springs' stiffness with the tissue held (the tissue has not moved yet), not the
-//! settled static stiffness, plus the contact dampers' b A/T (the tool crosses Δx in a batch
-//! of T, [`super::model::batch_contact_stiffness`]): with the static one (softer) in the
-//! solve, a contact spring
+//! settled static stiffness: with the static one (softer) in the solve, a contact spring
 //! stiffer than about 2k_c makes the proxy and the tissue ring (measured: a cantilever at
 //! 47 N/m static, 500 N/m contact, k_c = 360 N/m bounced in and out of contact at ≈ 10 Hz).
 //! K is not capped for the same reason (a capped K in the proxy solve would make the fixed
 //! point between servo and physics diverge for tissue stiffer than k_c + 2·cap); it is only
 //! symmetrised and its positive eigenvalues (an active, "negative stiffness" tissue) are
 //! clipped to zero, see [`sanitize_stiffness`].
+//!
+//! The contact dampers respond within a batch too: a tool that crosses Δ in a batch of T
+//! meets b A (Δ·n)/T, a spring β = b A/T along the normal, but only into the tissue, and the
+//! force f0 the physics reports already holds the last batch's damper push D(Δ₀). The solve
+//! therefore takes F(x) = f0 − D(Δ₀) + K·(x − x0) + D(x − x0)
+//! ([`LocalModel::damper_force_of`]): with K − β n̂n̂ᵀ for a proxy that moves into the tissue,
+//! K alone for one that moves out. Without the damper term a damper stiffer than the springs
+//! over a batch (β > (k_c + kA)/2) made the fixed point diverge (the proxy ran away to the
+//! device's force clamp); with D(Δ₀) kept in f0 as well, a steady press felt the damper twice.
 
 use super::device::DeviceSpec;
 use super::model::LocalModel;
@@ -181,12 +188,26 @@ impl VirtualCoupling {
             tissue_stiffness: 0.0,
         };
         if let Some(m) = model.filter(|m| m.in_contact && k_c > 0.0) {
-            let (lambda, v) = sanitize_stiffness(m.solve_stiffness());
-            let k = compose(v, lambda);
-            out.tissue_stiffness = -lambda.min_element();
-            let inv_a = compose(v, DVec3::ONE / (DVec3::splat(k_c) - lambda));
-            let x_p = inv_a * (k_c * x_d + m.force - k * m.proxy);
-            let f_t = unilateral(m.force + k * (x_p - m.proxy), m.force);
+            // F(x) = f0 − D(Δ₀) + K·(x − x0) + D(x − x0) (LocalModel::damper_force_of): the
+            // last batch's damper force is replaced by the next move's. D is linear on each
+            // side of the surface: a move into the tissue meets K − β n̂n̂ᵀ, one out of it K.
+            let f0 = m.force - m.damper_force;
+            let springs = m.solve_stiffness();
+            let solve = |k: DMat3| {
+                let (lambda, v) = sanitize_stiffness(k);
+                let inv_a = compose(v, DVec3::ONE / (DVec3::splat(k_c) - lambda));
+                let k = compose(v, lambda);
+                (inv_a * (k_c * x_d + f0 - k * m.proxy), k, lambda, v)
+            };
+            let n = m.damper_normal;
+            let into = (m.damper_rate > 0.0)
+                .then(|| {
+                    solve(springs - DMat3::from_cols(n * n.x, n * n.y, n * n.z) * m.damper_rate)
+                })
+                .filter(|(x_p, ..)| (*x_p - m.proxy).dot(n) <= 0.0);
+            let (x_p, k, lambda, v) = into.unwrap_or_else(|| solve(springs));
+            out.tissue_stiffness = -sanitize_stiffness(springs).0.min_element();
+            let f_t = unilateral(f0 + k * (x_p - m.proxy), m.force);
             if f_t != DVec3::ZERO {
                 out.proxy = x_p;
                 out.spring_force = k_c * (x_p - x_d);
@@ -224,6 +245,45 @@ mod tests {
             .to_cols_array()
             .iter()
             .all(|e| e.abs() < 1e-12));
+    }
+
+    /// A wall z < 0 with contact springs a and dampers β over a batch, the tool at
+    /// penetration p after a batch that moved it c deeper (so f0 holds β c of damper push):
+    /// the proxy solves the batch's own piecewise model, k_c (x_d − x_p) + F(x_p) = 0 with
+    /// F(x) = a (p − (x − x0)) + β max(0, −(x − x0)): into the tissue with a + β, out of it
+    /// with a alone, and the last batch's damper push is not counted again.
+    #[test]
+    fn the_proxy_solves_the_batchs_piecewise_damper_model() {
+        let (k_c, a, beta, p, c) = (400.0, 2000.0, 5000.0, 0.002, 1e-4);
+        let n = DVec3::Z;
+        let x0 = -p * n;
+        let model = LocalModel {
+            force: n * (a * p + beta * c),
+            contact_stiffness: -a * DMat3::from_cols(n * n.x, n * n.y, n * n.z),
+            proxy: x0,
+            in_contact: true,
+            ..Default::default()
+        }
+        .with_batch_damper(beta * 1e-3 / 3e-5, 3e-5, 1e-3, -c * n);
+        assert!((model.damper_rate - beta).abs() < 1e-9);
+        let force = |x: f64| a * (p - (x - x0.z)) + beta * (-(x - x0.z)).max(0.0);
+        for x_d in [-0.0030, -0.0022, -0.0021, -0.0019, -0.0010] {
+            let mut coupling = VirtualCoupling::new(CouplingParams {
+                stiffness: k_c,
+                damping: 0.0,
+            });
+            let out = coupling.update(Some(&model), DVec3::new(0.0, 0.0, x_d), DVec3::ZERO, 1e-3);
+            let x_p = out.proxy.z;
+            let balance = k_c * (x_d - x_p) + force(x_p);
+            assert!(out.contact, "x_d {x_d}");
+            assert!(
+                balance.abs() < 1e-9,
+                "x_d {x_d}: proxy {x_p}, residual {balance} N"
+            );
+            // Felt: the springs and, pressing deeper, the dampers in series with k_c.
+            let k = if x_p < x0.z { a + beta } else { a };
+            assert!((out.stiffness.z_axis.z + k_c * k / (k_c + k)).abs() < 1e-9);
+        }
     }
 
     #[test]

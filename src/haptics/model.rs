@@ -66,8 +66,19 @@ pub struct LocalModel {
     /// moved (the contact springs with the tissue held). The coupling's proxy solve uses it
     /// (zero: it uses `stiffness`): the servo ↔ physics fixed point converges only when the
     /// solve's stiffness is at least the physics' immediate response (see
-    /// [`super::coupling`]), and a contact spring is stiffer than the settled tissue.
+    /// [`super::coupling`]), and a contact spring is stiffer than the settled tissue (the
+    /// dampers' immediate response is `damper_rate`'s).
     pub contact_stiffness: DMat3,
+    /// β = b A_c / T, N/m: how the contact dampers resist a tool move within one physics batch
+    /// of T s (the tool crosses Δx at Δx/T; b the damping per unit area, A_c the contact's
+    /// area), along `damper_normal` and only into the tissue (the damper is unilateral).
+    /// Zero: no damper term (see [`LocalModel::damper_force_of`]).
+    pub damper_rate: f64,
+    /// n̂: the direction of the tool force (out of the tissue), the contact's mean normal.
+    pub damper_normal: DVec3,
+    /// N: the part of `force` the dampers gave the last batch's own tool move Δ₀,
+    /// [`LocalModel::damper_force_of`]\(Δ₀): the next batch's move replaces it.
+    pub damper_force: DVec3,
     /// x0, m: the tool (proxy) position the model was computed at (device frame, relative to
     /// the tool home).
     pub proxy: DVec3,
@@ -93,6 +104,9 @@ impl Default for LocalModel {
             force: DVec3::ZERO,
             stiffness: DMat3::ZERO,
             contact_stiffness: DMat3::ZERO,
+            damper_rate: 0.0,
+            damper_normal: DVec3::ZERO,
+            damper_force: DVec3::ZERO,
             proxy: DVec3::ZERO,
             stamp: 0.0,
             sim_time: 0.0,
@@ -120,43 +134,47 @@ impl LocalModel {
         }
     }
 
+    /// D(Δ) = β max(0, −n̂·Δ) n̂, N: the contact dampers' push on the tool after a batch
+    /// that moved it by Δ (the tissue held): zero for a move out of the tissue. The batch
+    /// that moves the tool from x0 to x reports, to first order,
+    ///
+    /// F(x) = f0 − D(Δ₀) + K_c·(x − x0) + D(x − x0)
+    ///
+    /// (`damper_force` = D(Δ₀), Δ₀ the last batch's move; K_c the contact springs): the
+    /// model the coupling's proxy solve uses ([`super::coupling`]).
+    pub fn damper_force_of(&self, delta: DVec3) -> DVec3 {
+        self.damper_normal * (self.damper_rate * (-self.damper_normal.dot(delta)).max(0.0))
+    }
+
+    /// This model with its contact damper term for a batch of `batch_seconds` s that moved
+    /// the tool by `tool_move` m, from the tool's damping per unit area `damping` (Pa·s/m)
+    /// and the contact's area `contact_area` (m²), along the tool force's direction.
+    pub fn with_batch_damper(
+        mut self,
+        damping: f64,
+        contact_area: f64,
+        batch_seconds: f64,
+        tool_move: DVec3,
+    ) -> Self {
+        let normal = self.force.normalize_or_zero();
+        if damping > 0.0 && contact_area > 0.0 && batch_seconds > 0.0 && normal != DVec3::ZERO {
+            self.damper_rate = damping * contact_area / batch_seconds;
+            self.damper_normal = normal;
+            self.damper_force = self.damper_force_of(tool_move);
+        }
+        self
+    }
+
     /// All numbers finite (a non-finite model is treated as diverged).
     pub fn is_finite(&self) -> bool {
         self.force.is_finite()
             && self.stiffness.is_finite()
             && self.contact_stiffness.is_finite()
+            && self.damper_rate.is_finite()
+            && self.damper_normal.is_finite()
+            && self.damper_force.is_finite()
             && self.proxy.is_finite()
             && self.stamp.is_finite()
-    }
-}
-
-/// The contact's stiffness within one physics batch of `batch_seconds` (s), N/m, for
-/// [`LocalModel::contact_stiffness`]: the contact springs' `springs` (ToolForce's
-/// k Σ A [(R/r)(I − n nᵀ) − I], normal part −k Σ A n nᵀ) plus the dampers',
-/// −(b A_c / T) f̂ f̂ᵀ, b the tool's damping per unit area, A_c the contact's area, T the
-/// batch's duration and f̂ the direction of the tool force `force` (the contact's mean
-/// normal; exact for one contact point).
-///
-/// Within a batch the tool moves from where it was to the proxy at Δx/T, so the contact
-/// dampers push back b A (Δx·n)/T: a spring b A/T along each contact normal. Without it a
-/// damper much stiffer than the springs over one batch (b/k ≫ T) makes the servo ↔ physics
-/// fixed point diverge (the proxy runs away until the device's force clamp holds it; see
-/// [`super::coupling`]); overestimating this stiffness only slows the proxy, and where it
-/// settles (f0 balanced by the coupling spring) does not depend on it.
-pub fn batch_contact_stiffness(
-    springs: DMat3,
-    force: DVec3,
-    damping: f64,
-    contact_area: f64,
-    batch_seconds: f64,
-) -> DMat3 {
-    let normal = force.normalize_or_zero();
-    if damping > 0.0 && contact_area > 0.0 && batch_seconds > 0.0 && normal != DVec3::ZERO {
-        springs
-            - DMat3::from_cols(normal * normal.x, normal * normal.y, normal * normal.z)
-                * (damping * contact_area / batch_seconds)
-    } else {
-        springs
     }
 }
 
@@ -242,21 +260,29 @@ mod tests {
     use super::*;
 
     #[test]
-    fn the_batch_contact_stiffness_adds_the_dampers_along_the_normal() {
-        // One contact along z with area A: springs −k A n nᵀ (R/r = 1), force along +z.
-        let (k, b, t, area) = (2.0e6, 1.0e4, 1.0e-3, 3.0e-5);
-        let springs = DMat3::from_diagonal(DVec3::new(0.0, 0.0, -k * area));
-        let f = DVec3::new(0.0, 0.0, 0.5);
-        let kc = batch_contact_stiffness(springs, f, b, area, t);
-        assert!((kc.z_axis.z - (-(k + b / t) * area)).abs() <= 1e-9 * k * area);
-        assert_eq!(kc.x_axis, DVec3::ZERO);
-        assert_eq!(kc.y_axis, DVec3::ZERO);
-        // No damper, no batch or no force: the springs alone.
-        assert_eq!(batch_contact_stiffness(springs, f, 0.0, area, t), springs);
-        assert_eq!(batch_contact_stiffness(springs, f, b, area, 0.0), springs);
-        assert_eq!(
-            batch_contact_stiffness(springs, DVec3::ZERO, b, area, t),
-            springs
-        );
+    fn the_damper_term_pushes_back_on_moves_into_the_tissue_only() {
+        // Force out of the tissue along +z, b = 1e4 Pa·s/m on 3e-5 m² over a 1 ms batch.
+        let m = LocalModel {
+            force: DVec3::new(0.0, 0.0, 0.5),
+            ..Default::default()
+        }
+        .with_batch_damper(1.0e4, 3.0e-5, 1.0e-3, DVec3::new(0.0, 1e-4, -2e-4));
+        let beta = 1.0e4 * 3.0e-5 / 1.0e-3;
+        assert!((m.damper_rate - beta).abs() < 1e-12 && m.damper_normal == DVec3::Z);
+        // The last move went 0.2 mm into the tissue: its damper force, along the normal only.
+        assert!((m.damper_force - DVec3::new(0.0, 0.0, beta * 2e-4)).length() < 1e-12);
+        // A move out of the tissue meets no damper.
+        assert_eq!(m.damper_force_of(DVec3::new(0.0, 0.0, 1e-4)), DVec3::ZERO);
+        // No damping, no area or no force: no term.
+        let plain = LocalModel {
+            force: DVec3::new(0.0, 0.0, 0.5),
+            ..Default::default()
+        };
+        for (b, a) in [(0.0, 3e-5), (1e4, 0.0)] {
+            let m = plain.with_batch_damper(b, a, 1e-3, DVec3::NEG_Z);
+            assert_eq!((m.damper_rate, m.damper_force), (0.0, DVec3::ZERO));
+        }
+        let m = LocalModel::default().with_batch_damper(1e4, 3e-5, 1e-3, DVec3::NEG_Z);
+        assert_eq!(m.damper_rate, 0.0);
     }
 }
