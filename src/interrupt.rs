@@ -23,26 +23,48 @@ pub fn request() {
     REQUESTED.store(true, Ordering::SeqCst);
 }
 
-/// Forget a stop asked for (before starting another job in the same process).
+/// Forget a stop asked for, and the signals counted (before starting another job in the
+/// same process).
 pub fn clear() {
     REQUESTED.store(false, Ordering::SeqCst);
+    SIGNALS.store(0, Ordering::SeqCst);
 }
 
 /// What the first signal prints (on stderr).
 pub const FIRST_NOTE: &str =
-    "\nnote: stopping after the current batch and writing the outputs (a second Ctrl-C stops at once)\n";
+    "\nnote: stopping after the current batch and writing the outputs (a second Ctrl-C or SIGTERM stops at once)\n";
 
 /// What the second signal prints (on stderr) before ending the process.
-pub const SECOND_NOTE: &str = "\nerror: interrupted twice: stopped at once, outputs not written (the next run into the folder removes what is left)\n";
+pub const SECOND_NOTE: &str = "\nerror: interrupted twice: stopped at once; the outputs were not written (frames already written stay, listed in series.pvd)\n";
+
+/// Signals received since [`install`] or [`clear`].
+static SIGNALS: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
 
 #[cfg(unix)]
 extern "C" fn on_signal(_: libc::c_int) {
-    // Only async-signal-safe calls here: an atomic swap, write(2) and _exit.
-    let second = REQUESTED.swap(true, Ordering::SeqCst);
-    let note = if second { SECOND_NOTE } else { FIRST_NOTE };
+    // Only async-signal-safe calls here: atomics, write(2) and _exit. Installed with
+    // SA_NODEFER: a second signal interrupts a first handler blocked in write (a full pipe on
+    // stderr), and a third exits without writing.
+    let n = SIGNALS.fetch_add(1, Ordering::SeqCst) + 1;
+    REQUESTED.store(true, Ordering::SeqCst);
+    let note = match n {
+        1 => FIRST_NOTE,
+        2 => SECOND_NOTE,
+        _ => "",
+    };
+    #[cfg(target_os = "linux")]
+    // SAFETY: the calling thread's errno slot; saved and restored around write(2), which may
+    // change it under the code the signal interrupted.
+    let errno = unsafe { *libc::__errno_location() };
     // SAFETY: write(2) on stderr with a valid buffer and length; its result is not needed.
     unsafe { libc::write(2, note.as_ptr().cast(), note.len()) };
-    if second {
+    #[cfg(target_os = "linux")]
+    // SAFETY: as above.
+    unsafe {
+        *libc::__errno_location() = errno
+    };
+    if n >= 2 {
+        // SAFETY: _exit is async-signal-safe.
         unsafe { libc::_exit(EXIT_STATUS as libc::c_int) };
     }
 }
@@ -53,16 +75,23 @@ pub fn install() -> bool {
     #[cfg(unix)]
     {
         let handler = on_signal as extern "C" fn(libc::c_int) as libc::sighandler_t;
-        // SAFETY: `on_signal` only touches an atomic and calls `write` and `_exit`, all
-        // async-signal-safe; `signal` is called with valid signal numbers and with the
-        // disposition it returned.
+        // SAFETY: `on_signal` only touches atomics and calls `write` and `_exit`, all
+        // async-signal-safe; `sigaction` gets valid signal numbers and zero-initialised
+        // (valid) structures, and an inherited SIG_IGN is put back as it was.
         let installed = [libc::SIGINT, libc::SIGTERM].map(|sig| unsafe {
-            let before = libc::signal(sig, handler);
-            if before == libc::SIG_IGN {
-                libc::signal(sig, libc::SIG_IGN);
+            let mut action: libc::sigaction = std::mem::zeroed();
+            action.sa_sigaction = handler;
+            action.sa_flags = libc::SA_NODEFER | libc::SA_RESTART;
+            libc::sigemptyset(&mut action.sa_mask);
+            let mut before: libc::sigaction = std::mem::zeroed();
+            if libc::sigaction(sig, &action, &mut before) != 0 {
                 return false;
             }
-            before != libc::SIG_ERR
+            if before.sa_sigaction == libc::SIG_IGN {
+                libc::sigaction(sig, &before, std::ptr::null_mut());
+                return false;
+            }
+            true
         });
         installed.iter().all(|&ok| ok)
     }
