@@ -314,21 +314,23 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
         Err(why) => StiffnessSource::Frozen(why.to_string()),
     };
     let config = ServoConfig::new(spec).with_duration(seconds);
-    // A scripted hand that moves the tool more than its radius in a servo period can pass
-    // through the surface between two ticks without touching it.
-    if let (true, Some(t), Some(trajectory)) = (
-        opts.announce,
-        &model.tool,
-        device.trajectory().and_then(|t| t.fastest_leg()),
-    ) {
-        let (speed, from, to) = trajectory;
-        if speed * config.period() > t.tool.radius {
-            crate::say_err!(
-                "warning: {}: the trajectory moves the device at {speed:.3e} m/s from t = {from} to {to} s: {:.3e} m a servo period, more than the tool's radius {:.3e} m, so it can pass through the surface without touching it",
-                opts.device,
-                speed * config.period(),
-                t.tool.radius
-            );
+    // A scripted hand that moves the tool more than its radius in a step can pass through
+    // the surface between two steps without touching it (the physics moves the tool to each
+    // batch's proxy step by step).
+    if let (true, Some(t)) = (opts.announce, &model.tool) {
+        let warning = device
+            .trajectory()
+            .and_then(|path| path.fastest_leg())
+            .and_then(|leg| {
+                crate::scene::tunnelling_warning(
+                    "the trajectory moves the device",
+                    leg,
+                    sim.dt,
+                    t.tool.radius,
+                )
+            });
+        if let Some(w) = warning {
+            crate::say_err!("warning: {}: {w}", opts.device);
         }
     }
     if opts.announce {

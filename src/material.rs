@@ -665,7 +665,7 @@ impl HyperelasticParams {
             let len2 = f.iter().map(|c| c * c).sum::<f32>();
             if !(len2.is_finite() && len2 > 1e-12) {
                 return Err(format!(
-                    "mesh.file: the fibre of tet {e} (elements counted from 0 in file order) is zero or not finite, {f:?}: the fibred law needs one in every tet (or give material.fibre = [x, y, z])"
+                    "mesh.file: the fibre of tet {e} (tets counted from 0 in file order, other cells skipped) is zero or not finite, {f:?}: the fibred law needs one in every tet (or give material.fibre = [x, y, z])"
                 ));
             }
         }

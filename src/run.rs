@@ -352,15 +352,11 @@ pub fn run_with_state(
     }
     let dt0 = sim.dt;
     if let (true, Some(t)) = (opts.announce, &model.tool) {
-        if let Some((speed, from, to)) = t.tool.fastest_leg() {
-            if speed * dt0 > t.tool.radius {
-                crate::say_err!(
-                    "warning: {}: tool.path moves the tool at {speed:.3e} m/s from t = {from} to {to} s: {:.3e} m a step, more than its radius {:.3e} m, so it can pass through the surface without touching it (slow the path down)",
-                    scene.origin,
-                    speed * dt0,
-                    t.tool.radius
-                );
-            }
+        let warning = t.tool.fastest_leg().and_then(|leg| {
+            crate::scene::tunnelling_warning("tool.path moves the tool", leg, dt0, t.tool.radius)
+        });
+        if let Some(w) = warning {
+            crate::say_err!("warning: {}: {w}", scene.origin);
         }
     }
     let max_steps = steps_for(opts.length, dt0)?;

@@ -3007,7 +3007,7 @@ fn a_tool_path_faster_than_its_radius_a_step_is_warned_of() {
         assert!(ok, "{name}: {out}{err}");
         assert_eq!(
             err.contains("tool.path moves the tool at 5.000e1 m/s from t = 0 to 0.001 s")
-                && err.contains("so it can pass through the surface"),
+                && err.contains("so it can pass through the surface between two steps"),
             warned,
             "{name}: {err}"
         );

@@ -89,7 +89,13 @@ pub fn remove_earlier_outputs(dir: &Path) -> Result<usize> {
         let entry = entry.map_err(err)?;
         let name = entry.file_name();
         let is_file = entry.file_type().map_err(err)?.is_file();
-        let stale = name.to_str().is_some_and(is_run_output);
+        // Marked only by a killed run's series: a summary.json that is not palpate's (and a
+        // haptic.csv, which a run does not write) stay.
+        let unproven = !earlier_run
+            && name
+                .to_str()
+                .is_some_and(|n| n.starts_with("summary.json") || n.starts_with("haptic.csv"));
+        let stale = !unproven && name.to_str().is_some_and(is_run_output);
         if is_file && stale {
             let path = entry.path();
             std::fs::remove_file(&path)
@@ -151,10 +157,14 @@ pub fn write_atomic_with(
 pub struct OutputErrors(Vec<PalpateError>);
 
 impl OutputErrors {
-    /// Keep `r`'s error, if any.
+    /// Keep `r`'s error, if any, unless the same one is kept already (the series index a
+    /// frame could not update fails again when the run closes the series).
     pub fn keep(&mut self, r: Result<()>) {
         if let Err(e) = r {
-            self.0.push(e);
+            let text = e.to_string();
+            if !self.0.iter().any(|k| k.to_string() == text) {
+                self.0.push(e);
+            }
         }
     }
 
@@ -184,17 +194,23 @@ impl OutputErrors {
 /// The comment that marks a `.pvd` as written by palpate (see [`remove_earlier_outputs`]).
 pub const PVD_MARK: &str = "<!-- written by palpate -->";
 
+/// The end of a `.pvd` after its last `DataSet` line (see [`pvd`]).
+pub const PVD_TAIL: &str = "  </Collection>\n</VTKFile>\n";
+
+/// One `DataSet` line of a `.pvd`: the file `file` at time `t` s.
+pub fn pvd_line(t: f64, file: &str) -> String {
+    format!("    <DataSet timestep=\"{t:e}\" group=\"\" part=\"0\" file=\"{file}\"/>\n")
+}
+
 /// A ParaView collection (`.pvd`) listing `(time, file name)` pairs, marked [`PVD_MARK`].
 pub fn pvd(frames: &[(f64, String)]) -> String {
     let mut s = format!(
         "<?xml version=\"1.0\"?>\n<VTKFile type=\"Collection\" version=\"0.1\" byte_order=\"LittleEndian\">\n  {PVD_MARK}\n  <Collection>\n",
     );
     for (t, file) in frames {
-        s.push_str(&format!(
-            "    <DataSet timestep=\"{t:e}\" group=\"\" part=\"0\" file=\"{file}\"/>\n"
-        ));
+        s.push_str(&pvd_line(*t, file));
     }
-    s.push_str("  </Collection>\n</VTKFile>\n");
+    s.push_str(PVD_TAIL);
     s
 }
 

@@ -59,19 +59,9 @@ impl Tool {
         }
     }
 
-    /// The path's fastest leg between keyframes: (speed m/s, its start, its end s); None
-    /// with fewer than two keyframes.
+    /// The path's fastest leg, [`fastest_leg`].
     pub fn fastest_leg(&self) -> Option<(f64, f64, f64)> {
-        self.path
-            .windows(2)
-            .map(|w| {
-                (
-                    (w[1].1 - w[0].1).length() / (w[1].0 - w[0].0),
-                    w[0].0,
-                    w[1].0,
-                )
-            })
-            .max_by(|a, b| a.0.total_cmp(&b.0))
+        fastest_leg(self.path.iter().copied())
     }
 
     /// Time of the last keyframe (0 without a path).
@@ -219,5 +209,40 @@ pub(super) fn resolve_tool(spec: &ToolSpec, bad: &Bad) -> Result<Tool> {
         damping,
         path,
         home,
+    })
+}
+
+/// The fastest leg of a piecewise-linear path through `(t, x)` keyframes (times increasing):
+/// (speed m/s, its start, its end s); None with fewer than two keyframes.
+pub fn fastest_leg(keyframes: impl IntoIterator<Item = (f64, DVec3)>) -> Option<(f64, f64, f64)> {
+    let mut last: Option<(f64, DVec3)> = None;
+    let mut fastest: Option<(f64, f64, f64)> = None;
+    for (t, x) in keyframes {
+        if let Some((t0, x0)) = last {
+            let speed = (x - x0).length() / (t - t0);
+            if fastest.is_none_or(|f| speed > f.0) {
+                fastest = Some((speed, t0, t));
+            }
+        }
+        last = Some((t, x));
+    }
+    fastest
+}
+
+/// The warning for a tool moved by `what` (e.g. "tool.path moves the tool") along `leg`
+/// ([`fastest_leg`]) when it covers more than its `radius` in a step of `step_seconds`: it
+/// can then pass through the surface between two steps without touching it.
+pub fn tunnelling_warning(
+    what: &str,
+    leg: (f64, f64, f64),
+    step_seconds: f64,
+    radius: f64,
+) -> Option<String> {
+    let (speed, from, to) = leg;
+    (speed * step_seconds > radius).then(|| {
+        format!(
+            "{what} at {speed:.3e} m/s from t = {from} to {to} s: {:.3e} m a step, more than the tool's radius {radius:.3e} m, so it can pass through the surface between two steps without touching it (slow it down)",
+            speed * step_seconds
+        )
     })
 }

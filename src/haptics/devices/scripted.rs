@@ -168,15 +168,9 @@ impl Trajectory {
         self.points[i - 1].lerp(self.points[i], s)
     }
 
-    /// The fastest leg between rows: (speed m/s, its start, its end s); None with one row.
+    /// The fastest leg between rows, [`crate::scene::fastest_leg`].
     pub fn fastest_leg(&self) -> Option<(f64, f64, f64)> {
-        (1..self.times.len())
-            .map(|i| {
-                let dt = self.times[i] - self.times[i - 1];
-                let speed = (self.points[i] - self.points[i - 1]).length() / dt;
-                (speed, self.times[i - 1], self.times[i])
-            })
-            .max_by(|a, b| a.0.total_cmp(&b.0))
+        crate::scene::fastest_leg(self.times.iter().copied().zip(self.points.iter().copied()))
     }
 
     /// The last row's time, s.
