@@ -389,19 +389,28 @@ fn land_p1_reaches_a_static_state_converging_toward_the_reference() {
     assert!(values[1] > 2.8 && values[1] < 4.19, "{values:?}");
 }
 
-/// A split law whose constants make the derived Young's modulus 0 (λ = K − 2μ/3 cancelling
-/// at K = 1e-30 Pa) gives no overload warning: it read "4 Pa is inf x the material's Young's
-/// modulus (0 Pa)".
+/// A split law's Young's modulus for the overload warning comes from K and μ, 9Kμ/(3K + μ):
+/// through λ = K − 2μ/3 it cancelled to 0 at K = 1e-30 Pa, and the warning read "4 Pa is inf
+/// x the material's Young's modulus (0 Pa)".
 #[test]
-fn no_overload_warning_from_a_modulus_that_is_not_positive() {
+fn the_overload_warning_of_a_split_law_takes_its_bulk_modulus() {
     let text = Scene::builtin_text("land_p1")
         .unwrap()
         .replace("bulk_modulus = 2.0e5", "bulk_modulus = 1e-30");
     assert!(text.contains("bulk_modulus = 1e-30"));
     let scene = load(&text).unwrap();
     assert!(
-        scene.load_warnings.iter().all(|w| !w.contains("inf x")),
+        scene.load_warnings.len() == 1
+            && scene.load_warnings[0].contains("Young's modulus (9e-30 Pa)")
+            && !scene.load_warnings[0].contains("inf x"),
         "{:?}",
         scene.load_warnings
+    );
+    // As shipped (K = 2e5 Pa), no warning.
+    let shipped = load(Scene::builtin_text("land_p1").unwrap()).unwrap();
+    assert!(
+        shipped.load_warnings.is_empty(),
+        "{:?}",
+        shipped.load_warnings
     );
 }

@@ -292,15 +292,19 @@ impl Scene {
                 ));
             }
         }
-        let load_warnings = loads::overload_warnings(
-            &file.loads,
-            material.youngs_modulus(),
-            material.density,
-            &mesh,
-        )
-        .into_iter()
-        .map(|w| format!("{origin}: {w}"))
-        .collect();
+        // A split law's E from its bulk modulus K and shear modulus μ, 9Kμ/(3K + μ): through
+        // λ = K − 2μ/3 it cancels to 0 when K ≪ μ.
+        let youngs_modulus = match &resolved.hyperelastic {
+            Some(h) if h.bulk_modulus > 0.0 => {
+                9.0 * h.bulk_modulus * material.mu / (3.0 * h.bulk_modulus + material.mu)
+            }
+            _ => material.youngs_modulus(),
+        };
+        let load_warnings =
+            loads::overload_warnings(&file.loads, youngs_modulus, material.density, &mesh)
+                .into_iter()
+                .map(|w| format!("{origin}: {w}"))
+                .collect();
         Ok(Scene {
             name: file.name.unwrap_or_else(|| default_name.to_string()),
             origin: origin.to_string(),
