@@ -195,13 +195,15 @@ fn held_still_matches_statics(
     // one more when the physics read the pose before waiting for the clock). On a host that
     // slows the median batch to near a period or past it (a noisy 2-core VM: p50 1.04 ms
     // once, and the age 2 ms) the bound grows with it, by whole periods; a quarter period of
-    // headroom keeps a median just under one period from flipping the outcome.
+    // headroom keeps a median just under one period from flipping the outcome. Three
+    // quarters of a period over the batches' ticks: a host with another job on both cores
+    // put the median age at 1.53 ms with 0.4 ms batches; a model two periods old still fails.
     let period_ms = 1e3 / servo.target_rate_hz;
     let batch_ticks = (h.haptic.physics.batch_wall_ms.p50 / period_ms + 0.25)
         .ceil()
         .max(1.0);
     assert!(
-        servo.model_age_ms.p50 < (batch_ticks + 0.5) * period_ms,
+        servo.model_age_ms.p50 < (batch_ticks + 0.75) * period_ms,
         "{name}: model age p50 {} ms with batches of p50 {} ms, p99 {} ms",
         servo.model_age_ms.p50,
         h.haptic.physics.batch_wall_ms.p50,
@@ -368,13 +370,14 @@ fn the_physics_sleeps_while_the_body_rests_and_wakes_as_the_tool_approaches() {
     // Asleep from the second batch until the tool's surface is 10 mm from the beam's top,
     // the hand 8 mm above home: t = 0.6 + 22 mm / 60 mm/s ≈ 0.967 s; then again from when
     // the beam has settled after the withdrawal (the tool is 10 mm clear at t ≈ 2.52 s) to
-    // 3.6 s: at most 0.967 + 1.08 s in all.
+    // 3.6 s: at most 0.967 + 1.08 s in all, plus a few batches where the hand's position
+    // reached the physics late (2.054 s once, with another job on both cores).
     assert_eq!(
         p.sleeps, 2,
         "it sleeps before the press and after it, never in contact"
     );
     assert!(
-        p.slept_seconds > 1.5 && p.slept_seconds < 2.05,
+        p.slept_seconds > 1.5 && p.slept_seconds < 2.1,
         "{}",
         p.slept_seconds
     );
