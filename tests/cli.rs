@@ -3048,3 +3048,22 @@ fn a_scripted_hand_faster_than_the_tools_radius_a_tick_is_warned_of() {
         );
     }
 }
+
+#[test]
+fn bench_stability_quick_runs_a_short_ed0_run() {
+    // --quick used to keep the full study's 10^6 ED0 steps (minutes): now 20000 by default.
+    let d = tmp("benchquick");
+    let (ok, _, err) = palpate(&[
+        "bench",
+        "stability",
+        "--quick",
+        "--backend",
+        "cpu",
+        "--out",
+        d.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let md = std::fs::read_to_string(d.join("stability.md")).unwrap();
+    assert!(md.contains("over 20000 steps"), "{md}");
+    assert!(!md.contains("--ed0-steps"), "{md}");
+}

@@ -15,7 +15,7 @@ fn stability_stress_cases() {
     let opts = stability::StabilityOptions {
         backend: Backend::Cpu,
         quick: true,
-        ed0_steps: 20_000,
+        ed0_steps: stability::QUICK_ED0_STEPS,
     };
     let rows = stability::study(&opts, &mut |s| eprintln!("{s}")).unwrap();
     for r in &rows {

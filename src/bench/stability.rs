@@ -29,6 +29,12 @@ pub const RELEASE_DAMPING: f64 = 200.0;
 /// Radius of the probe's contact patch in case (d), m.
 pub const PROBE_RADIUS: f64 = 0.005;
 
+/// Steps of the long ED0 run in the full study.
+pub const ED0_STEPS: u64 = 1_000_000;
+
+/// Steps of the long ED0 run with `--quick` (seconds, where the full run takes minutes).
+pub const QUICK_ED0_STEPS: u64 = 20_000;
+
 /// How much to run.
 #[derive(Clone, Copy, Debug)]
 pub struct StabilityOptions {

@@ -124,9 +124,9 @@ enum BenchStudy {
         /// CI-sized run.
         #[arg(long)]
         quick: bool,
-        /// Steps of the long ED0 run (1 to 10^9).
-        #[arg(long, default_value_t = 1_000_000, value_parser = clap::value_parser!(u64).range(1..=1_000_000_000))]
-        ed0_steps: u64,
+        /// Steps of the long ED0 run (1 to 10^9; default 1000000, 20000 with --quick).
+        #[arg(long, value_parser = clap::value_parser!(u64).range(1..=1_000_000_000))]
+        ed0_steps: Option<u64>,
         /// Output directory.
         #[arg(long, default_value = "docs")]
         out: PathBuf,
@@ -679,6 +679,12 @@ fn bench(study: BenchStudy) -> Result<()> {
             out,
         } => {
             use palpate::bench::stability;
+            let given = ed0_steps;
+            let ed0_steps = given.unwrap_or(if quick {
+                stability::QUICK_ED0_STEPS
+            } else {
+                stability::ED0_STEPS
+            });
             let opts = stability::StabilityOptions {
                 backend,
                 quick,
@@ -689,10 +695,9 @@ fn bench(study: BenchStudy) -> Result<()> {
                 "Written by `palpate bench stability --backend {}{}{}` on {}. Case letters follow issue 4: (a) critical dt, (b) squash to 10 % and release, (c) random inversion, (d) probe at 10x a {} N device, (e) long ED0 run, (f) Table 1 scenes at the paper's dt.",
                 clap::ValueEnum::to_possible_value(&backend)
                     .map_or_else(String::new, |v| v.get_name().to_string()),
-                if ed0_steps == 1_000_000 {
-                    String::new()
-                } else {
-                    format!(" --ed0-steps {ed0_steps}")
+                match given {
+                    Some(n) => format!(" --ed0-steps {n}"),
+                    None => String::new(),
                 },
                 if quick { " --quick" } else { "" },
                 adapter_name(backend),
