@@ -57,11 +57,21 @@ fn params() -> ShapingParams {
 fn ramp_engages_when_calm_then_rises_over_its_time() {
     let p = params();
     let one = DVec3::new(0.0, 0.0, 1.0);
-    // Pressing hard from the start: never engages (CHAI3D's safety rule).
+    // Pressing hard from the start: never engages (CHAI3D's safety rule), and a force above
+    // the limit then sends nothing, so it counts as no clamp.
     let mut s = ForceShaper::new(p);
     for _ in 0..2000 {
         assert_eq!(s.shape(T, one, FadeCause::default()).gain, 0.0);
+        let r = s.shape(T, one * (10.0 * p.max_force), FadeCause::default());
+        assert!(r.force == DVec3::ZERO && !r.clamped);
     }
+    // Engaged, a force above the limit is clamped and sent (scaled by the ramp).
+    let mut s = ForceShaper::new(p);
+    for _ in 0..p.engage_ticks {
+        s.shape(T, DVec3::ZERO, FadeCause::default());
+    }
+    let r = s.shape(T, one * (10.0 * p.max_force), FadeCause::default());
+    assert!(r.clamped && r.force != DVec3::ZERO);
     // Calm for engage_ticks, then the gain follows smoothstep(t / ramp_time).
     let mut s = ForceShaper::new(p);
     for _ in 0..p.engage_ticks {

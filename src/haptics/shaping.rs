@@ -114,7 +114,8 @@ pub struct Shaped {
     pub force: DVec3,
     /// The gain applied after the clamp: ramp × fade, in [0, 1].
     pub gain: f64,
-    /// The magnitude was clamped.
+    /// The magnitude was clamped, and the force sent is not zero (a clamp under a zero
+    /// gain, fading or before the start-up ramp, sends nothing and counts as none).
     pub clamped: bool,
     /// The start-up ramp is not finished (or not engaged).
     pub ramping: bool,
@@ -185,7 +186,7 @@ impl ForceShaper {
         Shaped {
             force: f * gain,
             gain,
-            clamped,
+            clamped: clamped && gain > 0.0,
             ramping: self.ramp < 1.0,
             fading: self.fade < 1.0,
         }
