@@ -3067,3 +3067,47 @@ fn bench_stability_quick_runs_a_short_ed0_run() {
     assert!(md.contains("over 20000 steps"), "{md}");
     assert!(!md.contains("--ed0-steps"), "{md}");
 }
+
+#[test]
+fn a_haptic_session_warns_of_tissue_out_of_reach_and_of_a_hand_beyond_the_workspace() {
+    let d = tmp("reach");
+    // hm1 is unitless: its tissue is 0.4 "m" from the tool's home, beyond a Touch's 0.075 m.
+    let (ok, out, err) = palpate(&[
+        "haptic",
+        "hm1",
+        "--device",
+        "null",
+        "--seconds",
+        "0.05",
+        "--backend",
+        "cpu",
+        "--out",
+        d.join("hm1").to_str().unwrap(),
+    ]);
+    assert!(ok, "{out}{err}");
+    assert!(
+        err.contains("beyond the device's reach (0.075 m, spec touch)"),
+        "{err}"
+    );
+    // lv_touch is within reach; a hand that goes 0.6 m away leaves the workspace.
+    let csv = d.join("far.csv");
+    std::fs::write(&csv, "t,x,y,z\n0,0,0,0\n0.02,0,0.6,0\n0.2,0,0.6,0\n").unwrap();
+    let (ok, out, err) = palpate(&[
+        "haptic",
+        "lv_touch",
+        "--device",
+        &format!("scripted:{}", csv.display()),
+        "--seconds",
+        "0.1",
+        "--backend",
+        "cpu",
+        "--out",
+        d.join("lv_touch").to_str().unwrap(),
+    ]);
+    assert!(ok, "{out}{err}");
+    assert!(!err.contains("beyond the device's reach"), "{err}");
+    assert!(
+        err.contains("warning: the device left its workspace (radius 0.075 m)"),
+        "{err}"
+    );
+}

@@ -538,6 +538,13 @@ fn execute(cli: Cli) -> Result<()> {
             }
             warn_inverted(&scene, &s.run);
             warn_inverted_in_contact(&scene, h);
+            if h.physics.workspace_clamps > 0 {
+                palpate::say_err!(
+                    "warning: the device left its workspace (radius {} m) in {} physics batches: the tool was held at its edge there (haptic.csv's proxy columns give where the device asked for)",
+                    h.device_spec.workspace_radius,
+                    h.physics.workspace_clamps
+                );
+            }
             // After a divergence the physics stopped: its rate says nothing about the machine.
             if h.physics.realtime_capacity < 0.95 && s.run.status.divergence().is_none() {
                 palpate::say_err!(
