@@ -237,7 +237,7 @@ enum StiffnessSource {
 pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> {
     if scene.tool.is_none() {
         return Err(PalpateError::Usage(format!(
-            "{}: a haptic session needs a [tool] (radius, stiffness, home)",
+            "{}: a haptic session needs a [tool] (radius and stiffness; home, where the device's origin sits, defaults to the path's start)",
             scene.origin
         )));
     }

@@ -3111,3 +3111,22 @@ fn a_haptic_session_warns_of_tissue_out_of_reach_and_of_a_hand_beyond_the_worksp
         "{err}"
     );
 }
+
+#[test]
+fn a_mesh_file_without_an_extension_says_so() {
+    let d = tmp("noext");
+    std::fs::write(d.join("mesh_msh"), "not read").unwrap();
+    let scene = scene_file(
+        &d,
+        "noext.toml",
+        &BEAM.replacen(
+            "generator = \"beam\"\nsize = [0.1, 0.02, 0.02]      # m\ncells = [20, 4, 4]            # 6 tets per cell: 1920 tets",
+            "file = \"mesh_msh\"",
+            1,
+        ),
+    );
+    assert_one_line_error(
+        &["run", &scene, "--steps", "1", "--backend", "cpu"],
+        &["mesh_msh: the file name has no extension, which picks the format"],
+    );
+}

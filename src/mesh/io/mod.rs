@@ -42,9 +42,13 @@ pub fn read(path: &Path) -> Result<TetMesh> {
         _ => {
             return Err(file_err(
                 path,
-                format!(
-                    "unsupported mesh format '.{ext}' (supported: .msh, .vtk, .vtu, .node/.ele, .pts/.elem)"
-                ),
+                if ext.is_empty() {
+                    "the file name has no extension, which picks the format (supported: .msh, .vtk, .vtu, .node/.ele, .pts/.elem)".to_string()
+                } else {
+                    format!(
+                        "unsupported mesh format '.{ext}' (supported: .msh, .vtk, .vtu, .node/.ele, .pts/.elem)"
+                    )
+                },
             ))
         }
     };
