@@ -442,7 +442,7 @@ fn scenes_and_info_list_things() {
     let (ok, out, err) = palpate(&["info"]);
     assert!(ok, "{err}");
     assert!(
-        out.contains("chosen:") && out.contains("max_storage_buffer_binding_size"),
+        out.contains("--backend gpu takes: ") && out.contains("max_storage_buffer_binding_size"),
         "{out}"
     );
 }
@@ -1417,6 +1417,42 @@ fn palpate_adapter_also_filters_what_auto_picks_from() {
         first.contains("backend cpu")
             && first.contains("no GPU adapter matching PALPATE_ADAPTER='no-such-adapter-xyz'"),
         "{first}"
+    );
+    // `info` says so and succeeds; --backend gpu names the filter and the adapters there are.
+    let info = Command::new(env!("CARGO_BIN_EXE_palpate"))
+        .arg("info")
+        .env("PALPATE_ADAPTER", "no-such-adapter-xyz")
+        .output()
+        .expect("run palpate");
+    let text = String::from_utf8_lossy(&info.stdout);
+    assert!(
+        info.status.success()
+            && text.contains("--backend gpu: none of the adapters above matches PALPATE_ADAPTER='no-such-adapter-xyz'"),
+        "{text}{}",
+        String::from_utf8_lossy(&info.stderr)
+    );
+    let gpu = Command::new(env!("CARGO_BIN_EXE_palpate"))
+        .args([
+            "run",
+            "beam",
+            "--steps",
+            "1",
+            "--backend",
+            "gpu",
+            "--out",
+            d.to_str().unwrap(),
+        ])
+        .env("PALPATE_ADAPTER", "no-such-adapter-xyz")
+        .output()
+        .expect("run palpate");
+    let err = String::from_utf8_lossy(&gpu.stderr);
+    assert!(
+        !gpu.status.success()
+            && err.contains(
+                "error: PALPATE_ADAPTER='no-such-adapter-xyz' matches no GPU adapter (found: "
+            )
+            && !err.contains("Backends("),
+        "{err}"
     );
 }
 

@@ -628,13 +628,19 @@ fn execute(cli: Cli) -> Result<()> {
                 if auto == Backend::Gpu { "gpu" } else { "cpu" }
             );
             palpate::say!(
-                "cpu backend: {} cores (--threads defaults to all of them)",
+                "cpu backend: {} cores (--threads defaults to all of them for run, one fewer for haptic)",
                 palpate::cpu::stepper::available_cores()
             );
-            if !adapters.is_empty() {
+            let allowed = palpate::gpu::context::allowed_adapters()?;
+            if !adapters.is_empty() && allowed.is_empty() {
+                palpate::say!(
+                    "--backend gpu: none of the adapters above matches PALPATE_ADAPTER='{}' (a part of the adapter's name)",
+                    palpate::gpu::context::adapter_filter().unwrap_or_default()
+                );
+            } else if !adapters.is_empty() {
                 let ctx = palpate::gpu::GpuContext::new()?;
                 let l = &ctx.limits;
-                palpate::say!("chosen: {} (what --backend gpu takes)", ctx.describe());
+                palpate::say!("--backend gpu takes: {}", ctx.describe());
                 palpate::say!(
                     "timestamp queries: {}",
                     if ctx

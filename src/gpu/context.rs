@@ -157,6 +157,22 @@ pub fn allowed_adapters() -> Result<Vec<wgpu::Adapter>> {
     Ok(adapters)
 }
 
+/// `backends` as the names a user reads ("Vulkan, GL, Metal, DX12, WebGPU").
+fn backend_names(backends: wgpu::Backends) -> String {
+    [
+        (wgpu::Backends::VULKAN, "Vulkan"),
+        (wgpu::Backends::GL, "GL"),
+        (wgpu::Backends::METAL, "Metal"),
+        (wgpu::Backends::DX12, "DX12"),
+        (wgpu::Backends::BROWSER_WEBGPU, "WebGPU"),
+    ]
+    .iter()
+    .filter(|(b, _)| backends.contains(*b))
+    .map(|(_, name)| *name)
+    .collect::<Vec<_>>()
+    .join(", ")
+}
+
 /// The text of `PALPATE_ADAPTER`, when set and not empty.
 pub fn adapter_filter() -> Option<String> {
     std::env::var("PALPATE_ADAPTER")
@@ -168,16 +184,29 @@ impl GpuContext {
     /// Pick an adapter (see module docs) and open a device with its full limits.
     pub fn new() -> Result<GpuContext> {
         let adapters = allowed_adapters()?;
+        if let (None, Some(want)) = (adapters.first(), adapter_filter()) {
+            // Adapters there may be, but none with that name: say which there are.
+            let found = list_adapters()
+                .map(|all| {
+                    all.iter()
+                        .map(|a| a.get_info().name)
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                })
+                .ok()
+                .filter(|names| !names.is_empty())
+                .unwrap_or_else(|| "none".into());
+            return Err(PalpateError::Usage(format!(
+                "PALPATE_ADAPTER='{want}' matches no GPU adapter (found: {found}); give a part of one of those names, unset it, or run with --backend cpu"
+            )));
+        }
         let adapter = adapters
             .into_iter()
             .next()
             .ok_or_else(|| PalpateError::NoAdapter {
                 detail: format!(
-                    "backends {:?}{}",
-                    backends_from_env().unwrap_or(wgpu::Backends::all()),
-                    adapter_filter()
-                        .map(|a| format!(", PALPATE_ADAPTER='{a}'"))
-                        .unwrap_or_default()
+                    "backends {}",
+                    backend_names(backends_from_env().unwrap_or(wgpu::Backends::all()))
                 ),
             })?;
         GpuContext::from_adapter(adapter)
