@@ -317,19 +317,10 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
     // A tissue farther from the tool's home than the device reaches cannot be touched (hm1's
     // lengths are unitless, the device's are metres).
     if let (true, Some(t)) = (opts.announce, &model.tool) {
-        let gap = t
-            .surface_vertices
-            .iter()
-            .map(|&v| {
-                let k = 3 * v as usize;
-                let r = &model.rest[k..k + 3];
-                (DVec3::new(r[0] as f64, r[1] as f64, r[2] as f64) - home).length()
-            })
-            .fold(f64::INFINITY, f64::min)
-            - t.tool.radius;
+        let gap = t.tool.surface_gap(&scene.mesh, home);
         if gap > spec.workspace_radius {
             crate::say_err!(
-                "warning: {}: the tissue is about {gap:.3e} m from the tool's surface at its home, beyond the device's reach ({} m, spec {}): the hand cannot touch it (move tool.home nearer the surface; a scene in other units than metres cannot be touched)",
+                "warning: {}: the tissue is {gap:.3e} m from the tool's surface at its home, beyond the device's reach ({} m, spec {}): the hand cannot touch it (move tool.home nearer the surface; a scene in other units than metres cannot be touched)",
                 scene.origin,
                 spec.workspace_radius,
                 spec.name

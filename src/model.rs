@@ -256,13 +256,20 @@ impl Model {
         Model::try_from_scene(scene).expect("a validated scene whose particles sample")
     }
 
+    /// The scene's material as the model steps it: its density times the solver's mass
+    /// scaling (the inertia the stable step is bounded by).
+    pub fn stepped_material(scene: &Scene) -> MaterialParams {
+        let mut material = scene.material;
+        material.density *= scene.solver.mass_scaling;
+        material
+    }
+
     /// Build from a validated scene; sampling the particle zone can fail (a spacing too
     /// coarse for the zone), with an error naming the key.
     pub fn try_from_scene(scene: &Scene) -> crate::error::Result<Model> {
         // Mass scaling s: inertia s·ρ, gravity g/s (the weight ρ·g is unchanged).
         let s = scene.solver.mass_scaling;
-        let mut material = scene.material;
-        material.density *= s;
+        let material = Model::stepped_material(scene);
         let gravity = scene.gravity.map(|g| g / s);
         let mut model = Model::with_loads(
             &scene.mesh,

@@ -90,14 +90,14 @@ fn run_on_cpu(scene: &str, steps: &str, out: &str) -> (bool, String, String) {
     ])
 }
 
-/// `palpate haptic SCENE --device null --seconds SECONDS --backend cpu --out OUT`: success,
-/// stdout, stderr.
-fn haptic_null_on_cpu(scene: &str, seconds: &str, out: &str) -> (bool, String, String) {
+/// `palpate haptic SCENE --device DEVICE --seconds SECONDS --backend cpu --out OUT`:
+/// success, stdout, stderr.
+fn haptic_on_cpu(scene: &str, device: &str, seconds: &str, out: &str) -> (bool, String, String) {
     palpate(&[
         "haptic",
         scene,
         "--device",
-        "null",
+        device,
         "--seconds",
         seconds,
         "--backend",
@@ -105,6 +105,11 @@ fn haptic_null_on_cpu(scene: &str, seconds: &str, out: &str) -> (bool, String, S
         "--out",
         out,
     ])
+}
+
+/// [`haptic_on_cpu`] with the null device.
+fn haptic_null_on_cpu(scene: &str, seconds: &str, out: &str) -> (bool, String, String) {
+    haptic_on_cpu(scene, "null", seconds, out)
 }
 
 /// The beam scene with `sections` (TOML) added before its `[solver]`.
@@ -2455,6 +2460,28 @@ fn the_default_haptic_scene_runs_when_no_scene_is_given() {
     }
 }
 
+/// `palpate ARGS` with stdout and stderr piped and SIGINT's default disposition, as a
+/// terminal's foreground job has (tests started as a background job of a non-interactive
+/// shell inherit SIGINT ignored, and palpate rightly keeps it so).
+#[cfg(unix)]
+fn spawn_as_a_foreground_job(args: &[&str]) -> std::process::Child {
+    use std::os::unix::process::CommandExt;
+    let mut command = Command::new(env!("CARGO_BIN_EXE_palpate"));
+    command
+        .args(args)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped());
+    // SAFETY: runs in the forked child before exec; signal(2) is async-signal-safe and the
+    // closure touches nothing else.
+    unsafe {
+        command.pre_exec(|| {
+            libc::signal(libc::SIGINT, libc::SIG_DFL);
+            Ok(())
+        });
+    }
+    command.spawn().expect("start palpate")
+}
+
 /// Ctrl-C (here SIGINT from `kill`) stops a run or a haptic session after its batch: the
 /// outputs are written with status `interrupted`, and the exit status is 130. The child gets
 /// SIGINT's default disposition, as a terminal's foreground job has: tests started as a
@@ -2465,7 +2492,6 @@ fn the_default_haptic_scene_runs_when_no_scene_is_given() {
 #[test]
 fn ctrl_c_stops_after_the_batch_and_writes_the_outputs() {
     use std::io::Read;
-    use std::os::unix::process::CommandExt;
     let d = tmp("interrupt");
     for (name, args) in [
         (
@@ -2479,21 +2505,9 @@ fn ctrl_c_stops_after_the_batch_and_writes_the_outputs() {
         ),
     ] {
         let out = d.join(name);
-        let mut command = Command::new(env!("CARGO_BIN_EXE_palpate"));
-        command
-            .args(&args)
-            .args(["--out", out.to_str().unwrap()])
-            .stdout(std::process::Stdio::piped())
-            .stderr(std::process::Stdio::piped());
-        // SAFETY: runs in the forked child before exec; signal(2) is async-signal-safe and
-        // the closure touches nothing else.
-        unsafe {
-            command.pre_exec(|| {
-                libc::signal(libc::SIGINT, libc::SIG_DFL);
-                Ok(())
-            });
-        }
-        let mut child = command.spawn().expect("start palpate");
+        let mut args = args.clone();
+        args.extend(["--out", out.to_str().unwrap()]);
+        let mut child = spawn_as_a_foreground_job(&args);
         // The first line on stdout comes once the job has started stepping; the rest is
         // drained so that a full pipe never holds the child up.
         let mut stdout = child.stdout.take().unwrap();
@@ -2838,33 +2852,22 @@ fn a_killed_runs_frames_are_an_indexed_series_and_the_next_run_removes_them() {
     );
 }
 
+#[cfg(unix)]
 #[test]
 fn a_second_ctrl_c_stops_at_once_and_says_so() {
     use std::io::Read;
-    use std::os::unix::process::CommandExt;
     let d = tmp("interrupt_twice");
-    let mut command = Command::new(env!("CARGO_BIN_EXE_palpate"));
-    command
-        .args([
-            "run",
-            "lv",
-            "--duration",
-            "1e6",
-            "--backend",
-            "cpu",
-            "--out",
-        ])
-        .arg(d.join("out"))
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped());
-    // SAFETY: runs in the forked child before exec; signal(2) is async-signal-safe.
-    unsafe {
-        command.pre_exec(|| {
-            libc::signal(libc::SIGINT, libc::SIG_DFL);
-            Ok(())
-        });
-    }
-    let mut child = command.spawn().expect("start palpate");
+    let out = d.join("out");
+    let mut child = spawn_as_a_foreground_job(&[
+        "run",
+        "lv",
+        "--duration",
+        "1e6",
+        "--backend",
+        "cpu",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
     let mut first = [0u8; 1];
     child
         .stdout
@@ -3063,18 +3066,12 @@ fn a_scripted_hand_faster_than_the_tools_radius_a_tick_is_warned_of() {
     ] {
         let csv = d.join(name);
         std::fs::write(&csv, format!("t,x,y,z\n{rows}")).unwrap();
-        let (ok, out, err) = palpate(&[
-            "haptic",
+        let (ok, out, err) = haptic_on_cpu(
             "lv_touch",
-            "--device",
             &format!("scripted:{}", csv.display()),
-            "--seconds",
             "0.05",
-            "--backend",
-            "cpu",
-            "--out",
             d.join(format!("{name}_out")).to_str().unwrap(),
-        ]);
+        );
         assert!(ok, "{name}: {out}{err}");
         assert_eq!(
             err.contains("the trajectory moves the device at 5.000e1 m/s from t = 0 to 0.001 s")
@@ -3107,19 +3104,8 @@ fn bench_stability_quick_runs_a_short_ed0_run() {
 #[test]
 fn a_haptic_session_warns_of_tissue_out_of_reach_and_of_a_hand_beyond_the_workspace() {
     let d = tmp("reach");
-    // hm1 is unitless: its tissue is 0.4 "m" from the tool's home, beyond a Touch's 0.075 m.
-    let (ok, out, err) = palpate(&[
-        "haptic",
-        "hm1",
-        "--device",
-        "null",
-        "--seconds",
-        "0.05",
-        "--backend",
-        "cpu",
-        "--out",
-        d.join("hm1").to_str().unwrap(),
-    ]);
+    // hm1 is unitless: its tissue is 0.33 "m" from the tool's home, beyond a Touch's 0.075 m.
+    let (ok, out, err) = haptic_null_on_cpu("hm1", "0.05", d.join("hm1").to_str().unwrap());
     assert!(ok, "{out}{err}");
     assert!(
         err.contains("beyond the device's reach (0.075 m, spec touch)"),
@@ -3128,18 +3114,12 @@ fn a_haptic_session_warns_of_tissue_out_of_reach_and_of_a_hand_beyond_the_worksp
     // lv_touch is within reach; a hand that goes 0.6 m away leaves the workspace.
     let csv = d.join("far.csv");
     std::fs::write(&csv, "t,x,y,z\n0,0,0,0\n0.02,0,0.6,0\n0.2,0,0.6,0\n").unwrap();
-    let (ok, out, err) = palpate(&[
-        "haptic",
+    let (ok, out, err) = haptic_on_cpu(
         "lv_touch",
-        "--device",
         &format!("scripted:{}", csv.display()),
-        "--seconds",
         "0.1",
-        "--backend",
-        "cpu",
-        "--out",
         d.join("lv_touch").to_str().unwrap(),
-    ]);
+    );
     assert!(ok, "{out}{err}");
     assert!(!err.contains("beyond the device's reach"), "{err}");
     assert!(

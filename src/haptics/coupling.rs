@@ -193,8 +193,7 @@ impl VirtualCoupling {
             // side of the surface: a move into the tissue meets K − β n̂n̂ᵀ, one out of it K.
             let f0 = m.force - m.damper_force;
             let springs = m.solve_stiffness();
-            let solve = |k: DMat3| {
-                let (lambda, v) = sanitize_stiffness(k);
+            let solve = |(lambda, v): (DVec3, DMat3)| {
                 let inv_a = compose(v, DVec3::ONE / (DVec3::splat(k_c) - lambda));
                 let k = compose(v, lambda);
                 (inv_a * (k_c * x_d + f0 - k * m.proxy), k, lambda, v)
@@ -202,11 +201,14 @@ impl VirtualCoupling {
             let n = m.damper_normal;
             let into = (m.damper_rate > 0.0)
                 .then(|| {
-                    solve(springs - DMat3::from_cols(n * n.x, n * n.y, n * n.z) * m.damper_rate)
+                    let nn = DMat3::from_cols(n * n.x, n * n.y, n * n.z);
+                    solve(sanitize_stiffness(springs - nn * m.damper_rate))
                 })
                 .filter(|(x_p, ..)| (*x_p - m.proxy).dot(n) <= 0.0);
+            // The springs' decomposition: the tissue's stiffness, and the solve out of it.
+            let springs = sanitize_stiffness(springs);
+            out.tissue_stiffness = -springs.0.min_element();
             let (x_p, k, lambda, v) = into.unwrap_or_else(|| solve(springs));
-            out.tissue_stiffness = -sanitize_stiffness(springs).0.min_element();
             let f_t = unilateral(f0 + k * (x_p - m.proxy), m.force);
             if f_t != DVec3::ZERO {
                 out.proxy = x_p;

@@ -32,10 +32,11 @@ pub fn worst_altitude(mesh: &super::TetMesh) -> (usize, f64) {
 pub fn report(scene: &Scene) -> String {
     let mesh = &scene.mesh;
     let s = mesh.stats();
-    // The run's inertia: density × mass scaling (as `Model::try_from_scene`).
-    let mut material = scene.material;
-    material.density *= scene.solver.mass_scaling;
-    let b = TimeStepBounds::new(&material, s.min_altitude, s.min_edge);
+    let b = TimeStepBounds::new(
+        &crate::model::Model::stepped_material(scene),
+        s.min_altitude,
+        s.min_edge,
+    );
     let (worst, _) = worst_altitude(mesh);
     let regions = {
         let mut r: Vec<u32> = mesh.regions.clone();

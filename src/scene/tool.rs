@@ -69,6 +69,18 @@ impl Tool {
         self.path.last().map_or(0.0, |(t, _)| *t)
     }
 
+    /// The distance from the sphere at `centre` to the mesh's boundary surface at rest (the
+    /// nearest boundary point's distance less the radius; negative where the surface reaches
+    /// into the sphere), scene length units.
+    pub fn surface_gap(&self, mesh: &TetMesh, centre: DVec3) -> f64 {
+        crate::particles::sampling::distance_to_triangles(
+            mesh.boundary_faces()
+                .into_iter()
+                .map(|f| f.map(|i| mesh.positions[i as usize])),
+            centre,
+        ) - self.radius
+    }
+
     /// How the sphere at `centre` overlaps the tissue at rest: its centre inside a tet (all
     /// four barycentric coordinates ≥ 0), else how deep the boundary surface reaches into it
     /// (R − the distance from the centre to the nearest boundary triangle, when > 0), else
@@ -84,13 +96,7 @@ impl Tool {
             let b = m.inverse() * (centre - p[0]);
             b.min_element() >= 0.0 && b.x + b.y + b.z <= 1.0
         });
-        let nearest = crate::particles::sampling::distance_to_triangles(
-            mesh.boundary_faces()
-                .into_iter()
-                .map(|f| f.map(|i| mesh.positions[i as usize])),
-            centre,
-        );
-        let depth = self.radius - nearest;
+        let depth = -self.surface_gap(mesh, centre);
         match inside {
             Some(tet) if depth <= 0.0 => Some(ToolOverlap::Embedded { tet, gap: -depth }),
             Some(tet) => Some(ToolOverlap::CentreInside { tet }),
