@@ -147,6 +147,11 @@ pub struct PhysicsStats {
     pub stiffness_refresh_ms: Spread,
     /// Batches whose tool target was pulled back into the device's workspace.
     pub workspace_clamps: u64,
+    /// The fastest the simulated tool may move, m/s ([`crate::model::Model::max_tool_speed`]).
+    pub max_tool_speed: f64,
+    /// Batches in contact whose tool move (less a withdrawal) was shortened to that speed
+    /// ([`limit_pressing_stride`]): the tool lagged the hand.
+    pub speed_limited_batches: u64,
     /// Batches that diverged and were rolled back (dt halved).
     pub divergences: u64,
     /// The last published stiffness K = ∂F/∂x, N/m, by rows.
@@ -189,6 +194,17 @@ impl InvertedPeak {
             };
         }
     }
+}
+
+/// A tool move `stride` in contact, limited to `reach` (m) except for its withdrawal: the part
+/// along the tissue's push `normal` (unit, out of the tissue) that moves away from it is kept
+/// whole, the rest (the press in and the slide along) shortened to `reach`. None when the
+/// stride needs no limit.
+pub fn limit_pressing_stride(stride: DVec3, normal: DVec3, reach: f64) -> Option<DVec3> {
+    let away = stride.dot(normal).max(0.0);
+    let limited = stride - away * normal;
+    let length = limited.length();
+    (length > reach).then(|| away * normal + limited * (reach / length))
 }
 
 /// The `haptic` section of `summary.json`.
@@ -329,7 +345,7 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
     }
     // A scripted hand that moves the tool more than its radius in a step can pass through
     // the surface between two steps without touching it (the physics moves the tool to each
-    // batch's proxy step by step).
+    // batch's proxy step by step; out of contact, at the hand's speed).
     if let (true, Some(t)) = (opts.announce, &model.tool) {
         let warning = device
             .trajectory()
@@ -392,6 +408,7 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
     }
     let mut stats = PhysicsStats {
         steps_per_batch,
+        max_tool_speed: model.max_tool_speed(),
         stiffness_model: match &stiffness {
             StiffnessSource::Static(c) => format!(
                 "static (linear compliance, {} degrees of freedom)",
@@ -415,6 +432,8 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
     let mut rest = RestWatch::new(scene);
     let period = Duration::from_secs_f64(config.period());
     let mut last_used = 0u64;
+    // The direction the tissue pushed the tool at the end of the last batch, in contact.
+    let mut contact_normal: Option<DVec3> = None;
     let start = Instant::now();
     let sim_start = clock.now();
     let outcome = (|| -> Result<()> {
@@ -450,9 +469,21 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                 offset *= spec.workspace_radius / offset.length();
                 stats.workspace_clamps += 1;
             }
-            sim.tool_target = Some(home + offset);
             let steps = ((opts.batch_seconds / sim.dt).round() as u32).max(1);
-            if rest.is_asleep() && !rest.wakes_for(home + offset) {
+            // In contact, pressed or slid no faster than the tissue can move out of the
+            // tool's way (the servo renders the hand's force from the local model meanwhile).
+            let mut target = home + offset;
+            if let Some(normal) = contact_normal {
+                let reach = stats.max_tool_speed * steps as f64 * sim.dt;
+                if let Some(stride) =
+                    limit_pressing_stride(target - sim.tool_position, normal, reach)
+                {
+                    target = sim.tool_position + stride;
+                    stats.speed_limited_batches += 1;
+                }
+            }
+            sim.tool_target = Some(target);
+            if rest.is_asleep() && !rest.wakes_for(target) {
                 pass_time_at_rest(&mut sim, steps);
                 stats.slept_seconds += steps as f64 * sim.dt;
                 physics.publish(LocalModel {
@@ -499,6 +530,8 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
             };
             let report = sim.last_tool.unwrap_or_default();
             let in_contact = report.contacts > 0 && !diverged;
+            contact_normal =
+                (in_contact && report.force.length() > 0.0).then(|| report.force.normalize());
             if in_contact {
                 stats.contact_batches += 1;
                 if report.force.length() > DVec3::from(stats.peak_tool_force).length() {
@@ -665,5 +698,34 @@ fn wait_for_a_tick(
     }
     while physics.tool().1 <= seen && Instant::now() < until {
         std::thread::yield_now();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::limit_pressing_stride;
+    use glam::DVec3;
+
+    #[test]
+    fn a_pressing_stride_is_limited_and_a_withdrawal_is_not() {
+        let n = DVec3::X;
+        let close = |a: DVec3, b: DVec3| (a - b).length() < 1e-12;
+        // Straight out of the tissue, however far: no limit.
+        assert_eq!(limit_pressing_stride(10.0 * n, n, 1.0), None);
+        // Within reach: no limit.
+        assert_eq!(
+            limit_pressing_stride(DVec3::new(-0.5, 0.5, 0.0), n, 1.0),
+            None
+        );
+        // Straight in: shortened to the reach.
+        assert!(close(limit_pressing_stride(-3.0 * n, n, 1.0).unwrap(), -n));
+        // Out and along: the withdrawal kept whole, the slide shortened.
+        assert!(close(
+            limit_pressing_stride(DVec3::new(5.0, 3.0, 0.0), n, 1.0).unwrap(),
+            DVec3::new(5.0, 1.0, 0.0)
+        ));
+        // In and along: the whole stride shortened, its direction kept.
+        let s = limit_pressing_stride(DVec3::new(-2.0, 0.0, 2.0), n, 1.0).unwrap();
+        assert!(close(s, DVec3::new(-1.0, 0.0, 1.0) / 2f64.sqrt()));
     }
 }

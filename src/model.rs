@@ -14,6 +14,13 @@ use glam::DMat3;
 /// detection step by only a few steps.
 pub const SPEED_LIMIT_WAVE_SPEEDS: f64 = 10.0;
 
+/// The fastest a haptic session moves the simulated tool, in shear wave speeds of the
+/// stepped material: a tool pushed in faster than the tissue's shear waves carry it out of
+/// the way crushes the layer under it (lv_touch, a 5 mm press at mass scaling 700, c_s =
+/// 0.096 m/s: 0.062 m/s held, 0.075 m/s and faster diverged, particles inverted under the
+/// tool; the same press at 7 mm/s went 7 mm deep). Half leaves a margin below that edge.
+pub const TOOL_SPEED_SHEAR_WAVES: f64 = 0.5;
+
 /// Everything the kernels read that does not change during a run.
 #[derive(Clone, Debug)]
 pub struct Model {
@@ -610,6 +617,23 @@ impl Model {
     /// Number of vertices.
     pub fn n_vertices(&self) -> usize {
         self.mass.len()
+    }
+
+    /// Shear (S-) wave speed of the stepped material (mass scaling included),
+    /// c_s = sqrt(μ/ρ), m/s; μ the small-strain shear modulus (Guccione's effective one).
+    pub fn shear_wave_speed(&self) -> f64 {
+        let m = &self.material;
+        let mu = self
+            .hyperelastic
+            .as_ref()
+            .map_or(m.mu, |h| h.shear_modulus(m.model, m.mu));
+        (mu / m.density).sqrt()
+    }
+
+    /// The fastest a haptic session moves the simulated tool, m/s:
+    /// [`TOOL_SPEED_SHEAR_WAVES`] · c_s ([`Model::shear_wave_speed`]).
+    pub fn max_tool_speed(&self) -> f64 {
+        TOOL_SPEED_SHEAR_WAVES * self.shear_wave_speed()
     }
 
     /// Number of tets.

@@ -509,6 +509,9 @@ impl Simulation {
     /// the failing step, then go back again and redo the steps before it (the backends are
     /// deterministic): the state is left at the last step before it, and the batch start
     /// stays the checkpoint for [`Simulation::rollback_to_checkpoint`] until the next advance.
+    /// A batch that crosses a keyframe of the scene's tool path runs in parts that end at
+    /// it (the tool moves linearly within a batch); the checkpoint is then the start of the
+    /// part that diverged.
     /// A restore brings back the particles, their activation's lists and the step count with
     /// the vertices, so the replay activates on the same steps as the batch.
     pub fn advance(&mut self, steps: u32) -> Result<Advance> {
@@ -540,8 +543,48 @@ impl Simulation {
     }
 
     /// [`Simulation::advance`]; without `redo` a divergence leaves the state at the batch
-    /// start (for a caller that rolls back at once).
+    /// start (for a caller that rolls back at once). A batch moves the tool linearly, so one
+    /// that would cross a corner of the scene's tool path (a keyframe) runs in parts that
+    /// end at it ([`Simulation::steps_to_path_corner`]); a divergence in a later part leaves
+    /// that part's start as the checkpoint.
     fn advance_inner(&mut self, steps: u32, redo: bool) -> Result<Advance> {
+        let first = self.steps_to_path_corner(steps);
+        if first < steps {
+            match self.advance_piece(first, redo)? {
+                Advance::Done(_) => return self.advance_inner(steps - first, redo),
+                diverged => return Ok(diverged),
+            }
+        }
+        self.advance_piece(steps, redo)
+    }
+
+    /// Steps from now to the first of the scene tool path's keyframes strictly inside the
+    /// next `steps` steps (to the last step boundary at or before it; 1 when it falls inside
+    /// the next step, which then runs alone), else `steps`; always `steps` while
+    /// [`Simulation::tool_target`] drives the tool. Every batch then starts and ends on the
+    /// path, and the tool moves between steps as one-step batches move it.
+    fn steps_to_path_corner(&self, steps: u32) -> u32 {
+        let Some(t) = self
+            .model
+            .tool
+            .as_ref()
+            .filter(|_| self.tool_target.is_none())
+        else {
+            return steps;
+        };
+        let end = self.time + steps as f64 * self.dt;
+        t.tool
+            .path
+            .iter()
+            .map(|(tk, _)| *tk)
+            .find(|tk| *tk > self.time + 1e-9 * self.dt && *tk < end - 1e-9 * self.dt)
+            .map_or(steps, |tk| {
+                (((tk - self.time) / self.dt + 1e-6).floor() as u32).clamp(1, steps)
+            })
+    }
+
+    /// One batch of [`Simulation::advance_inner`], the tool moving linearly over it.
+    fn advance_piece(&mut self, steps: u32, redo: bool) -> Result<Advance> {
         self.checkpoint = None;
         if steps == 0 {
             return Ok(Advance::Done(self.last));

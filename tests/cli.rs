@@ -3053,6 +3053,37 @@ fn a_tool_path_faster_than_its_radius_a_step_is_warned_of() {
     }
 }
 
+/// A path that presses the tool into `lv_touch` faster than half its wall's shear wave speed
+/// (0.048 m/s at mass scaling 700) is warned of; the same leg backwards (a withdrawal) and
+/// the shipped 6 mm/s press are not.
+#[test]
+fn a_tool_path_pressing_faster_than_the_tissue_follows_is_warned_of() {
+    let d = tmp("fastpress");
+    let lv_touch = include_str!("../scenes/lv_touch.toml");
+    let shipped = "path = [[0.0, 0.0147, 0.0, -0.005], [0.5, 0.0117, 0.0, -0.005], [2.0, 0.0117, 0.0, -0.005]]";
+    assert!(lv_touch.contains(shipped));
+    let with_path = |path: &str| lv_touch.replacen(shipped, path, 1);
+    // 3 mm in 30 ms: 0.1 m/s.
+    let press = with_path("path = [[0.0, 0.0147, 0.0, -0.005], [0.03, 0.0117, 0.0, -0.005]]");
+    let withdraw = with_path("path = [[0.0, 0.0117, 0.0, -0.005], [0.03, 0.0147, 0.0, -0.005]]");
+    for (name, text, warned) in [
+        ("press.toml", press.as_str(), true),
+        ("withdraw.toml", withdraw.as_str(), false),
+        ("shipped.toml", lv_touch, false),
+    ] {
+        let scene = scene_file(&d, name, text);
+        let (ok, out, err) =
+            run_on_cpu(&scene, "2", d.join(format!("{name}_out")).to_str().unwrap());
+        assert!(ok, "{name}: {out}{err}");
+        assert_eq!(
+            err.contains("tool.path presses the tool in at 1.000e-1 m/s from t = 0 to 0.03 s")
+                && err.contains("faster than the 4.820e-2 m/s the tissue can follow (half its shear wave speed, 9.641e-2 m/s at mass scaling 700)"),
+            warned,
+            "{name}: {err}"
+        );
+    }
+}
+
 #[test]
 fn a_scripted_hand_faster_than_the_tools_radius_a_tick_is_warned_of() {
     let d = tmp("fasthand");

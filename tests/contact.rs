@@ -199,6 +199,49 @@ fn frozen_stiffness_is_the_derivative_of_the_tool_force() {
     }
 }
 
+/// A batch follows the tool path's corners: one batch of N steps over a press that ends at a
+/// third of it moves the body as N one-step batches do. (A batch moved the tool linearly from
+/// where it was to the path's position at the batch end, so `palpate run`, 200 steps a batch,
+/// pressed at whatever speed the batch length gave: 6 mm in 12 ms and in 120 ms ran the
+/// same, and `--frames`, which cuts batches, changed the result.)
+#[test]
+fn one_batch_follows_the_tool_paths_corner_as_single_steps_do() {
+    let steps = 90u32;
+    let probe = Simulation::new(
+        &beam_with_tool(2e-3, 1.0),
+        Backend::Cpu,
+        SimOptions::default(),
+    )
+    .unwrap();
+    // The press ends between steps 30 and 31.
+    let scene = beam_with_tool(2e-3, 30.5 * probe.dt);
+    let new_sim = || Simulation::new(&scene, Backend::Cpu, SimOptions::default()).unwrap();
+    let (mut whole, mut single) = (new_sim(), new_sim());
+    assert!(matches!(whole.advance(steps).unwrap(), Advance::Done(_)));
+    for _ in 0..steps {
+        assert!(matches!(single.advance(1).unwrap(), Advance::Done(_)));
+    }
+    let (fw, fs) = (
+        whole.contact().unwrap().force,
+        single.contact().unwrap().force,
+    );
+    let (uw, us) = (
+        whole.state().unwrap().displacements,
+        single.state().unwrap().displacements,
+    );
+    let e = rel_err(&uw, &us);
+    let ef = (fw - fs).length() / fs.length();
+    eprintln!(
+        "one batch against single steps: |F| {:.4e} / {:.4e} N (rel {ef:.1e}), displacements rel {e:.1e}",
+        fw.length(),
+        fs.length()
+    );
+    assert!(fs.length() > 0.0, "the tool never touched");
+    assert_eq!(whole.tool_position, single.tool_position);
+    assert!(e <= 1e-5, "displacements differ by {e:.2e} (relative)");
+    assert!(ef <= 1e-5, "tool forces differ by {ef:.2e} (relative)");
+}
+
 #[test]
 fn pressed_tool_trajectory_gpu_matches_cpu() {
     let scene = beam_with_tool(4e-3, 0.008);

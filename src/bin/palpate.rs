@@ -545,6 +545,14 @@ fn execute(cli: Cli) -> Result<()> {
                     h.physics.workspace_clamps
                 );
             }
+            if h.physics.speed_limited_batches > 0 {
+                palpate::say_err!(
+                    "warning: the hand pressed or slid the tool in the tissue faster than it can follow in {} physics batches: the simulated tool was held to {:.3e} m/s there (half the tissue's shear wave speed at mass scaling {}) and lagged the hand, the force felt coming from the local model; a smaller [solver] mass_scaling raises the limit",
+                    h.physics.speed_limited_batches,
+                    h.physics.max_tool_speed,
+                    scene.solver.mass_scaling
+                );
+            }
             // After a divergence the physics stopped: its rate says nothing about the machine.
             if h.physics.realtime_capacity < 0.95 && s.run.status.divergence().is_none() {
                 palpate::say_err!(

@@ -64,6 +64,21 @@ impl Tool {
         fastest_leg(self.path.iter().copied())
     }
 
+    /// The path's fastest leg that presses into the tissue or moves the tool within it: one
+    /// that ends inside the mesh's rest surface ([`Tool::surface_gap`] < 0) no farther out
+    /// than it began (a withdrawal is not one); as [`fastest_leg`].
+    pub fn fastest_pressing_leg(&self, mesh: &TetMesh) -> Option<(f64, f64, f64)> {
+        let gaps: Vec<f64> = self
+            .path
+            .iter()
+            .map(|(_, x)| self.surface_gap(mesh, *x))
+            .collect();
+        (1..self.path.len())
+            .filter(|&k| gaps[k] < 0.0 && gaps[k] <= gaps[k - 1])
+            .filter_map(|k| fastest_leg([self.path[k - 1], self.path[k]]))
+            .max_by(|a, b| a.0.total_cmp(&b.0))
+    }
+
     /// Time of the last keyframe (0 without a path).
     pub fn path_end(&self) -> f64 {
         self.path.last().map_or(0.0, |(t, _)| *t)
