@@ -168,8 +168,9 @@ enum BenchStudy {
     },
     /// Error against a converged reference versus run time: accuracy.csv, accuracy.png.
     Accuracy {
-        /// Backend whose run time is measured.
-        #[arg(long, value_enum, default_value = "gpu")]
+        /// Backend whose run time is measured (auto: a hardware GPU, else the CPU, as `run`
+        /// picks; a software adapter only when asked for with `gpu`).
+        #[arg(long, value_enum, default_value = "auto")]
         backend: Backend,
         /// CI-sized run.
         #[arg(long)]
