@@ -548,14 +548,15 @@ impl Simulation {
     /// end at it ([`Simulation::steps_to_path_corner`]); a divergence in a later part leaves
     /// that part's start as the checkpoint.
     fn advance_inner(&mut self, steps: u32, redo: bool) -> Result<Advance> {
-        let first = self.steps_to_path_corner(steps);
-        if first < steps {
-            match self.advance_piece(first, redo)? {
-                Advance::Done(_) => return self.advance_inner(steps - first, redo),
-                diverged => return Ok(diverged),
+        let mut left = steps;
+        loop {
+            let part = self.steps_to_path_corner(left);
+            left -= part;
+            match self.advance_piece(part, redo)? {
+                Advance::Done(_) if left > 0 => continue,
+                outcome => return Ok(outcome),
             }
         }
-        self.advance_piece(steps, redo)
     }
 
     /// Steps from now to the first of the scene tool path's keyframes strictly inside the
