@@ -149,9 +149,14 @@ pub struct PhysicsStats {
     pub workspace_clamps: u64,
     /// The fastest the simulated tool may move, m/s ([`crate::model::Model::max_tool_speed`]).
     pub max_tool_speed: f64,
-    /// Batches in contact whose tool move (less a withdrawal) was shortened to that speed
-    /// ([`limit_pressing_stride`]): the tool lagged the hand.
+    /// Batches whose tool move into the tissue was shortened to that speed: in contact all
+    /// but a withdrawal ([`limit_pressing_stride`]), out of it the part beyond the
+    /// clearance to the surface. The tool then lagged the hand, or the physics caught up
+    /// after falling behind (a long stride from a slow hand).
     pub speed_limited_batches: u64,
+    /// Those of them where the hand itself moved faster than the limit (absent: none).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub hand_too_fast: Option<HandTooFast>,
     /// Batches that diverged and were rolled back (dt halved).
     pub divergences: u64,
     /// The last published stiffness K = ∂F/∂x, N/m, by rows.
@@ -166,6 +171,18 @@ pub struct PhysicsStats {
     pub inversion_checks: u64,
     /// The most inverted elements any of those counts found.
     pub inverted_peak: InvertedPeak,
+}
+
+/// The batches of a session whose tool was held back while the hand moved faster than
+/// [`crate::model::Model::max_tool_speed`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct HandTooFast {
+    /// How many.
+    pub batches: u64,
+    /// Simulated time of the first, s.
+    pub from_seconds: f64,
+    /// The hand's fastest speed over them (pose to pose), m/s.
+    pub max_hand_speed: f64,
 }
 
 /// The largest count of inverted elements (tets + particles that carry strain energy, det F
@@ -195,6 +212,12 @@ impl InvertedPeak {
         }
     }
 }
+
+/// How many batches' travel at the tool speed limit the tool must lag the hand by before the
+/// servo solves with the static stiffness instead of the contact springs' (a short lag, such
+/// as a physics thread catching up after a stall, keeps the contact springs' stable fixed
+/// point between servo and physics).
+const LAG_BATCHES: f64 = 4.0;
 
 /// A tool move `stride` in contact, limited to `reach` (m) except for its withdrawal: the part
 /// along the tissue's push `normal` (unit, out of the tissue) that moves away from it is kept
@@ -434,6 +457,8 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
     let mut last_used = 0u64;
     // The direction the tissue pushed the tool at the end of the last batch, in contact.
     let mut contact_normal: Option<DVec3> = None;
+    // The pose (offset from home) and stamp the last batch took.
+    let mut last_command: Option<(DVec3, f64)> = None;
     let start = Instant::now();
     let sim_start = clock.now();
     let outcome = (|| -> Result<()> {
@@ -470,16 +495,44 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                 stats.workspace_clamps += 1;
             }
             let steps = ((opts.batch_seconds / sim.dt).round() as u32).max(1);
-            // In contact, pressed or slid no faster than the tissue can move out of the
-            // tool's way (the servo renders the hand's force from the local model meanwhile).
+            // The hand's own speed since the last batch's pose (the physics may have fallen
+            // behind: then the stride below is long though the hand was slow).
+            let hand_speed = match last_command {
+                Some((x, t)) if command.stamp > t => (offset - x).length() / (command.stamp - t),
+                _ => 0.0,
+            };
+            last_command = Some((offset, command.stamp));
+            // Pressed or slid into the tissue no faster than it can move out of the tool's
+            // way (the servo renders the hand's force from the local model meanwhile): in
+            // contact, all but a withdrawal; out of it, the clearance to the tissue's surface
+            // at the hand's speed and the rest at the limit.
             let mut target = home + offset;
-            if let Some(normal) = contact_normal {
-                let reach = stats.max_tool_speed * steps as f64 * sim.dt;
-                if let Some(stride) =
-                    limit_pressing_stride(target - sim.tool_position, normal, reach)
-                {
-                    target = sim.tool_position + stride;
-                    stats.speed_limited_batches += 1;
+            let reach = stats.max_tool_speed * steps as f64 * sim.dt;
+            let stride = target - sim.tool_position;
+            let limited = match contact_normal {
+                Some(normal) => limit_pressing_stride(stride, normal, reach),
+                None if stride.length() > reach => {
+                    let clear = rest.clearance(&sim.state()?, sim.tool_position).max(0.0);
+                    let free = clear + reach;
+                    (stride.length() > free).then(|| stride * (free / stride.length()))
+                }
+                None => None,
+            };
+            // Held back by more than a few batches' travel (the hand well ahead, not a
+            // physics thread catching up after a short stall): the servo then solves with
+            // the static K (see the published model below).
+            let held_back = limited.is_some() && stride.length() > LAG_BATCHES * reach;
+            if let Some(stride) = limited {
+                target = sim.tool_position + stride;
+                stats.speed_limited_batches += 1;
+                if hand_speed > stats.max_tool_speed {
+                    let first = stats.hand_too_fast.get_or_insert(HandTooFast {
+                        batches: 0,
+                        from_seconds: sim.time,
+                        max_hand_speed: 0.0,
+                    });
+                    first.batches += 1;
+                    first.max_hand_speed = first.max_hand_speed.max(hand_speed);
                 }
             }
             sim.tool_target = Some(target);
@@ -538,8 +591,14 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                     stats.peak_tool_force = report.force.to_array();
                 }
             }
-            // The state to count inverted elements in, after the model is published.
+            // The state to count inverted elements in, and the static stiffness to refresh
+            // from it, after the model is published: a refresh that needs new columns of
+            // the compliance (the first contact, a contact that spreads) takes 5–35 ms, and
+            // the servo rendered no force meanwhile at a first contact. The refreshed K goes
+            // out with the next batch's model; the first contact's model carries the
+            // contact springs' K until then.
             let mut to_check = None;
+            let mut to_refresh = None;
             if !in_contact {
                 published_k = DMat3::ZERO;
                 last_refresh = None;
@@ -556,41 +615,35 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                 } else {
                     None
                 };
-                match &mut stiffness {
+                match &stiffness {
                     StiffnessSource::Frozen(_) => published_k = report.stiffness,
-                    StiffnessSource::Static(compliance) => {
-                        if let (true, Some((state, particles))) = (refresh, &read) {
-                            let points = contact_points(
-                                &model,
-                                &state.displacements,
-                                particles.as_ref(),
-                                sim.tool_position,
-                            );
-                            published_k = if points.is_empty() {
-                                report.stiffness
-                            } else {
-                                compliance.stiffness(&points)
-                            };
-                            stats.stiffness_refreshes += 1;
-                            if refresh_ms.len() < MAX_TIMINGS {
-                                refresh_ms.push(t.elapsed().as_secs_f64() * 1e3);
-                            }
-                            // Stamped at the read, as the count's timer is, so that one
-                            // read serves both each period.
-                            last_refresh = Some(t);
+                    StiffnessSource::Static(_) if refresh => {
+                        if published_k == DMat3::ZERO {
+                            published_k = report.stiffness;
                         }
+                        // Stamped at the read, as the count's timer is, so that one read
+                        // serves both each period.
+                        to_refresh = Some(t);
+                        last_refresh = Some(t);
                     }
+                    StiffnessSource::Static(_) => {}
                 }
                 if check {
-                    to_check = read;
                     last_check = Some(t);
                 }
+                to_check = read.map(|r| (r, check));
             }
             physics.publish(
                 LocalModel {
                     force: if diverged { DVec3::ZERO } else { report.force },
                     stiffness: published_k,
-                    contact_stiffness: if in_contact {
+                    // A tool held back by the speed limit (by more than LAG_BATCHES
+                    // batches' travel) does not follow the proxy: the servo solves with the
+                    // static K (the force the hand's pose will meet
+                    // once the tissue has moved), not with the contact springs' K, which
+                    // would render the coupling spring stretched over the lag (k_c·lag:
+                    // 0.57 N against 0.1 N pressing lv_touch 3 mm at 0.1 m/s).
+                    contact_stiffness: if in_contact && !held_back {
                         report.stiffness
                     } else {
                         DMat3::ZERO
@@ -605,13 +658,39 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                     ..Default::default()
                 }
                 .with_batch_damper(
-                    if in_contact { tool_damping } else { 0.0 },
+                    if in_contact && !held_back {
+                        tool_damping
+                    } else {
+                        0.0
+                    },
                     report.contact_area,
                     batch_seconds,
                     sim.tool_position - tool_before,
                 ),
             );
-            if let Some((state, particles)) = to_check {
+            if let (Some(t), StiffnessSource::Static(compliance), Some(((state, particles), _))) =
+                (to_refresh, &mut stiffness, &to_check)
+            {
+                let points = contact_points(
+                    &model,
+                    &state.displacements,
+                    particles.as_ref(),
+                    sim.tool_position,
+                );
+                published_k = if points.is_empty() {
+                    report.stiffness
+                } else {
+                    compliance.stiffness(&points)
+                };
+                stats.stiffness_refreshes += 1;
+                let took = t.elapsed().as_secs_f64();
+                if refresh_ms.len() < MAX_TIMINGS {
+                    refresh_ms.push(took * 1e3);
+                }
+                // Physics-thread work between batches, as the count below.
+                busy_seconds += took;
+            }
+            if let Some(((state, particles), true)) = to_check {
                 let t = Instant::now();
                 let n = match &probe {
                     Some(p) => p.inverted(&model, &state, particles.as_ref()),

@@ -546,12 +546,15 @@ fn execute(cli: Cli) -> Result<()> {
                     h.physics.workspace_clamps
                 );
             }
-            if h.physics.speed_limited_batches > 0 {
+            if let Some(fast) = h.physics.hand_too_fast {
                 palpate::say_err!(
-                    "warning: the hand pressed or slid the tool in the tissue faster than it can follow in {} physics batches: the simulated tool was held to {:.3e} m/s there (half the tissue's shear wave speed at mass scaling {}) and lagged the hand, the force felt coming from the local model; a smaller [solver] mass_scaling raises the limit",
-                    h.physics.speed_limited_batches,
+                    "warning: the hand pressed or slid the tool into the tissue at up to {:.3e} m/s, faster than the {:.3e} m/s it can follow (half its shear wave speed at mass scaling {}), in {} physics batch{} from t = {:.3} s: the simulated tool lagged the hand there, and the force felt was stiffer than the tissue's while it did (the coupling spring stretched over the lag); a smaller [solver] mass_scaling raises the limit, at a cost in realtime capacity",
+                    fast.max_hand_speed,
                     h.physics.max_tool_speed,
-                    scene.solver.mass_scaling
+                    scene.solver.mass_scaling,
+                    fast.batches,
+                    if fast.batches == 1 { "" } else { "es" },
+                    fast.from_seconds
                 );
             }
             // After a divergence the physics stopped: its rate says nothing about the machine.
