@@ -595,8 +595,10 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
             // from it, after the model is published: a refresh that needs new columns of
             // the compliance (the first contact, a contact that spreads) takes 5–35 ms, and
             // the servo rendered no force meanwhile at a first contact. The refreshed K goes
-            // out with the next batch's model; the first contact's model carries the
-            // contact springs' K until then.
+            // out with the next batch's model; the first contact's model carries no static
+            // K until then (its proxy solve uses the contact springs' K; held back, the
+            // force f0 alone: the contact springs' K there rendered k_c × lag, 1.1 N for a
+            // 0.17 N press at 2 m/s).
             let mut to_check = None;
             let mut to_refresh = None;
             if !in_contact {
@@ -618,9 +620,6 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                 match &stiffness {
                     StiffnessSource::Frozen(_) => published_k = report.stiffness,
                     StiffnessSource::Static(_) if refresh => {
-                        if published_k == DMat3::ZERO {
-                            published_k = report.stiffness;
-                        }
                         // Stamped at the read, as the count's timer is, so that one read
                         // serves both each period.
                         to_refresh = Some(t);
