@@ -247,6 +247,48 @@ impl ContactCompliance {
         true
     }
 
+    /// The vertices of `points`' supports (with degrees of freedom) whose columns of K₀⁻¹
+    /// are not cached yet, each once, in order of first appearance.
+    pub fn missing_columns(&self, points: &[ContactPoint]) -> Vec<u32> {
+        let mut missing = Vec::new();
+        for pt in points {
+            for &(v, w) in &pt.support {
+                if w != 0.0
+                    && self.order[v as usize] != NO_DOF
+                    && !self.columns.contains_key(&v)
+                    && !missing.contains(&v)
+                {
+                    missing.push(v);
+                }
+            }
+        }
+        missing
+    }
+
+    /// True when `more` vertices' columns fit in the cache beside those held (else adding
+    /// them clears it, and a caller warming them a few at a time would never finish).
+    pub fn fits_in_cache(&self, more: usize) -> bool {
+        (self.columns.len() + more) * 3 * self.factor.n() * 8 <= COLUMN_CACHE_BYTES
+    }
+
+    /// Solve and cache the columns of `vertices` in order, at least one and then while less
+    /// than `budget` has passed; returns how many are cached now. Spreads over several
+    /// calls the solves that [`ContactCompliance::stiffness`] would make at once (three
+    /// triangular solves of the profile factor per new vertex: tens of ms at a first
+    /// contact on lv_touch).
+    pub fn warm_columns(&mut self, vertices: &[u32], budget: std::time::Duration) -> usize {
+        let start = std::time::Instant::now();
+        let mut done = 0;
+        for &v in vertices {
+            if done > 0 && start.elapsed() >= budget {
+                break;
+            }
+            self.ensure_columns(v);
+            done += 1;
+        }
+        done
+    }
+
     /// The static stiffness ∂F/∂x (N/m) of the tool force with respect to the tool position
     /// over `points` (see the module formula); zero without points.
     pub fn stiffness(&mut self, points: &[ContactPoint]) -> DMat3 {
@@ -637,6 +679,35 @@ mod tests {
         assert!((b[0][0] - 3.0 / 11.0).abs() < 1e-14);
         assert!((b[1][1] - 4.0 / 11.0).abs() < 1e-14);
         assert!((b[0][2] - 5.0 / 11.0).abs() < 1e-14);
+    }
+
+    /// Columns warmed a vertex at a time (a zero budget does one a call) give the same
+    /// stiffness as a refresh that solves them all at once, and warming is then done.
+    #[test]
+    fn columns_warmed_a_few_at_a_time_give_the_same_stiffness() {
+        let scene = crate::Scene::load("lv_touch").unwrap();
+        let model = Model::from_scene(&scene);
+        let tool = scene.tool.as_ref().unwrap();
+        // The tool 2 mm into the unloaded epicardium at x = 9.68 mm.
+        let centre = DVec3::new(0.00968 + tool.radius - 0.002, 0.0, -0.005);
+        let rest = vec![0.0f32; 3 * model.n_vertices()];
+        let points = contact_points(&model, &rest, None, centre);
+        assert!(points.len() >= 3, "{} contact points", points.len());
+        let mut at_once = ContactCompliance::new(&model).unwrap();
+        let k_at_once = at_once.stiffness(&points);
+        let mut warmed = ContactCompliance::new(&model).unwrap();
+        let missing = warmed.missing_columns(&points);
+        assert!(missing.len() > 1 && warmed.fits_in_cache(missing.len()));
+        for done in 0..missing.len() {
+            let left = warmed.missing_columns(&points);
+            assert_eq!(left.len(), missing.len() - done);
+            assert_eq!(warmed.warm_columns(&left, std::time::Duration::ZERO), 1);
+        }
+        assert!(warmed.missing_columns(&points).is_empty());
+        assert!(at_once.missing_columns(&points).is_empty());
+        let k_warmed = warmed.stiffness(&points);
+        assert_eq!(k_warmed, k_at_once);
+        assert_ne!(k_at_once, DMat3::ZERO);
     }
 
     #[test]

@@ -145,6 +145,9 @@ pub struct PhysicsStats {
     pub stiffness_refreshes: u64,
     /// Wall time per refresh, ms.
     pub stiffness_refresh_ms: Spread,
+    /// Batches that solved new columns of the compliance for a refresh still to come (a few
+    /// per batch, [`ContactCompliance::missing_columns`]).
+    pub column_warmup_batches: u64,
     /// Batches whose tool target was pulled back into the device's workspace.
     pub workspace_clamps: u64,
     /// The fastest the simulated tool may move, m/s ([`crate::model::Model::max_tool_speed`]).
@@ -212,6 +215,9 @@ impl InvertedPeak {
         }
     }
 }
+
+/// Wall time a batch gives to solving new compliance columns before a stiffness refresh.
+const COLUMN_BUDGET: Duration = Duration::from_micros(300);
 
 /// How many batches' travel at the tool speed limit the tool must lag the hand by before the
 /// servo solves with the static stiffness instead of the contact springs' (a short lag, such
@@ -676,16 +682,30 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                     particles.as_ref(),
                     sim.tool_position,
                 );
-                published_k = if points.is_empty() {
-                    report.stiffness
+                // New compliance columns (a first contact, a contact that spreads) are solved
+                // a few per batch, the refresh due again until they are all there: at once
+                // they held the physics thread 5–35 ms, the servo rendering a stale model.
+                let missing = compliance.missing_columns(&points);
+                let warm = missing.is_empty()
+                    || !compliance.fits_in_cache(missing.len())
+                    || compliance.warm_columns(&missing, COLUMN_BUDGET) == missing.len();
+                let took = if warm {
+                    published_k = if points.is_empty() {
+                        report.stiffness
+                    } else {
+                        compliance.stiffness(&points)
+                    };
+                    stats.stiffness_refreshes += 1;
+                    let took = t.elapsed().as_secs_f64();
+                    if refresh_ms.len() < MAX_TIMINGS {
+                        refresh_ms.push(took * 1e3);
+                    }
+                    took
                 } else {
-                    compliance.stiffness(&points)
+                    stats.column_warmup_batches += 1;
+                    last_refresh = None;
+                    t.elapsed().as_secs_f64()
                 };
-                stats.stiffness_refreshes += 1;
-                let took = t.elapsed().as_secs_f64();
-                if refresh_ms.len() < MAX_TIMINGS {
-                    refresh_ms.push(took * 1e3);
-                }
                 // Physics-thread work between batches, as the count below.
                 busy_seconds += took;
             }

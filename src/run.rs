@@ -361,8 +361,10 @@ pub fn run_with_state(
         if let Some((speed, from, to)) = t.tool.fastest_pressing_leg(&scene.mesh) {
             if speed > model.max_tool_speed() {
                 crate::say_err!(
-                    "warning: {}: tool.path presses the tool in at {speed:.3e} m/s from t = {from} to {to} s, faster than the {:.3e} m/s the tissue can follow (half its shear wave speed, {:.3e} m/s at mass scaling {}): the tissue cannot move out of the tool's way and the layer under it can be crushed until the run diverges (a haptic session holds the tool to that speed); slow the press down",
+                    "warning: {}: tool.path moves the tool into or along the tissue at {speed:.3e} m/s from t = {} to {} s, faster than the {:.3e} m/s it can follow (half its shear wave speed, {:.3e} m/s at mass scaling {}): the tissue cannot move out of the tool's way and the layer under it can be crushed until the run diverges (a haptic session holds the tool to that speed); slow the press down",
                     scene.origin,
+                    crate::scene::short_time(from),
+                    crate::scene::short_time(to),
                     model.max_tool_speed(),
                     model.shear_wave_speed(),
                     scene.solver.mass_scaling,

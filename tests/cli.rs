@@ -1815,12 +1815,12 @@ fn a_tool_that_starts_inside_the_tissue_is_warned_about() {
         ("[0.05, 0.01, 0.03]", None),
         (
             "[0.05, 0.01, 0.0225]",
-            Some("the surface reaches 1.500e-3 into it"),
+            Some("the surface reaches 1.500e-3 m into it"),
         ),
         // Between the top face's vertices (5 mm apart): no vertex inside, the face is.
         (
             "[0.0525, 0.0125, 0.0235]",
-            Some("the surface reaches 5.000e-4 into it"),
+            Some("the surface reaches 5.000e-4 m into it"),
         ),
         // 2 mm below the top face: the sphere reaches the surface and shoves it.
         (
@@ -3076,8 +3076,8 @@ fn a_tool_path_pressing_faster_than_the_tissue_follows_is_warned_of() {
             run_on_cpu(&scene, "2", d.join(format!("{name}_out")).to_str().unwrap());
         assert!(ok, "{name}: {out}{err}");
         assert_eq!(
-            err.contains("tool.path presses the tool in at 1.000e-1 m/s from t = 0 to 0.03 s")
-                && err.contains("faster than the 4.820e-2 m/s the tissue can follow (half its shear wave speed, 9.641e-2 m/s at mass scaling 700)"),
+            err.contains("tool.path moves the tool into or along the tissue at 1.000e-1 m/s from t = 0 to 0.03 s")
+                && err.contains("faster than the 4.820e-2 m/s it can follow (half its shear wave speed, 9.641e-2 m/s at mass scaling 700)"),
             warned,
             "{name}: {err}"
         );

@@ -156,7 +156,7 @@ impl std::fmt::Display for ToolOverlap {
             ),
             ToolOverlap::Surface { depth } => write!(
                 f,
-                "the surface reaches {depth:.3e} into it; its contact shoves the tissue out at once"
+                "the surface reaches {depth:.3e} m into it; its contact shoves the tissue out at once"
             ),
         }
     }
@@ -260,10 +260,47 @@ pub fn tunnelling_warning(
     radius: f64,
 ) -> Option<String> {
     let (speed, from, to) = leg;
-    (speed * step_seconds > radius).then(|| {
+    // A leg shorter than a step moves the tool its own length in it, no more.
+    let per_step = speed * step_seconds.min(to - from);
+    (per_step > radius).then(|| {
         format!(
-            "{what} at {speed:.3e} m/s from t = {from} to {to} s: {:.3e} m a step, more than the tool's radius {radius:.3e} m, so it can pass through the surface between two steps without touching it (slow it down)",
-            speed * step_seconds
+            "{what} at {speed:.3e} m/s from t = {} to {} s: {per_step:.3e} m a step, more than the tool's radius {radius:.3e} m, so it can pass through the surface between two steps without touching it (slow it down)",
+            short_time(from),
+            short_time(to)
         )
     })
+}
+
+/// A time for a message: as written when short (a keyframe's `0.5`), else to 5 significant
+/// digits (a computed `0.04997868126357471` as `4.9979e-2`).
+pub fn short_time(t: f64) -> String {
+    let plain = format!("{t}");
+    if plain.len() <= 8 {
+        plain
+    } else {
+        format!("{t:.4e}")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{short_time, tunnelling_warning};
+
+    #[test]
+    fn the_tunnelling_warning_counts_a_short_leg_once_and_prints_short_times() {
+        // 10 mm in 1 ms, steps of 2 ms: the tool moves 10 mm in the step, not 20.
+        let w = tunnelling_warning("it moves", (10.0, 0.0, 0.001), 0.002, 0.004).unwrap();
+        assert!(w.contains("1.000e-2 m a step"), "{w}");
+        // 3 mm in 1e-12 s: 3 mm in the step (the leg's length), under a 4 mm radius.
+        assert_eq!(
+            tunnelling_warning("it moves", (3e9, 0.0, 1e-12), 1e-3, 0.004),
+            None
+        );
+        // A long leg: speed × step.
+        let w = tunnelling_warning("it moves", (10.0, 0.5, 2.0), 1e-3, 0.004).unwrap();
+        assert!(w.contains("from t = 0.5 to 2 s: 1.000e-2 m a step"), "{w}");
+        assert_eq!(short_time(0.03), "0.03");
+        assert_eq!(short_time(0.04997868126357471), "4.9979e-2");
+        assert_eq!(short_time(1e-12), "1.0000e-12");
+    }
 }
