@@ -2,13 +2,16 @@
 //! servo loop on its own, joined by the latest-value slots of [`crate::haptics::link`](mod@crate::haptics::link)
 //! (DESIGN §7).
 //!
-//! Each pass of the physics loop takes the newest tool command, places the simulated tool
-//! at `home + proxy` (clamped to the device's workspace), runs a batch of about
+//! Each pass of the physics loop takes the newest tool command, aims the simulated tool at
+//! `home + proxy` (clamped to the device's workspace, and moved into the tissue no faster
+//! than [`crate::model::Model::max_tool_speed`]), runs a batch of about
 //! [`HapticOptions::batch_seconds`] of simulated time (the tool moves linearly to the new
 //! place over it), and publishes the local model: the tool force f0 from `tool_force`, the
 //! static stiffness K of [`crate::compliance`] (refreshed every
-//! [`HapticOptions::stiffness_period`] while in contact; the frozen stiffness when the body
-//! has no static stiffness), the proxy it was computed at and the command's time stamp. The
+//! [`HapticOptions::stiffness_period`] while in contact, after the publish, so that it goes
+//! out with the next model, and after the new compliance columns it needs were solved a
+//! few per batch; the frozen stiffness when the body has no static stiffness), the proxy
+//! it was computed at and the command's time stamp. The
 //! simulation never runs ahead of the loop clock; when it cannot keep up, the realtime
 //! factor in `summary.json` says so. A divergence rolls back and halves dt (the servo fades
 //! the force while the model says `diverged`); when dt cannot be halved again the run ends
@@ -219,6 +222,10 @@ impl InvertedPeak {
 /// Wall time a batch gives to solving new compliance columns before a stiffness refresh.
 const COLUMN_BUDGET: Duration = Duration::from_micros(300);
 
+/// Batches in a row that may warm columns before the refresh solves the rest at once (a
+/// contact that keeps spreading faster than the budget would otherwise never refresh).
+const MAX_WARMING_BATCHES: u32 = 40;
+
 /// How many batches' travel at the tool speed limit the tool must lag the hand by before the
 /// servo solves with the static stiffness instead of the contact springs' (a short lag, such
 /// as a physics thread catching up after a stall, keeps the contact springs' stable fixed
@@ -372,25 +379,9 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
             );
         }
     }
-    // A scripted hand that moves the tool more than its radius in a step can pass through
-    // the surface between two steps without touching it (the physics moves the tool to each
-    // batch's proxy step by step; out of contact, at the hand's speed).
-    if let (true, Some(t)) = (opts.announce, &model.tool) {
-        let warning = device
-            .trajectory()
-            .and_then(|path| path.fastest_leg())
-            .and_then(|leg| {
-                crate::scene::tunnelling_warning(
-                    "the trajectory moves the device",
-                    leg,
-                    sim.dt,
-                    t.tool.radius,
-                )
-            });
-        if let Some(w) = warning {
-            crate::say_err!("warning: {}: {w}", opts.device);
-        }
-    }
+    // (No tunnelling warning for a fast scripted hand: near the tissue the physics moves
+    // the tool no farther in a batch than its clearance to the surface plus the speed
+    // limit's reach, so it cannot pass through a surface between two steps.)
     if opts.announce {
         crate::say!(
             "{}: {} tets, {} vertices{}; device {} ({}); backend {} on {} ({}); {seconds} s",
@@ -463,8 +454,10 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
     let mut last_used = 0u64;
     // The direction the tissue pushed the tool at the end of the last batch, in contact.
     let mut contact_normal: Option<DVec3> = None;
-    // The pose (offset from home) and stamp the last batch took.
+    // The hand's pose (offset from home) and stamp when the last batch started.
     let mut last_command: Option<(DVec3, f64)> = None;
+    // Batches in a row that warmed compliance columns for a refresh still to come.
+    let mut warming_batches = 0u32;
     let start = Instant::now();
     let sim_start = clock.now();
     let outcome = (|| -> Result<()> {
@@ -503,11 +496,12 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
             let steps = ((opts.batch_seconds / sim.dt).round() as u32).max(1);
             // The hand's own speed since the last batch's pose (the physics may have fallen
             // behind: then the stride below is long though the hand was slow).
+            let hand = command.device_position;
             let hand_speed = match last_command {
-                Some((x, t)) if command.stamp > t => (offset - x).length() / (command.stamp - t),
+                Some((x, t)) if command.stamp > t => (hand - x).length() / (command.stamp - t),
                 _ => 0.0,
             };
-            last_command = Some((offset, command.stamp));
+            last_command = Some((hand, command.stamp));
             // Pressed or slid into the tissue no faster than it can move out of the tool's
             // way (the servo renders the hand's force from the local model meanwhile): in
             // contact, all but a withdrawal; out of it, the clearance to the tissue's surface
@@ -518,7 +512,14 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
             let limited = match contact_normal {
                 Some(normal) => limit_pressing_stride(stride, normal, reach),
                 None if stride.length() > reach => {
-                    let clear = rest.clearance(&sim.state()?, sim.tool_position).max(0.0);
+                    // Physics-thread work (a state read, the surface's distance): busy time.
+                    let t = Instant::now();
+                    let clear = match rest.sleeping_clearance(sim.tool_position) {
+                        Some(c) => c,
+                        None => rest.clearance(&sim.state()?, sim.tool_position),
+                    }
+                    .max(0.0);
+                    busy_seconds += t.elapsed().as_secs_f64();
                     let free = clear + reach;
                     (stride.length() > free).then(|| stride * (free / stride.length()))
                 }
@@ -526,8 +527,8 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
             };
             // Held back by more than a few batches' travel (the hand well ahead, not a
             // physics thread catching up after a short stall): the servo then solves with
-            // the static K (see the published model below).
-            let held_back = limited.is_some() && stride.length() > LAG_BATCHES * reach;
+            // the static K once there is one (see the published model below).
+            let held_back = limited.is_some_and(|s| (stride - s).length() > LAG_BATCHES * reach);
             if let Some(stride) = limited {
                 target = sim.tool_position + stride;
                 stats.speed_limited_batches += 1;
@@ -626,8 +627,8 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                 match &stiffness {
                     StiffnessSource::Frozen(_) => published_k = report.stiffness,
                     StiffnessSource::Static(_) if refresh => {
-                        // Stamped at the read, as the count's timer is, so that one read
-                        // serves both each period.
+                        // Stamped at the read, as the count's timer is (after a warm-up the
+                        // two drift apart, and a period may read the state twice).
                         to_refresh = Some(t);
                         last_refresh = Some(t);
                     }
@@ -638,6 +639,11 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                 }
                 to_check = read.map(|r| (r, check));
             }
+            // Held back before a first contact's static K is ready (its columns take a few
+            // tens of batches), the solve has no K: the hand feels f0 alone, the tissue's
+            // force at the lagging tool, and K adds K·lag when it comes (about 0.2 N on
+            // lv_touch pressed 6 mm at 2 m/s). The contact springs' K instead rendered
+            // k_c·lag, 1.5 N.
             physics.publish(
                 LocalModel {
                     force: if diverged { DVec3::ZERO } else { report.force },
@@ -688,7 +694,9 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                 let missing = compliance.missing_columns(&points);
                 let warm = missing.is_empty()
                     || !compliance.fits_in_cache(missing.len())
+                    || warming_batches >= MAX_WARMING_BATCHES
                     || compliance.warm_columns(&missing, COLUMN_BUDGET) == missing.len();
+                warming_batches = if warm { 0 } else { warming_batches + 1 };
                 let took = if warm {
                     published_k = if points.is_empty() {
                         report.stiffness

@@ -148,6 +148,14 @@ impl RestWatch {
         distance_to_triangles(surface.iter().copied(), centre) - self.tool_radius
     }
 
+    /// While asleep, [`RestWatch::clearance`] of the sleeping body's surface (no state read;
+    /// it does not move); None while awake.
+    pub fn sleeping_clearance(&self, centre: DVec3) -> Option<f64> {
+        self.asleep
+            .as_ref()
+            .map(|s| self.clearance_to(&s.surface, centre))
+    }
+
     /// Sleep, with the body as it is in `state`, if the tool at `tool` is clear of it by
     /// more than the wake margin; returns whether it sleeps.
     pub fn try_sleep(&mut self, state: &State, tool: DVec3) -> bool {

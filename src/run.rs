@@ -352,9 +352,15 @@ pub fn run_with_state(
     }
     let dt0 = sim.dt;
     if let (true, Some(t)) = (opts.announce, &model.tool) {
-        let warning = t.tool.fastest_leg().and_then(|leg| {
-            crate::scene::tunnelling_warning("tool.path moves the tool", leg, dt0, t.tool.radius)
-        });
+        let warning =
+            crate::scene::longest_step_leg(t.tool.path.iter().copied(), dt0).and_then(|leg| {
+                crate::scene::tunnelling_warning(
+                    "tool.path moves the tool",
+                    leg,
+                    dt0,
+                    t.tool.radius,
+                )
+            });
         if let Some(w) = warning {
             crate::say_err!("warning: {}: {w}", scene.origin);
         }

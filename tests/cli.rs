@@ -2858,9 +2858,13 @@ fn a_second_ctrl_c_stops_at_once_and_says_so() {
     use std::io::Read;
     let d = tmp("interrupt_twice");
     let out = d.join("out");
+    // hm1: its 27,751 particles make the outputs slow to write, so the second signal lands
+    // while the run is still working after the first (with lv, a first signal seen before
+    // the first batch once let the run write its small outputs and exit before the second
+    // came: status 130 without "interrupted twice").
     let mut child = spawn_as_a_foreground_job(&[
         "run",
-        "lv",
+        "hm1",
         "--duration",
         "1e6",
         "--backend",
@@ -3066,8 +3070,12 @@ fn a_tool_path_pressing_faster_than_the_tissue_follows_is_warned_of() {
     // 3 mm in 30 ms: 0.1 m/s.
     let press = with_path("path = [[0.0, 0.0147, 0.0, -0.005], [0.03, 0.0117, 0.0, -0.005]]");
     let withdraw = with_path("path = [[0.0, 0.0117, 0.0, -0.005], [0.03, 0.0147, 0.0, -0.005]]");
+    // From the centre on the surface to 3 mm past it: the distance to the surface grows
+    // again, which an unsigned gap read as a withdrawal.
+    let deeper = with_path("path = [[0.0, 0.0097, 0.0, -0.005], [0.03, 0.0067, 0.0, -0.005]]");
     for (name, text, warned) in [
         ("press.toml", press.as_str(), true),
+        ("deeper.toml", deeper.as_str(), true),
         ("withdraw.toml", withdraw.as_str(), false),
         ("shipped.toml", lv_touch, false),
     ] {
@@ -3085,7 +3093,7 @@ fn a_tool_path_pressing_faster_than_the_tissue_follows_is_warned_of() {
 }
 
 #[test]
-fn a_scripted_hand_faster_than_the_tools_radius_a_tick_is_warned_of() {
+fn a_scripted_hand_faster_than_the_tissue_follows_is_warned_of() {
     let d = tmp("fasthand");
     for (name, rows, warned) in [
         (
@@ -3104,9 +3112,15 @@ fn a_scripted_hand_faster_than_the_tools_radius_a_tick_is_warned_of() {
             d.join(format!("{name}_out")).to_str().unwrap(),
         );
         assert!(ok, "{name}: {out}{err}");
+        // Near the tissue the physics moves the tool no farther in a batch than its
+        // clearance plus the speed limit's reach: no pass-through to warn of, but a hand
+        // faster than the tissue follows.
+        assert!(
+            !err.contains("more than the tool's radius"),
+            "{name}: {err}"
+        );
         assert_eq!(
-            err.contains("the trajectory moves the device at 5.000e1 m/s from t = 0 to 0.001 s")
-                && err.contains("more than the tool's radius"),
+            err.contains("the hand pressed or slid the tool into the tissue at up to"),
             warned,
             "{name}: {err}"
         );

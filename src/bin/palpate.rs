@@ -548,7 +548,7 @@ fn execute(cli: Cli) -> Result<()> {
             }
             if let Some(fast) = h.physics.hand_too_fast {
                 palpate::say_err!(
-                    "warning: the hand pressed or slid the tool into the tissue at up to {:.3e} m/s, faster than the {:.3e} m/s it can follow (half its shear wave speed at mass scaling {}), in {} physics batch{} from t = {:.3} s: the simulated tool lagged the hand there, and the force felt was stiffer than the tissue's while it did (the coupling spring stretched over the lag); a smaller [solver] mass_scaling raises the limit, at a cost in realtime capacity",
+                    "warning: the hand pressed or slid the tool into the tissue at up to {:.3e} m/s, faster than the {:.3e} m/s it can follow (half its shear wave speed at mass scaling {}), in {} physics batch{} from t = {:.3} s: the simulated tool lagged the hand there, the force felt coming from the tissue's static stiffness at the hand's pose (at a first contact, until that stiffness is known, from the lagging tool's force alone); a smaller [solver] mass_scaling raises the limit, at a cost in realtime capacity",
                     fast.max_hand_speed,
                     h.physics.max_tool_speed,
                     scene.solver.mass_scaling,

@@ -181,11 +181,6 @@ pub trait HapticDevice: Send {
     fn duration(&self) -> Option<f64> {
         None
     }
-    /// The path the device will follow, when it is known in advance (a scripted
-    /// trajectory); `None` for live devices.
-    fn trajectory(&self) -> Option<&super::devices::scripted::Trajectory> {
-        None
-    }
 }
 
 /// Capacity of the [`VelocityEstimator`] history.

@@ -19,7 +19,9 @@ pub use material::MaterialSpec;
 pub use mesh::MeshSpec;
 pub use particles::{ParticleModel, ParticleSettings, ParticleSpec, MAX_PARTICLES};
 pub use solver::{DtSpec, SolverSettings, SolverSpec};
-pub use tool::{fastest_leg, short_time, tunnelling_warning, Tool, ToolOverlap, ToolSpec};
+pub use tool::{
+    fastest_leg, longest_step_leg, short_time, tunnelling_warning, Tool, ToolOverlap, ToolSpec,
+};
 
 use crate::error::{PalpateError, Result};
 use crate::material::{HyperelasticParams, MaterialParams};

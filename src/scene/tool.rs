@@ -68,10 +68,26 @@ impl Tool {
     /// that ends inside the mesh's rest surface ([`Tool::surface_gap`] < 0) no farther out
     /// than it began (a withdrawal is not one); as [`fastest_leg`].
     pub fn fastest_pressing_leg(&self, mesh: &TetMesh) -> Option<(f64, f64, f64)> {
+        // Signed: a centre inside the tissue is the radius plus its depth in (the distance to
+        // the surface alone grows again past the surface, and read a deeper press as a
+        // withdrawal).
+        let faces: Vec<[DVec3; 3]> = mesh
+            .boundary_faces()
+            .into_iter()
+            .map(|f| f.map(|i| mesh.positions[i as usize]))
+            .collect();
         let gaps: Vec<f64> = self
             .path
             .iter()
-            .map(|(_, x)| self.surface_gap(mesh, *x))
+            .map(|(_, x)| {
+                let d =
+                    crate::particles::sampling::distance_to_triangles(faces.iter().copied(), *x);
+                if centre_inside(mesh, *x).is_some() {
+                    -d - self.radius
+                } else {
+                    d - self.radius
+                }
+            })
             .collect();
         (1..self.path.len())
             .filter(|&k| gaps[k] < 0.0 && gaps[k] <= gaps[k - 1])
@@ -102,15 +118,7 @@ impl Tool {
     /// None. A tool that starts in the tissue shoves it out at once, or through the wall when
     /// it holds more than the wall's thickness.
     pub fn overlap(&self, mesh: &TetMesh, centre: DVec3) -> Option<ToolOverlap> {
-        let inside = mesh.tets.iter().position(|tet| {
-            let p = tet.map(|i| mesh.positions[i as usize]);
-            let m = DMat3::from_cols(p[1] - p[0], p[2] - p[0], p[3] - p[0]);
-            if m.determinant() == 0.0 {
-                return false;
-            }
-            let b = m.inverse() * (centre - p[0]);
-            b.min_element() >= 0.0 && b.x + b.y + b.z <= 1.0
-        });
+        let inside = centre_inside(mesh, centre);
         let depth = -self.surface_gap(mesh, centre);
         match inside {
             Some(tet) if depth <= 0.0 => Some(ToolOverlap::Embedded { tet, gap: -depth }),
@@ -118,6 +126,20 @@ impl Tool {
             None => (depth > 0.0).then_some(ToolOverlap::Surface { depth }),
         }
     }
+}
+
+/// The first tet of `mesh` at rest that holds `point` (all four barycentric coordinates
+/// ≥ 0), if any.
+fn centre_inside(mesh: &TetMesh, point: DVec3) -> Option<usize> {
+    mesh.tets.iter().position(|tet| {
+        let p = tet.map(|i| mesh.positions[i as usize]);
+        let m = DMat3::from_cols(p[1] - p[0], p[2] - p[0], p[3] - p[0]);
+        if m.determinant() == 0.0 {
+            return false;
+        }
+        let b = m.inverse() * (point - p[0]);
+        b.min_element() >= 0.0 && b.x + b.y + b.z <= 1.0
+    })
 }
 
 /// Where a tool overlaps the tissue at rest ([`Tool::overlap`]).
@@ -250,8 +272,31 @@ pub fn fastest_leg(keyframes: impl IntoIterator<Item = (f64, DVec3)>) -> Option<
     fastest
 }
 
+/// The leg of a piecewise-linear path through `(t, x)` keyframes that moves the tool
+/// farthest in a step of `step_seconds` (speed × min(step, the leg's duration)): (speed m/s,
+/// its start, its end s), as [`fastest_leg`]; the leg for [`tunnelling_warning`] (the
+/// fastest leg may be too short to matter beside a slower, longer one).
+pub fn longest_step_leg(
+    keyframes: impl IntoIterator<Item = (f64, DVec3)>,
+    step_seconds: f64,
+) -> Option<(f64, f64, f64)> {
+    let mut last: Option<(f64, DVec3)> = None;
+    let mut longest: Option<(f64, (f64, f64, f64))> = None;
+    for (t, x) in keyframes {
+        if let Some((t0, x0)) = last {
+            let speed = (x - x0).length() / (t - t0);
+            let per_step = speed * step_seconds.min(t - t0);
+            if longest.is_none_or(|(d, _)| per_step > d) {
+                longest = Some((per_step, (speed, t0, t)));
+            }
+        }
+        last = Some((t, x));
+    }
+    longest.map(|(_, leg)| leg)
+}
+
 /// The warning for a tool moved by `what` (e.g. "tool.path moves the tool") along `leg`
-/// ([`fastest_leg`]) when it covers more than its `radius` in a step of `step_seconds`: it
+/// ([`longest_step_leg`]) when it covers more than its `radius` in a step of `step_seconds`: it
 /// can then pass through the surface between two steps without touching it.
 pub fn tunnelling_warning(
     what: &str,
@@ -284,7 +329,22 @@ pub fn short_time(t: f64) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::{short_time, tunnelling_warning};
+    use super::{longest_step_leg, short_time, tunnelling_warning};
+    use glam::DVec3;
+
+    #[test]
+    fn the_longest_step_is_not_always_the_fastest_leg() {
+        // 3 mm in 1 µs (3000 m/s), then 10 mm in 1 ms (10 m/s): with 1 ms steps the second
+        // moves the tool 10 mm a step, the first only its 3 mm.
+        let path = [
+            (0.0, DVec3::ZERO),
+            (1e-6, DVec3::new(0.003, 0.0, 0.0)),
+            (0.001001, DVec3::new(0.013, 0.0, 0.0)),
+        ];
+        let (speed, from, to) = longest_step_leg(path, 1e-3).unwrap();
+        assert!((speed - 10.0).abs() < 1e-6 && from == 1e-6 && to == 0.001001);
+        assert!(tunnelling_warning("it moves", (speed, from, to), 1e-3, 0.004).is_some());
+    }
 
     #[test]
     fn the_tunnelling_warning_counts_a_short_leg_once_and_prints_short_times() {

@@ -168,11 +168,6 @@ impl Trajectory {
         self.points[i - 1].lerp(self.points[i], s)
     }
 
-    /// The fastest leg between rows, [`crate::scene::fastest_leg`].
-    pub fn fastest_leg(&self) -> Option<(f64, f64, f64)> {
-        crate::scene::fastest_leg(self.times.iter().copied().zip(self.points.iter().copied()))
-    }
-
     /// The last row's time, s.
     pub fn end_time(&self) -> f64 {
         self.times[self.times.len() - 1]
@@ -274,9 +269,6 @@ impl HapticDevice for ScriptedDevice {
     }
     fn duration(&self) -> Option<f64> {
         Some(self.trajectory.end_time().max(0.0))
-    }
-    fn trajectory(&self) -> Option<&Trajectory> {
-        Some(&self.trajectory)
     }
 }
 
