@@ -454,8 +454,11 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
     let mut last_used = 0u64;
     // The direction the tissue pushed the tool at the end of the last batch, in contact.
     let mut contact_normal: Option<DVec3> = None;
-    // The hand's pose (offset from home) and stamp when the last batch started.
+    // The hand's pose (offset from home) and stamp when the last batch started: at home when
+    // the session starts, as the tool is (a hand that moved before the first batch did so
+    // since then).
     let mut last_command: Option<(DVec3, f64)> = None;
+    let session_start_stamp = clock.now();
     // Batches in a row that warmed compliance columns for a refresh still to come.
     let mut warming_batches = 0u32;
     let start = Instant::now();
@@ -497,15 +500,17 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
             // The hand's own speed since the last batch's pose (the physics may have fallen
             // behind: then the stride below is long though the hand was slow).
             let hand = command.device_position;
-            let hand_speed = match last_command {
-                Some((x, t)) if command.stamp > t => (hand - x).length() / (command.stamp - t),
-                _ => 0.0,
+            let (x, t) = last_command.unwrap_or((DVec3::ZERO, session_start_stamp));
+            let hand_speed = if command.stamp > t {
+                (hand - x).length() / (command.stamp - t)
+            } else {
+                0.0
             };
             last_command = Some((hand, command.stamp));
             // Pressed or slid into the tissue no faster than it can move out of the tool's
             // way (the servo renders the hand's force from the local model meanwhile): in
-            // contact, all but a withdrawal; out of it, the clearance to the tissue's surface
-            // at the hand's speed and the rest at the limit.
+            // contact, all but a withdrawal; out of it, up to the tissue's surface at the
+            // hand's speed and no farther.
             let mut target = home + offset;
             let reach = stats.max_tool_speed * steps as f64 * sim.dt;
             let stride = target - sim.tool_position;
@@ -520,7 +525,11 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                     }
                     .max(0.0);
                     busy_seconds += t.elapsed().as_secs_f64();
-                    let free = clear + reach;
+                    // Up to the surface at the hand's speed, into it at the limit from the
+                    // next batch on (a batch moves the tool at one speed: one that ended
+                    // a reach inside met the tissue at up to 0.8 m/s, its contact dampers
+                    // pushing 0.9 N into the hand).
+                    let free = clear.max(reach);
                     (stride.length() > free).then(|| stride * (free / stride.length()))
                 }
                 None => None,
