@@ -519,18 +519,25 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                 None if stride.length() > reach => {
                     // Physics-thread work (a state read, the surface's distance): busy time.
                     let t = Instant::now();
-                    let clear = match rest.sleeping_clearance(sim.tool_position) {
-                        Some(c) => c,
-                        None => rest.clearance(&sim.state()?, sim.tool_position),
-                    }
-                    .max(0.0);
+                    let state = match rest.is_asleep() {
+                        true => None,
+                        false => Some(sim.state()?),
+                    };
+                    let clearance = |at: DVec3| match &state {
+                        Some(state) => rest.clearance(state, at),
+                        None => rest.sleeping_clearance(at).unwrap_or(f64::INFINITY),
+                    };
+                    let (clear, clear_after) = (clearance(sim.tool_position), clearance(target));
                     busy_seconds += t.elapsed().as_secs_f64();
-                    // Up to the surface at the hand's speed, into it at the limit from the
-                    // next batch on (a batch moves the tool at one speed: one that ended
-                    // a reach inside met the tissue at up to 0.8 m/s, its contact dampers
-                    // pushing 0.9 N into the hand).
+                    // Towards the tissue, up to its surface at the hand's speed and into it
+                    // at the limit from the next batch on (a batch moves the tool at one
+                    // speed: one that ended a reach inside met the tissue at up to 0.8 m/s,
+                    // its contact dampers pushing 0.9 N into the hand); straight away from it
+                    // (the clearance grows by about the stride: not a stride that ends clear
+                    // on the body's far side), free.
                     let free = clear.max(reach);
-                    (stride.length() > free).then(|| stride * (free / stride.length()))
+                    let away = clear_after >= clear + 0.9 * stride.length();
+                    (!away && stride.length() > free).then(|| stride * (free / stride.length()))
                 }
                 None => None,
             };
