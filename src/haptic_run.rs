@@ -544,7 +544,10 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
             // Held back by more than a few batches' travel (the hand well ahead, not a
             // physics thread catching up after a short stall): the servo then solves with
             // the static K once there is one (see the published model below).
-            let held_back = limited.is_some_and(|s| (stride - s).length() > LAG_BATCHES * reach);
+            // (Measured after the batch, against where the tool then is: a batch that was
+            // not limited but ended in a first contact with the hand far ahead counts too.)
+            let wanted = home + offset;
+            let lag_limit = LAG_BATCHES * reach;
             if let Some(stride) = limited {
                 target = sim.tool_position + stride;
                 stats.speed_limited_batches += 1;
@@ -606,6 +609,7 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
             };
             let report = sim.last_tool.unwrap_or_default();
             let in_contact = report.contacts > 0 && !diverged;
+            let held_back = (wanted - sim.tool_position).length() > lag_limit;
             contact_normal =
                 (in_contact && report.force.length() > 0.0).then(|| report.force.normalize());
             if in_contact {
