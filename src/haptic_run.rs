@@ -156,8 +156,8 @@ pub struct PhysicsStats {
     /// The fastest the simulated tool may move, m/s ([`crate::model::Model::max_tool_speed`]).
     pub max_tool_speed: f64,
     /// Batches whose tool move into the tissue was shortened to that speed: in contact all
-    /// but a withdrawal ([`limit_pressing_stride`]), out of it the part beyond the
-    /// clearance to the surface. The tool then lagged the hand, or the physics caught up
+    /// but a withdrawal ([`limit_pressing_stride`]), out of it a move towards the tissue
+    /// stopped at its surface. The tool then lagged the hand, or the physics caught up
     /// after falling behind (a long stride from a slow hand).
     pub speed_limited_batches: u64,
     /// Those of them where the hand itself moved faster than the limit (absent: none).
@@ -457,8 +457,7 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
     // The hand's pose (offset from home) and stamp when the last batch started: at home when
     // the session starts, as the tool is (a hand that moved before the first batch did so
     // since then).
-    let mut last_command: Option<(DVec3, f64)> = None;
-    let session_start_stamp = clock.now();
+    let mut last_hand = (DVec3::ZERO, clock.now());
     // Batches in a row that warmed compliance columns for a refresh still to come.
     let mut warming_batches = 0u32;
     let start = Instant::now();
@@ -500,13 +499,13 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
             // The hand's own speed since the last batch's pose (the physics may have fallen
             // behind: then the stride below is long though the hand was slow).
             let hand = command.device_position;
-            let (x, t) = last_command.unwrap_or((DVec3::ZERO, session_start_stamp));
+            let (x, t) = last_hand;
             let hand_speed = if command.stamp > t {
                 (hand - x).length() / (command.stamp - t)
             } else {
                 0.0
             };
-            last_command = Some((hand, command.stamp));
+            last_hand = (hand, command.stamp);
             // Pressed or slid into the tissue no faster than it can move out of the tool's
             // way (the servo renders the hand's force from the local model meanwhile): in
             // contact, all but a withdrawal; out of it, up to the tissue's surface at the
@@ -523,11 +522,8 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                         true => None,
                         false => Some(sim.state()?),
                     };
-                    let clearance = |at: DVec3| match &state {
-                        Some(state) => rest.clearance(state, at),
-                        None => rest.sleeping_clearance(at).unwrap_or(f64::INFINITY),
-                    };
-                    let (clear, clear_after) = (clearance(sim.tool_position), clearance(target));
+                    let [clear, clear_after] =
+                        rest.clearances(state.as_ref(), [sim.tool_position, target]);
                     busy_seconds += t.elapsed().as_secs_f64();
                     // Towards the tissue, up to its surface at the hand's speed and into it
                     // at the limit from the next batch on (a batch moves the tool at one
@@ -618,15 +614,12 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                     stats.peak_tool_force = report.force.to_array();
                 }
             }
-            // The state to count inverted elements in, and the static stiffness to refresh
-            // from it, after the model is published: a refresh that needs new columns of
-            // the compliance (the first contact, a contact that spreads) takes 5–35 ms, and
-            // the servo rendered no force meanwhile at a first contact. The refreshed K goes
-            // out with the next batch's model; the first contact's model carries no static
-            // K until then (its proxy solve uses the contact springs' K; held back, the
-            // force f0 alone: the contact springs' K there rendered k_c × lag, 1.1 N for a
-            // 0.17 N press at 2 m/s).
-            let mut to_check = None;
+            // The state read (and whether the inversion count is due) for the inversion
+            // count and the static-stiffness refresh, both after the model is published: a
+            // refresh that needs new columns of the compliance (the first contact, a contact
+            // that spreads) took 5–35 ms, and the servo rendered no force meanwhile at a
+            // first contact. The refreshed K goes out with the next batch's model.
+            let mut state_read = None;
             let mut to_refresh = None;
             if !in_contact {
                 published_k = DMat3::ZERO;
@@ -657,23 +650,21 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                 if check {
                     last_check = Some(t);
                 }
-                to_check = read.map(|r| (r, check));
+                state_read = read.map(|r| (r, check));
             }
-            // Held back before a first contact's static K is ready (its columns take a few
-            // tens of batches), the solve has no K: the hand feels f0 alone, the tissue's
-            // force at the lagging tool, and K adds K·lag when it comes (about 0.2 N on
-            // lv_touch pressed 6 mm at 2 m/s). The contact springs' K instead rendered
-            // k_c·lag, 1.5 N.
             physics.publish(
                 LocalModel {
                     force: if diverged { DVec3::ZERO } else { report.force },
                     stiffness: published_k,
-                    // A tool held back by the speed limit (by more than LAG_BATCHES
-                    // batches' travel) does not follow the proxy: the servo solves with the
-                    // static K (the force the hand's pose will meet
-                    // once the tissue has moved), not with the contact springs' K, which
-                    // would render the coupling spring stretched over the lag (k_c·lag:
-                    // 0.57 N against 0.1 N pressing lv_touch 3 mm at 0.1 m/s).
+                    // A tool held back (by more than LAG_BATCHES batches' travel) does not
+                    // follow the proxy: the servo solves with the static K (the force the
+                    // hand's pose will meet once the tissue has moved), not with the contact
+                    // springs' K, which rendered the coupling spring stretched over the lag
+                    // (k_c·lag: 0.57 N against 0.1 N pressing lv_touch 3 mm at 0.1 m/s).
+                    // Before a first contact's static K is ready (a few tens of batches) the
+                    // solve has no K: the hand feels f0, the tissue's force at the lagging
+                    // tool, and K adds K·lag when it comes (about 0.2 N pressing 6 mm at
+                    // 2 m/s; the contact springs' K there rendered 1.1–1.5 N).
                     contact_stiffness: if in_contact && !held_back {
                         report.stiffness
                     } else {
@@ -700,7 +691,7 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                 ),
             );
             if let (Some(t), StiffnessSource::Static(compliance), Some(((state, particles), _))) =
-                (to_refresh, &mut stiffness, &to_check)
+                (to_refresh, &mut stiffness, &state_read)
             {
                 let points = contact_points(
                     &model,
@@ -737,7 +728,7 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                 // Physics-thread work between batches, as the count below.
                 busy_seconds += took;
             }
-            if let Some(((state, particles), true)) = to_check {
+            if let Some(((state, particles), true)) = state_read {
                 let t = Instant::now();
                 let n = match &probe {
                     Some(p) => p.inverted(&model, &state, particles.as_ref()),

@@ -148,12 +148,24 @@ impl RestWatch {
         distance_to_triangles(surface.iter().copied(), centre) - self.tool_radius
     }
 
-    /// While asleep, [`RestWatch::clearance`] of the sleeping body's surface (no state read;
-    /// it does not move); None while awake.
-    pub fn sleeping_clearance(&self, centre: DVec3) -> Option<f64> {
-        self.asleep
-            .as_ref()
-            .map(|s| self.clearance_to(&s.surface, centre))
+    /// [`RestWatch::clearance`] of tools at `centres`, the surface built once: while asleep
+    /// the sleeping body's (it does not move; `state` may be None, no read needed), else the
+    /// body's in `state` (infinite clearances without one).
+    pub fn clearances<const N: usize>(
+        &self,
+        state: Option<&State>,
+        centres: [DVec3; N],
+    ) -> [f64; N] {
+        let built;
+        let surface = match (&self.asleep, state) {
+            (Some(s), _) => &s.surface,
+            (None, Some(state)) => {
+                built = self.surface(state);
+                &built
+            }
+            (None, None) => return [f64::INFINITY; N],
+        };
+        centres.map(|c| self.clearance_to(surface, c))
     }
 
     /// Sleep, with the body as it is in `state`, if the tool at `tool` is clear of it by

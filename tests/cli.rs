@@ -3028,26 +3028,29 @@ fn an_out_folder_that_is_a_dangling_link_says_so() {
     );
 }
 
-#[test]
-fn a_tool_path_faster_than_its_radius_a_step_is_warned_of() {
-    let d = tmp("fasttool");
+/// `palpate run` of `lv_touch` with its tool `path` line replaced (None: as shipped), in
+/// folder `d` under `name`: asserts it succeeds and returns its standard error.
+fn lv_touch_run_with_path(d: &Path, name: &str, path: Option<&str>) -> String {
     let lv_touch = include_str!("../scenes/lv_touch.toml");
     let shipped = "path = [[0.0, 0.0147, 0.0, -0.005], [0.5, 0.0117, 0.0, -0.005], [2.0, 0.0117, 0.0, -0.005]]";
     assert!(lv_touch.contains(shipped));
+    let text = path.map_or(lv_touch.to_string(), |p| lv_touch.replacen(shipped, p, 1));
+    let scene = scene_file(d, name, &text);
+    let (ok, out, err) = run_on_cpu(&scene, "2", d.join(format!("{name}_out")).to_str().unwrap());
+    assert!(ok, "{name}: {out}{err}");
+    err
+}
+
+#[test]
+fn a_tool_path_faster_than_its_radius_a_step_is_warned_of() {
+    let d = tmp("fasttool");
     // 50 mm in 1 ms: through the wall in a step or two.
-    let fast = lv_touch.replacen(
-        shipped,
-        "path = [[0.0, 0.0147, 0.0, -0.005], [0.001, -0.0353, 0.0, -0.005]]",
-        1,
-    );
-    for (name, text, warned) in [
-        ("fast.toml", fast.as_str(), true),
-        ("shipped.toml", lv_touch, false),
+    let fast = "path = [[0.0, 0.0147, 0.0, -0.005], [0.001, -0.0353, 0.0, -0.005]]";
+    for (name, path, warned) in [
+        ("fast.toml", Some(fast), true),
+        ("shipped.toml", None, false),
     ] {
-        let scene = scene_file(&d, name, text);
-        let (ok, out, err) =
-            run_on_cpu(&scene, "2", d.join(format!("{name}_out")).to_str().unwrap());
-        assert!(ok, "{name}: {out}{err}");
+        let err = lv_touch_run_with_path(&d, name, path);
         assert_eq!(
             err.contains("tool.path moves the tool at 5.000e1 m/s from t = 0 to 0.001 s")
                 && err.contains("so it can pass through the surface between two steps"),
@@ -3063,26 +3066,19 @@ fn a_tool_path_faster_than_its_radius_a_step_is_warned_of() {
 #[test]
 fn a_tool_path_pressing_faster_than_the_tissue_follows_is_warned_of() {
     let d = tmp("fastpress");
-    let lv_touch = include_str!("../scenes/lv_touch.toml");
-    let shipped = "path = [[0.0, 0.0147, 0.0, -0.005], [0.5, 0.0117, 0.0, -0.005], [2.0, 0.0117, 0.0, -0.005]]";
-    assert!(lv_touch.contains(shipped));
-    let with_path = |path: &str| lv_touch.replacen(shipped, path, 1);
     // 3 mm in 30 ms: 0.1 m/s.
-    let press = with_path("path = [[0.0, 0.0147, 0.0, -0.005], [0.03, 0.0117, 0.0, -0.005]]");
-    let withdraw = with_path("path = [[0.0, 0.0117, 0.0, -0.005], [0.03, 0.0147, 0.0, -0.005]]");
+    let press = "path = [[0.0, 0.0147, 0.0, -0.005], [0.03, 0.0117, 0.0, -0.005]]";
+    let withdraw = "path = [[0.0, 0.0117, 0.0, -0.005], [0.03, 0.0147, 0.0, -0.005]]";
     // From the centre on the surface to 3 mm past it: the distance to the surface grows
     // again, which an unsigned gap read as a withdrawal.
-    let deeper = with_path("path = [[0.0, 0.0097, 0.0, -0.005], [0.03, 0.0067, 0.0, -0.005]]");
-    for (name, text, warned) in [
-        ("press.toml", press.as_str(), true),
-        ("deeper.toml", deeper.as_str(), true),
-        ("withdraw.toml", withdraw.as_str(), false),
-        ("shipped.toml", lv_touch, false),
+    let deeper = "path = [[0.0, 0.0097, 0.0, -0.005], [0.03, 0.0067, 0.0, -0.005]]";
+    for (name, path, warned) in [
+        ("press.toml", Some(press), true),
+        ("deeper.toml", Some(deeper), true),
+        ("withdraw.toml", Some(withdraw), false),
+        ("shipped.toml", None, false),
     ] {
-        let scene = scene_file(&d, name, text);
-        let (ok, out, err) =
-            run_on_cpu(&scene, "2", d.join(format!("{name}_out")).to_str().unwrap());
-        assert!(ok, "{name}: {out}{err}");
+        let err = lv_touch_run_with_path(&d, name, path);
         assert_eq!(
             err.contains("tool.path moves the tool into or along the tissue at 1.000e-1 m/s from t = 0 to 0.03 s")
                 && err.contains("faster than the 4.820e-2 m/s it can follow (half its shear wave speed, 9.641e-2 m/s at mass scaling 700)"),
