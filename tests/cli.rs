@@ -3120,6 +3120,12 @@ fn a_scripted_hand_faster_than_the_tissue_follows_is_warned_of() {
             warned,
             "{name}: {err}"
         );
+        // 50 mm in 1 ms is no hand: the pose gate holds it back until 2 m/s reaches it.
+        assert_eq!(
+            err.contains("jumped farther than a hand moves (2 m/s), up to 5.000e-2 m"),
+            warned,
+            "{name}: {err}"
+        );
     }
 }
 
@@ -3152,9 +3158,10 @@ fn a_haptic_session_warns_of_tissue_out_of_reach_and_of_a_hand_beyond_the_worksp
         err.contains("beyond the device's reach (0.075 m, spec touch)"),
         "{err}"
     );
-    // lv_touch is within reach; a hand that goes 0.6 m away leaves the workspace.
+    // lv_touch is within reach; a hand that goes 0.1 m away (at 1.7 m/s, under the pose
+    // gate's 2 m/s) leaves the workspace.
     let csv = d.join("far.csv");
-    std::fs::write(&csv, "t,x,y,z\n0,0,0,0\n0.02,0,0.6,0\n0.2,0,0.6,0\n").unwrap();
+    std::fs::write(&csv, "t,x,y,z\n0,0,0,0\n0.06,0,0.1,0\n0.2,0,0.1,0\n").unwrap();
     let (ok, out, err) = haptic_on_cpu(
         "lv_touch",
         &format!("scripted:{}", csv.display()),

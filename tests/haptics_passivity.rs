@@ -258,3 +258,70 @@ fn late_model_without_controller_is_active() {
     );
     assert!(o.min_energy < -10.0 * EPS, "{:e}", o.min_energy);
 }
+
+/// A hand pressing on slowly 3 mm deep (2 mm/s) whose device reports 10 mm deeper for
+/// `glitch_ticks` ticks at t = 1.5 s (a corrupted packet, a skipping encoder), against the
+/// same hand with no glitch: with the pose gate (the tick uses the last good pose, at most 6
+/// µm behind) the force never differs by more than 5 mN and the observer's energy by less
+/// than ε; with the gate opened up (no speed bound) the glitch puts newtons
+/// into the hand and the observer credits the device's damping for the teleport.
+#[test]
+fn a_pose_glitch_reaches_neither_the_hand_nor_the_observer() {
+    let run = |glitch_ticks: usize, gated: bool| {
+        let mut config = ServoConfig::new(DeviceSpec::TOUCH).with_duration(2.0);
+        if !gated {
+            config.max_hand_speed = 1.0e9;
+        }
+        let hand = keyframes(vec![
+            (0.0, 0.002),
+            (0.5, 0.002),
+            (1.0, -0.003),
+            (2.0, -0.005),
+        ]);
+        let motion: Motion = Box::new(move |t| {
+            let (x, v) = hand(t);
+            let tick = (t * 1e3).round() as usize;
+            let glitched = (1500..1500 + glitch_ticks).contains(&tick);
+            let x = if glitched {
+                x - glam::DVec3::new(0.0, 0.0, 0.010)
+            } else {
+                x
+            };
+            (x, v)
+        });
+        simulate(
+            &config,
+            Wall::spring(WALL),
+            &motion,
+            PhysicsTiming::default(),
+            2.0,
+        )
+    };
+    let clean = run(0, true);
+    let held_flag = palpate::haptics::model::flags::POSE_HELD;
+    assert!(clean.trace.iter().all(|r| r.4 & held_flag == 0));
+    let held_force = clean.trace[1499].3;
+    assert!(held_force > 0.5, "the hand is pressed in: {held_force} N");
+    for ticks in [1, 3] {
+        let gated = run(ticks, true);
+        let max_df = (clean.trace.iter().zip(&gated.trace))
+            .map(|(a, b)| (a.3 - b.3).abs())
+            .fold(0.0, f64::max);
+        let held = gated.trace.iter().filter(|r| r.4 & held_flag != 0).count();
+        let de = (gated.final_energy - clean.final_energy).abs();
+        println!("{ticks}-tick glitch, gated: {held} ticks held, force differs by up to {max_df:.2e} N, observer energy by {de:.2e} J");
+        assert_eq!(held, ticks, "every glitched reading is held, no other");
+        assert!(max_df < 5e-3, "the glitch reached the hand: {max_df} N");
+        assert!(de < EPS, "the observer saw the glitch: {de} J");
+        assert!(gated.min_energy >= -EPS);
+
+        let open = run(ticks, false);
+        let max_df = (clean.trace.iter().zip(&open.trace))
+            .map(|(a, b)| (a.3 - b.3).abs())
+            .fold(0.0, f64::max);
+        let de = (open.final_energy - clean.final_energy).abs();
+        println!("{ticks}-tick glitch, not gated: force differs by up to {max_df:.2} N, observer energy by {de:.2e} J");
+        assert!(max_df > 1.0, "sanity: the ungated glitch kicks: {max_df} N");
+        assert!(de > 10.0 * EPS, "sanity: the observer credits it: {de} J");
+    }
+}

@@ -42,6 +42,7 @@ pub mod link;
 pub mod log;
 pub mod model;
 pub mod observer;
+pub mod pose_gate;
 pub mod protocol;
 pub mod servo;
 pub mod shaping;

@@ -253,6 +253,9 @@ pub mod flags {
     pub const DEVICE_STALE: u32 = 1 << 6;
     /// The passivity controller added damping this tick.
     pub const PASSIVITY_CONTROL: u32 = 1 << 7;
+    /// The device's reading jumped farther than a hand can move: the tick used the last
+    /// accepted pose ([`crate::haptics::pose_gate`]).
+    pub const POSE_HELD: u32 = 1 << 8;
 }
 
 #[cfg(test)]

@@ -4,8 +4,10 @@
 //! tests drive it in simulated time). [`run_servo`] is the loop; [`spawn_servo`] runs it on
 //! its own thread and returns a [`ServoHandle`] to stop it and collect the [`ServoReport`].
 //!
-//! Per tick: read the device → observe passivity → read the local model → coupling (proxy)
-//! → publish the tool command → shape → passivity control → send → log. Inside the loop
+//! Per tick: read the device → gate the pose ([`super::pose_gate`]: a reading farther from
+//! the last accepted one than a hand could have moved is held back) → observe passivity →
+//! read the local model → coupling (proxy) → publish the tool command → shape → passivity
+//! control → send → log. Inside the loop
 //! nothing allocates, no lock is taken (the slots are lock-free, the device calls are
 //! non-blocking), wgpu is never touched.
 //!
@@ -20,6 +22,7 @@ use super::link::ServoLink;
 use super::log::{TickLog, TickRecord};
 use super::model::{flags, ForceCommand, LocalModel, ToolCommand};
 use super::observer::{passivity_control, PassivityObserver};
+use super::pose_gate::{GatedPose, PoseGate, MAX_HAND_SPEED, POSE_NOISE};
 use super::shaping::{clamp_magnitude, FadeCause, ForceShaper, ShapingParams};
 use crate::error::{PalpateError, Result};
 use glam::{DMat3, DVec3};
@@ -68,6 +71,9 @@ pub struct ServoConfig {
     pub passivity_control: bool,
     /// Coupled (default) or raw rendering.
     pub mode: RenderMode,
+    /// m/s: the fastest the pose gate lets the device's position move (default
+    /// [`MAX_HAND_SPEED`]); a reading beyond it is held back for the tick.
+    pub max_hand_speed: f64,
     /// Ticks the log holds when `duration` is `None` (default 600 000: 10 min at 1 kHz,
     /// ≈ 48 MB); with a duration the log holds the whole run up to [`MAX_LOG_TICKS`].
     pub log_capacity: usize,
@@ -87,6 +93,7 @@ impl ServoConfig {
             physical_damping: spec.physical_damping(),
             passivity_control: true,
             mode: RenderMode::Coupled,
+            max_hand_speed: MAX_HAND_SPEED,
             log_capacity: 600_000,
         }
     }
@@ -149,6 +156,12 @@ impl ServoConfig {
                 self.spec.max_stiffness
             ));
         }
+        if !(self.max_hand_speed.is_finite() && self.max_hand_speed > 0.0) {
+            return bad(format!(
+                "max hand speed {} m/s must be > 0",
+                self.max_hand_speed
+            ));
+        }
         if !(self.shaping.max_force.is_finite() && self.shaping.max_force > 0.0) {
             return bad(format!(
                 "max force {} N must be > 0",
@@ -181,6 +194,9 @@ pub struct Counters {
     pub passivity_control_ticks: u64,
     /// N, largest force magnitude sent.
     pub max_force: f64,
+    /// Ticks whose device reading the pose gate held back (it jumped farther than a hand
+    /// could have moved).
+    pub held_poses: u64,
 }
 
 /// What one tick produced.
@@ -192,6 +208,8 @@ pub struct TickOutput {
     pub command: ForceCommand,
     /// The log row (lateness and work time filled in by the loop).
     pub record: TickRecord,
+    /// The device pose the tick used (the reading, or the last accepted one when held).
+    pub pose: GatedPose,
 }
 
 /// One tick's computation: coupling, shaping, passivity observer and controller.
@@ -201,6 +219,7 @@ pub struct ServoCore {
     coupling: VirtualCoupling,
     shaper: ForceShaper,
     observer: PassivityObserver,
+    gate: PoseGate,
     k_max: f64,
     last_time: Option<f64>,
     last_sequence: u64,
@@ -216,6 +235,7 @@ impl ServoCore {
             coupling: VirtualCoupling::new(config.coupling),
             shaper: ForceShaper::new(config.shaping),
             observer: PassivityObserver::new(config.physical_damping),
+            gate: PoseGate::new(config.max_hand_speed, POSE_NOISE),
             k_max: config.max_passive_stiffness(),
             last_time: None,
             last_sequence: 0,
@@ -239,7 +259,15 @@ impl ServoCore {
         let c = &mut self.counters;
         c.ticks += 1;
 
-        let energy = self.observer.observe(now, reading.position);
+        // A held reading is not observed: the observer's next interval then runs from the
+        // last accepted pose over the whole time the hand took (no teleport credit).
+        let pose = self.gate.filter(now, reading.position, reading.velocity);
+        let energy = if pose.held {
+            c.held_poses += 1;
+            self.observer.energy()
+        } else {
+            self.observer.observe(now, pose.position)
+        };
 
         let has_model = sequence > 0;
         if sequence > self.last_sequence {
@@ -271,13 +299,13 @@ impl ServoCore {
             c.stale_ticks += 1;
         }
 
-        let x_d = reading.position;
-        let mut flag_bits = 0;
+        let x_d = pose.position;
+        let mut flag_bits = if pose.held { flags::POSE_HELD } else { 0 };
         let (proxy, mut force, model_force, stiffness, gain) = match cfg.mode {
             RenderMode::Coupled => {
                 let out = self
                     .coupling
-                    .update(render.as_ref(), x_d, reading.velocity, dt);
+                    .update(render.as_ref(), x_d, pose.velocity, dt);
                 if out.tissue_stiffness > self.k_max {
                     c.stiffness_limited_ticks += 1;
                 }
@@ -366,7 +394,8 @@ impl ServoCore {
                 time: now,
                 lateness_us: 0.0,
                 work_us: 0.0,
-                device: f32x3(x_d),
+                // What the device read (the pose used is the last accepted one when held).
+                device: f32x3(reading.position),
                 proxy: f32x3(proxy),
                 force: f32x3(force),
                 penetration: penetration as f32,
@@ -380,6 +409,7 @@ impl ServoCore {
                 energy: self.observer.energy() as f32,
                 flags: flag_bits,
             },
+            pose,
         }
     }
 
@@ -488,6 +518,13 @@ pub struct ServoStats {
     pub max_passive_stiffness: f64,
     /// Ticks run but not logged (log full).
     pub unlogged_ticks: u64,
+    /// Device readings the pose gate held back: each lay farther from the last accepted
+    /// pose than `max_hand_speed` allows (a glitching device or network).
+    pub held_poses: u64,
+    /// m, the largest distance of a held reading from the last accepted pose (0 if none).
+    pub largest_pose_jump_m: f64,
+    /// m/s, the pose gate's speed bound.
+    pub max_hand_speed: f64,
 }
 
 impl ServoStats {
@@ -535,6 +572,9 @@ impl ServoStats {
             coupling_stiffness: core.coupling_stiffness(),
             max_passive_stiffness: core.config().max_passive_stiffness(),
             unlogged_ticks: log.overflow(),
+            held_poses: c.held_poses,
+            largest_pose_jump_m: core.gate.largest_jump(),
+            max_hand_speed: core.gate.max_speed(),
         }
     }
 }
@@ -599,8 +639,8 @@ pub fn run_servo(
         let out = core.tick(now, &reading, &model, sequence);
         link.tool.publish(ToolCommand {
             position: out.proxy,
-            velocity: reading.velocity,
-            device_position: reading.position,
+            velocity: out.pose.velocity,
+            device_position: out.pose.position,
             stamp: now,
             buttons: reading.buttons,
             tick,
