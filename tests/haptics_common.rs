@@ -165,6 +165,7 @@ pub fn simulate(
             velocity: v,
             buttons: 0,
             fresh: true,
+            sampled: None,
         };
         let out = core.tick(t, &reading, &model, sequence);
         trace.push((t, x.z, out.proxy.z, out.command.force.z, out.command.flags));

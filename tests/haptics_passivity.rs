@@ -323,5 +323,18 @@ fn a_pose_glitch_reaches_neither_the_hand_nor_the_observer() {
         println!("{ticks}-tick glitch, not gated: force differs by up to {max_df:.2} N, observer energy by {de:.2e} J");
         assert!(max_df > 1.0, "sanity: the ungated glitch kicks: {max_df} N");
         assert!(de > 10.0 * EPS, "sanity: the observer credits it: {de} J");
-    }
+    } // A reading that stays 10 mm off for 0.2 s (an encoder that slipped, a device re-homed
+      // while held): the pose follows it at 2.2 mm a tick, so the force rises over ticks, not
+      // in one; without the gate it jumps by newtons at once.
+    let steepest = |o: &common::Outcome| {
+        o.trace
+            .windows(2)
+            .map(|w| (w[1].3 - w[0].3).abs())
+            .fold(0.0, f64::max)
+    };
+    let (gated, open) = (run(200, true), run(200, false));
+    let (clean_step, gated_step, open_step) = (steepest(&clean), steepest(&gated), steepest(&open));
+    println!("a 10 mm offset held 0.2 s: largest force change in a tick {gated_step:.3} N gated, {open_step:.3} N not (no offset: {clean_step:.4} N)");
+    assert!(gated_step < 0.8, "{gated_step} N in one tick");
+    assert!(open_step > 1.5, "sanity: {open_step} N");
 }

@@ -548,7 +548,7 @@ fn execute(cli: Cli) -> Result<()> {
             }
             if h.servo.held_poses > 0 {
                 palpate::say_err!(
-                    "warning: {} device reading{} jumped farther than a hand moves ({} m/s), up to {:.3e} m from the last good pose, and {} held back for the tick (a glitching device or network; haptic.csv's flags bit 8 marks them)",
+                    "warning: {} device reading{} jumped farther than a hand moves ({} m/s), up to {:.3e} m from the last good pose, and {} held back, the pose used following no faster than that (a glitching device or network; haptic.csv's flags bit 8 marks the ticks)",
                     h.servo.held_poses,
                     if h.servo.held_poses == 1 { "" } else { "s" },
                     h.servo.max_hand_speed,

@@ -142,6 +142,10 @@ pub struct DeviceReading {
     /// The reading is current (a network device whose packets stopped is not fresh; the
     /// servo then fades the force to zero).
     pub fresh: bool,
+    /// s, loop clock: when the pose was sampled, for a device whose pose can be older than
+    /// the read (a network device: when its last packet arrived); `None`: at the read.
+    /// The pose gate measures how far a hand could have moved by it.
+    pub sampled: Option<f64>,
 }
 
 /// Counters a device keeps (all zero for local devices).

@@ -253,8 +253,9 @@ pub mod flags {
     pub const DEVICE_STALE: u32 = 1 << 6;
     /// The passivity controller added damping this tick.
     pub const PASSIVITY_CONTROL: u32 = 1 << 7;
-    /// The device's reading jumped farther than a hand can move: the tick used the last
-    /// accepted pose ([`crate::haptics::pose_gate`]).
+    /// The pose used is not the device's reading: the reading jumped farther than a hand
+    /// moves (held back), or the pose is catching up with it at that speed
+    /// ([`crate::haptics::pose_gate`]).
     pub const POSE_HELD: u32 = 1 << 8;
 }
 

@@ -5,9 +5,9 @@
 //! its own thread and returns a [`ServoHandle`] to stop it and collect the [`ServoReport`].
 //!
 //! Per tick: read the device → gate the pose ([`super::pose_gate`]: a reading farther from
-//! the last accepted one than a hand could have moved is held back) → observe passivity →
-//! read the local model → coupling (proxy) → publish the tool command → shape → passivity
-//! control → send → log. Inside the loop
+//! the last plausible one than a hand could have moved is held back, and the pose used moves
+//! no faster than a hand) → observe passivity → read the local model → coupling (proxy) →
+//! publish the tool command → shape → passivity control → send → log. Inside the loop
 //! nothing allocates, no lock is taken (the slots are lock-free, the device calls are
 //! non-blocking), wgpu is never touched.
 //!
@@ -194,9 +194,6 @@ pub struct Counters {
     pub passivity_control_ticks: u64,
     /// N, largest force magnitude sent.
     pub max_force: f64,
-    /// Ticks whose device reading the pose gate held back (it jumped farther than a hand
-    /// could have moved).
-    pub held_poses: u64,
 }
 
 /// What one tick produced.
@@ -259,15 +256,15 @@ impl ServoCore {
         let c = &mut self.counters;
         c.ticks += 1;
 
-        // A held reading is not observed: the observer's next interval then runs from the
-        // last accepted pose over the whole time the hand took (no teleport credit).
-        let pose = self.gate.filter(now, reading.position, reading.velocity);
-        let energy = if pose.held {
-            c.held_poses += 1;
-            self.observer.energy()
-        } else {
-            self.observer.observe(now, pose.position)
-        };
+        // The observer, like everything after it, sees the pose used: a held reading moves
+        // nothing, a catch-up moves no faster than a hand (no credit for a teleport).
+        let pose = self.gate.filter(
+            now,
+            reading.sampled.unwrap_or(now),
+            reading.position,
+            reading.velocity,
+        );
+        let energy = self.observer.observe(now, pose.position);
 
         let has_model = sequence > 0;
         if sequence > self.last_sequence {
@@ -518,11 +515,14 @@ pub struct ServoStats {
     pub max_passive_stiffness: f64,
     /// Ticks run but not logged (log full).
     pub unlogged_ticks: u64,
-    /// Device readings the pose gate held back: each lay farther from the last accepted
-    /// pose than `max_hand_speed` allows (a glitching device or network).
+    /// Device readings the pose gate held back: each lay farther from the last plausible
+    /// one than `max_hand_speed` allows since (a glitching device or network).
     pub held_poses: u64,
-    /// m, the largest distance of a held reading from the last accepted pose (0 if none).
+    /// m, the largest distance of a held reading from the last plausible one (0 if none).
     pub largest_pose_jump_m: f64,
+    /// Ticks whose pose was catching up, at `max_hand_speed`, with a plausible reading it
+    /// had fallen behind (after held readings, or a network device's late packet).
+    pub pose_catch_up_ticks: u64,
     /// m/s, the pose gate's speed bound.
     pub max_hand_speed: f64,
 }
@@ -572,7 +572,8 @@ impl ServoStats {
             coupling_stiffness: core.coupling_stiffness(),
             max_passive_stiffness: core.config().max_passive_stiffness(),
             unlogged_ticks: log.overflow(),
-            held_poses: c.held_poses,
+            held_poses: core.gate.implausible(),
+            pose_catch_up_ticks: core.gate.catching_up(),
             largest_pose_jump_m: core.gate.largest_jump(),
             max_hand_speed: core.gate.max_speed(),
         }

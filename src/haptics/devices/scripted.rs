@@ -262,6 +262,7 @@ impl HapticDevice for ScriptedDevice {
             velocity: self.velocity.velocity(),
             buttons: 0,
             fresh: true,
+            sampled: None,
         }
     }
     fn send(&mut self, _now: f64, command: &ForceCommand) {

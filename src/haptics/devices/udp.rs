@@ -169,6 +169,7 @@ impl HapticDevice for UdpDevice {
             velocity,
             buttons: self.pose.buttons,
             fresh,
+            sampled: self.last_valid.is_finite().then_some(self.last_valid),
         }
     }
 
