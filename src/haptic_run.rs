@@ -75,6 +75,10 @@ pub struct HapticOptions {
     /// Let the physics sleep while the body is at rest and the tool clear of it
     /// ([`crate::rest`]); `palpate haptic --no-sleep` turns it off.
     pub sleep_at_rest: bool,
+    /// Render with the frozen-tissue stiffness (the contact springs' K) even where a static
+    /// compliance can be built: what a body that is not held, or too big to factor, gets
+    /// (for comparisons and tests).
+    pub frozen_stiffness: bool,
 }
 
 impl Default for HapticOptions {
@@ -90,6 +94,7 @@ impl Default for HapticOptions {
             stiffness_period: 0.01,
             announce: false,
             sleep_at_rest: true,
+            frozen_stiffness: false,
         }
     }
 }
@@ -160,7 +165,8 @@ pub struct PhysicsStats {
     /// stopped at its surface. The tool then lagged the hand, or the physics caught up
     /// after falling behind (a long stride from a slow hand).
     pub speed_limited_batches: u64,
-    /// Those of them where the hand itself moved faster than the limit (absent: none).
+    /// Those of them that started in contact with the hand itself moving faster than the
+    /// limit (absent: none).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub hand_too_fast: Option<HandTooFast>,
     /// Batches that diverged and were rolled back (dt halved).
@@ -179,8 +185,9 @@ pub struct PhysicsStats {
     pub inverted_peak: InvertedPeak,
 }
 
-/// The batches of a session whose tool was held back while the hand moved faster than
-/// [`crate::model::Model::max_tool_speed`].
+/// The batches of a session that started in contact and whose stride was speed-limited
+/// while the hand moved faster than [`crate::model::Model::max_tool_speed`] (a hand that
+/// slows down over the tissue's surface, out of contact, is not counted).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
 pub struct HandTooFast {
     /// How many.
@@ -361,9 +368,12 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
     let tool_damping = model.tool.as_ref().map_or(0.0, |t| t.tool.damping);
     sim.tool_position = home;
     sim.tool_target = Some(home);
-    let mut stiffness = match ContactCompliance::new(&model) {
-        Ok(c) => StiffnessSource::Static(Box::new(c)),
-        Err(why) => StiffnessSource::Frozen(why.to_string()),
+    let mut stiffness = match opts.frozen_stiffness {
+        true => StiffnessSource::Frozen("asked for".into()),
+        false => match ContactCompliance::new(&model) {
+            Ok(c) => StiffnessSource::Static(Box::new(c)),
+            Err(why) => StiffnessSource::Frozen(why.to_string()),
+        },
     };
     let config = ServoConfig::new(spec).with_duration(seconds);
     // A tissue farther from the tool's home than the device reaches cannot be touched (hm1's
@@ -547,7 +557,7 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
             if let Some(stride) = limited {
                 target = sim.tool_position + stride;
                 stats.speed_limited_batches += 1;
-                if hand_speed > stats.max_tool_speed {
+                if hand_speed > stats.max_tool_speed && contact_normal.is_some() {
                     let first = stats.hand_too_fast.get_or_insert(HandTooFast {
                         batches: 0,
                         from_seconds: sim.time,
@@ -614,17 +624,19 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                     stats.peak_tool_force = report.force.to_array();
                 }
             }
-            // The state read (and whether the inversion count is due) for the inversion
-            // count and the static-stiffness refresh, both after the model is published: a
-            // refresh that needs new columns of the compliance (the first contact, a contact
-            // that spreads) took 5–35 ms, and the servo rendered no force meanwhile at a
-            // first contact. The refreshed K goes out with the next batch's model.
-            let mut state_read = None;
+            // Whether the inversion count and the static-stiffness refresh are due; both run
+            // after the model is published, on a state read then: a refresh that needs new
+            // columns of the compliance (the first contact, a contact that spreads) took 5–35
+            // ms, and the servo rendered no force meanwhile at a first contact. The refreshed
+            // K goes out with the next batch's model.
+            let mut read_due = None;
             let mut to_refresh = None;
             if !in_contact {
                 published_k = DMat3::ZERO;
                 last_refresh = None;
                 last_check = None;
+                // A warm-up cut short by the contact ending starts over at the next one.
+                warming_batches = 0;
             } else {
                 let due = |t: Option<Instant>| {
                     t.is_none_or(|t| t.elapsed().as_secs_f64() >= opts.stiffness_period)
@@ -632,11 +644,6 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                 let refresh = matches!(stiffness, StiffnessSource::Static(_)) && due(last_refresh);
                 let check = due(last_check);
                 let t = Instant::now();
-                let read = if refresh || check {
-                    Some((sim.state()?, sim.particle_state()?))
-                } else {
-                    None
-                };
                 match &stiffness {
                     StiffnessSource::Frozen(_) => published_k = report.stiffness,
                     StiffnessSource::Static(_) if refresh => {
@@ -650,12 +657,19 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                 if check {
                     last_check = Some(t);
                 }
-                state_read = read.map(|r| (r, check));
+                read_due = (refresh || check).then_some(check);
             }
+            // Held back with only the frozen tissue's K (the contact springs'), the servo
+            // solves with no K at all: the springs' K renders k_c × lag.
+            let frozen = matches!(stiffness, StiffnessSource::Frozen(_));
             physics.publish(
                 LocalModel {
                     force: if diverged { DVec3::ZERO } else { report.force },
-                    stiffness: published_k,
+                    stiffness: if held_back && frozen {
+                        DMat3::ZERO
+                    } else {
+                        published_k
+                    },
                     // A tool held back (by more than LAG_BATCHES batches' travel) does not
                     // follow the proxy: the servo solves with the static K (the force the
                     // hand's pose will meet once the tissue has moved), not with the contact
@@ -690,6 +704,10 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                     sim.tool_position - tool_before,
                 ),
             );
+            let state_read = match read_due {
+                Some(check) => Some(((sim.state()?, sim.particle_state()?), check)),
+                None => None,
+            };
             if let (Some(t), StiffnessSource::Static(compliance), Some(((state, particles), _))) =
                 (to_refresh, &mut stiffness, &state_read)
             {
