@@ -560,8 +560,9 @@ impl Simulation {
     }
 
     /// Steps from now to the first of the scene tool path's keyframes strictly inside the
-    /// next `steps` steps (to the last step boundary at or before it; 1 when it falls inside
-    /// the next step, which then runs alone), else `steps`; always `steps` while
+    /// next `steps` steps (by more than 1e-6 step: `time`'s rounding drift is no corner; to
+    /// the last step boundary at or before it; 1 when it falls inside the next step, which
+    /// then runs alone), else `steps`; always `steps` while
     /// [`Simulation::tool_target`] drives the tool. Every batch then starts and ends on the
     /// path, and the tool moves between steps as one-step batches move it.
     fn steps_to_path_corner(&self, steps: u32) -> u32 {
@@ -578,7 +579,7 @@ impl Simulation {
             .path
             .iter()
             .map(|(tk, _)| *tk)
-            .find(|tk| *tk > self.time + 1e-9 * self.dt && *tk < end - 1e-9 * self.dt)
+            .find(|tk| *tk > self.time + 1e-6 * self.dt && *tk < end - 1e-6 * self.dt)
             .map_or(steps, |tk| {
                 (((tk - self.time) / self.dt + 1e-6).floor() as u32).clamp(1, steps)
             })
