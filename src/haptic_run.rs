@@ -239,6 +239,11 @@ const MAX_WARMING_BATCHES: u32 = 40;
 /// point between servo and physics).
 const LAG_BATCHES: f64 = 4.0;
 
+/// s: a contact's first static stiffness is rendered in over this time (a smoothstep of its
+/// gain): with the tool held back it adds K × the lag at once (0.24 N pressing lv_touch 6 mm
+/// at 2 m/s, in one tick).
+const STIFFNESS_RAMP_SECONDS: f64 = 0.03;
+
 /// A tool move `stride` in contact, limited to `reach` (m) except for its withdrawal: the part
 /// along the tissue's push `normal` (unit, out of the tissue) that moves away from it is kept
 /// whole, the rest (the press in and the slide along) shortened to `reach`. None when the
@@ -470,6 +475,8 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
     let mut last_hand = (DVec3::ZERO, clock.now());
     // Batches in a row that warmed compliance columns for a refresh still to come.
     let mut warming_batches = 0u32;
+    // Loop-clock time the contact's first static K was computed (its gain ramps up from it).
+    let mut stiffness_since: Option<f64> = None;
     let start = Instant::now();
     let sim_start = clock.now();
     let outcome = (|| -> Result<()> {
@@ -637,6 +644,7 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                 last_check = None;
                 // A warm-up cut short by the contact ending starts over at the next one.
                 warming_batches = 0;
+                stiffness_since = None;
             } else {
                 let due = |t: Option<Instant>| {
                     t.is_none_or(|t| t.elapsed().as_secs_f64() >= opts.stiffness_period)
@@ -662,48 +670,51 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
             // Held back with only the frozen tissue's K (the contact springs'), the servo
             // solves with no K at all: the springs' K renders k_c × lag.
             let frozen = matches!(stiffness, StiffnessSource::Frozen(_));
-            physics.publish(
-                LocalModel {
-                    force: if diverged { DVec3::ZERO } else { report.force },
-                    stiffness: if held_back && frozen {
-                        DMat3::ZERO
-                    } else {
-                        published_k
-                    },
-                    // A tool held back (by more than LAG_BATCHES batches' travel) does not
-                    // follow the proxy: the servo solves with the static K (the force the
-                    // hand's pose will meet once the tissue has moved), not with the contact
-                    // springs' K, which rendered the coupling spring stretched over the lag
-                    // (k_c·lag: 0.57 N against 0.1 N pressing lv_touch 3 mm at 0.1 m/s).
-                    // Before a first contact's static K is ready (a few tens of batches) the
-                    // solve has no K: the hand feels f0, the tissue's force at the lagging
-                    // tool, and K adds K·lag when it comes (about 0.2 N pressing 6 mm at
-                    // 2 m/s; the contact springs' K there rendered 1.1–1.5 N).
-                    contact_stiffness: if in_contact && !held_back {
-                        report.stiffness
-                    } else {
-                        DMat3::ZERO
-                    },
-                    proxy: sim.tool_position - home,
-                    stamp: command.stamp,
-                    sim_time: sim.time,
-                    diverged,
-                    in_contact,
-                    penetration: report.max_penetration,
-                    active_particles: sim.last_particles.map_or(0, |p| p.dynamic),
-                    ..Default::default()
-                }
-                .with_batch_damper(
-                    if in_contact && !held_back {
-                        tool_damping
-                    } else {
-                        0.0
-                    },
-                    report.contact_area,
-                    batch_seconds,
-                    sim.tool_position - tool_before,
-                ),
+            let stiffness_gain = stiffness_since.map_or(1.0, |t0| {
+                crate::haptics::shaping::smoothstep((command.stamp - t0) / STIFFNESS_RAMP_SECONDS)
+            });
+            let model_out = LocalModel {
+                force: if diverged { DVec3::ZERO } else { report.force },
+                stiffness: if held_back && frozen {
+                    DMat3::ZERO
+                } else {
+                    published_k * stiffness_gain
+                },
+                // A tool held back (by more than LAG_BATCHES batches' travel) does not
+                // follow the proxy: the servo solves with the static K (the force the
+                // hand's pose will meet once the tissue has moved), not with the contact
+                // springs' K, which rendered the coupling spring stretched over the lag
+                // (k_c·lag: 0.57 N against 0.1 N pressing lv_touch 3 mm at 0.1 m/s).
+                // Before a first contact's static K is ready (a few tens of batches) the
+                // solve has no K: the hand feels f0, the tissue's force at the lagging
+                // tool (less the dampers' push of the batch's own move), and K adds K·lag
+                // when it comes, over STIFFNESS_RAMP_SECONDS (0.24 N pressing 6 mm at
+                // 2 m/s; the contact springs' K there rendered 1.1–1.5 N).
+                contact_stiffness: if in_contact && !held_back {
+                    report.stiffness
+                } else {
+                    DMat3::ZERO
+                },
+                proxy: sim.tool_position - home,
+                stamp: command.stamp,
+                sim_time: sim.time,
+                diverged,
+                in_contact,
+                penetration: report.max_penetration,
+                active_particles: sim.last_particles.map_or(0, |p| p.dynamic),
+                ..Default::default()
+            }
+            .with_batch_damper(
+                if in_contact { tool_damping } else { 0.0 },
+                report.contact_area,
+                batch_seconds,
+                sim.tool_position - tool_before,
             );
+            physics.publish(if held_back {
+                model_out.without_damper()
+            } else {
+                model_out
+            });
             let state_read = match read_due {
                 Some(check) => Some(((sim.state()?, sim.particle_state()?), check)),
                 None => None,
@@ -732,6 +743,7 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                     } else {
                         compliance.stiffness(&points)
                     };
+                    stiffness_since.get_or_insert(clock.now());
                     stats.stiffness_refreshes += 1;
                     let took = t.elapsed().as_secs_f64();
                     if refresh_ms.len() < MAX_TIMINGS {

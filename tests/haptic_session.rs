@@ -403,24 +403,40 @@ fn the_physics_sleeps_while_the_body_rests_and_wakes_as_the_tool_approaches() {
     );
 }
 
-/// The median of the z force sent to the device between `t0` and `t1` (s), from the
-/// session's `haptic.csv` in `dir`.
-/// The median of haptic.csv's `column` over the ticks from `t0` to `t1` s.
-fn held_force(dir: &std::path::Path, column: &str, t0: f64, t1: f64) -> f64 {
+/// haptic.csv's (time, `column`) per tick, from the session in `dir`.
+fn tick_column(dir: &std::path::Path, column: &str) -> Vec<(f64, f64)> {
     let csv = std::fs::read_to_string(dir.join("haptic.csv")).unwrap();
     let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
     let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
-    let (fz, t) = (col(column), col("time_s"));
-    let mut held: Vec<f64> = csv
-        .lines()
+    let (c, t) = (col(column), col("time_s"));
+    csv.lines()
         .skip(1)
         .map(|l| {
-            l.split(',')
-                .map(|v| v.parse().unwrap())
-                .collect::<Vec<f64>>()
+            let r: Vec<f64> = l.split(',').map(|v| v.parse().unwrap()).collect();
+            (r[t], r[c])
         })
-        .filter(|r| r[t] >= t0 && r[t] <= t1)
-        .map(|r| r[fz])
+        .collect()
+}
+
+/// The fastest change of haptic.csv's `column` from one tick to the next, per millisecond
+/// (over the ticks' time apart, at least 1 ms: a servo starved of its core skips ticks),
+/// and its time.
+fn largest_tick_step(dir: &std::path::Path, column: &str) -> (f64, f64) {
+    tick_column(dir, column)
+        .windows(2)
+        .map(|w| {
+            let ms = ((w[1].0 - w[0].0) * 1e3).max(1.0);
+            ((w[1].1 - w[0].1).abs() / ms, w[1].0)
+        })
+        .fold((0.0, 0.0), |a, b| if b.0 > a.0 { b } else { a })
+}
+
+/// The median of haptic.csv's `column` over the ticks from `t0` to `t1` s.
+fn held_force(dir: &std::path::Path, column: &str, t0: f64, t1: f64) -> f64 {
+    let mut held: Vec<f64> = tick_column(dir, column)
+        .into_iter()
+        .filter(|(t, _)| *t >= t0 && *t <= t1)
+        .map(|(_, f)| f)
         .collect();
     assert!(
         held.len() > 100,
@@ -468,8 +484,9 @@ fn lv_touch_pressed_faster_than_its_tissue_follows_stays_stable() {
         )
         .unwrap();
         let held = held_force(&dir, "force_x", end - 0.5, end);
+        let (step, at) = largest_tick_step(&dir, "force_x");
         eprintln!(
-            "{name}: status {}, {} batches held to {:.3e} m/s, {} divergences, {} force clamps, max {:.3} N (on the tool {:.3} N); held {held:.4} N",
+            "{name}: status {}, {} batches held to {:.3e} m/s, {} divergences, {} force clamps, max {:.3} N (on the tool {:.3} N); held {held:.4} N; fastest change {step:.4} N/ms at {at:.4} s",
             h.run.status,
             h.haptic.physics.speed_limited_batches,
             h.haptic.physics.max_tool_speed,
@@ -477,6 +494,14 @@ fn lv_touch_pressed_faster_than_its_tissue_follows_stays_stable() {
             h.haptic.servo.force_clamps,
             h.haptic.servo.max_force_n,
             DVec3::from(h.haptic.physics.peak_tool_force).length()
+        );
+        // No jolt either: the hand's force changes by tens of mN a millisecond at most. A
+        // tool that reached the tissue at the hand's speed put its contact dampers' push
+        // into the hand for a batch (0.20 N, gone the next tick), and a first static K held
+        // back came in one tick (+0.24 N): 0.035 N a tick now.
+        assert!(
+            step <= 0.1,
+            "{name}: the force changed by {step} N/ms at {at} s"
         );
         (h, held)
     };

@@ -165,6 +165,19 @@ impl LocalModel {
         self
     }
 
+    /// This model with the contact dampers' push D(Δ₀) taken out of f0 and no damper term:
+    /// for a tool that does not follow the proxy (held back to a speed limit), whose batch
+    /// move says nothing of the hand's (a tool that reached the tissue at the hand's speed
+    /// in its batch put the dampers' push at that speed, 0.2 N on lv_touch at 2 m/s, in the
+    /// hand for one batch).
+    pub fn without_damper(mut self) -> Self {
+        self.force -= self.damper_force;
+        self.damper_rate = 0.0;
+        self.damper_normal = DVec3::ZERO;
+        self.damper_force = DVec3::ZERO;
+        self
+    }
+
     /// All numbers finite (a non-finite model is treated as diverged).
     pub fn is_finite(&self) -> bool {
         self.force.is_finite()
