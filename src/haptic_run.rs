@@ -194,7 +194,8 @@ pub struct HandTooFast {
     pub batches: u64,
     /// Simulated time of the first, s.
     pub from_seconds: f64,
-    /// The hand's fastest speed over them (pose to pose), m/s.
+    /// The hand's fastest speed over them (pose to pose, the servo's gated pose: about at most the
+    /// pose gate's speed bound), m/s.
     pub max_hand_speed: f64,
 }
 
@@ -239,10 +240,22 @@ const MAX_WARMING_BATCHES: u32 = 40;
 /// point between servo and physics).
 const LAG_BATCHES: f64 = 4.0;
 
-/// s: a contact's first static stiffness is rendered in over this time (a smoothstep of its
-/// gain): with the tool held back it adds K × the lag at once (0.24 N pressing lv_touch 6 mm
-/// at 2 m/s, in one tick).
+/// s: a new static stiffness is rendered in over this time, from the one rendered before (a
+/// smoothstep): with the tool held back a contact's first K added K × the lag at once (0.24 N
+/// pressing lv_touch 6 mm at 2 m/s, in one tick), and each refresh ΔK × the lag.
 const STIFFNESS_RAMP_SECONDS: f64 = 0.03;
+
+/// The stiffness to render at loop time `t`: `to`, ramped in from `from` since `since` over
+/// [`STIFFNESS_RAMP_SECONDS`] (none: `to`).
+fn ramped_stiffness(to: DMat3, ramp: Option<(DMat3, f64)>, t: f64) -> DMat3 {
+    match ramp {
+        Some((from, since)) => {
+            let g = crate::haptics::shaping::smoothstep((t - since) / STIFFNESS_RAMP_SECONDS);
+            from + (to - from) * g
+        }
+        None => to,
+    }
+}
 
 /// A tool move `stride` in contact, limited to `reach` (m) except for its withdrawal: the part
 /// along the tissue's push `normal` (unit, out of the tissue) that moves away from it is kept
@@ -476,7 +489,10 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
     // Batches in a row that warmed compliance columns for a refresh still to come.
     let mut warming_batches = 0u32;
     // Loop-clock time the contact's first static K was computed (its gain ramps up from it).
-    let mut stiffness_since: Option<f64> = None;
+    // The static K rendered before the last refresh and the loop time of that refresh (the
+    // new K ramps in from it); and whether `published_k` is the contact springs' K.
+    let mut stiffness_ramp: Option<(DMat3, f64)> = None;
+    let mut k_is_springs = false;
     let start = Instant::now();
     let sim_start = clock.now();
     let outcome = (|| -> Result<()> {
@@ -644,7 +660,8 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                 last_check = None;
                 // A warm-up cut short by the contact ending starts over at the next one.
                 warming_batches = 0;
-                stiffness_since = None;
+                stiffness_ramp = None;
+                k_is_springs = false;
             } else {
                 let due = |t: Option<Instant>| {
                     t.is_none_or(|t| t.elapsed().as_secs_f64() >= opts.stiffness_period)
@@ -653,7 +670,10 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                 let check = due(last_check);
                 let t = Instant::now();
                 match &stiffness {
-                    StiffnessSource::Frozen(_) => published_k = report.stiffness,
+                    StiffnessSource::Frozen(_) => {
+                        published_k = report.stiffness;
+                        k_is_springs = true;
+                    }
                     StiffnessSource::Static(_) if refresh => {
                         // Stamped at the read, as the count's timer is (after a warm-up the
                         // two drift apart, and a period may read the state twice).
@@ -667,18 +687,15 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                 }
                 read_due = (refresh || check).then_some(check);
             }
-            // Held back with only the frozen tissue's K (the contact springs'), the servo
-            // solves with no K at all: the springs' K renders k_c × lag.
-            let frozen = matches!(stiffness, StiffnessSource::Frozen(_));
-            let stiffness_gain = stiffness_since.map_or(1.0, |t0| {
-                crate::haptics::shaping::smoothstep((command.stamp - t0) / STIFFNESS_RAMP_SECONDS)
-            });
+            // Held back with only the contact springs' K (the frozen tissue's, or no contact
+            // points for the static one), the servo solves with no K at all: the springs' K
+            // renders k_c × lag.
             let model_out = LocalModel {
                 force: if diverged { DVec3::ZERO } else { report.force },
-                stiffness: if held_back && frozen {
+                stiffness: if held_back && k_is_springs {
                     DMat3::ZERO
                 } else {
-                    published_k * stiffness_gain
+                    ramped_stiffness(published_k, stiffness_ramp, command.stamp)
                 },
                 // A tool held back (by more than LAG_BATCHES batches' travel) does not
                 // follow the proxy: the servo solves with the static K (the force the
@@ -711,7 +728,7 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                 sim.tool_position - tool_before,
             );
             physics.publish(if held_back {
-                model_out.without_damper()
+                model_out.without_damper(reach)
             } else {
                 model_out
             });
@@ -738,12 +755,15 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                     || compliance.warm_columns(&missing, COLUMN_BUDGET) == missing.len();
                 warming_batches = if warm { 0 } else { warming_batches + 1 };
                 let took = if warm {
-                    published_k = if points.is_empty() {
+                    let now = clock.now();
+                    let rendered = ramped_stiffness(published_k, stiffness_ramp, now);
+                    k_is_springs = points.is_empty();
+                    published_k = if k_is_springs {
                         report.stiffness
                     } else {
                         compliance.stiffness(&points)
                     };
-                    stiffness_since.get_or_insert(clock.now());
+                    stiffness_ramp = Some((rendered, now));
                     stats.stiffness_refreshes += 1;
                     let took = t.elapsed().as_secs_f64();
                     if refresh_ms.len() < MAX_TIMINGS {

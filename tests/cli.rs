@@ -3122,7 +3122,9 @@ fn a_scripted_hand_faster_than_the_tissue_follows_is_warned_of() {
         );
         // 50 mm in 1 ms is no hand: the pose gate holds it back until 2 m/s reaches it.
         assert_eq!(
-            err.contains("jumped farther than a hand moves (2 m/s), up to 5.000e-2 m"),
+            err.contains(
+                "the device's reading jumped farther than a hand moves (2 m/s), up to 5.000e-2 m"
+            ),
             warned,
             "{name}: {err}"
         );

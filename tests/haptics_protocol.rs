@@ -86,4 +86,10 @@ fn documented_sizes_and_extrapolation() {
     // Far in: clamped to the device's limit, direction kept.
     let far = f.extrapolate(DVec3::new(0.0, 0.0, -0.05));
     assert!((far.length() - 3.3).abs() < 1e-12 && far.x == 0.0 && far.y == 0.0);
+    // A pose palpate held back: the force as sent, wherever the driver thinks it is.
+    let held = ForcePacket {
+        flags: f.flags | flags::POSE_HELD,
+        ..f
+    };
+    assert_eq!(held.extrapolate(DVec3::new(0.0, 0.0, -0.05)), f.force);
 }

@@ -548,17 +548,16 @@ fn execute(cli: Cli) -> Result<()> {
             }
             if h.servo.held_poses > 0 {
                 palpate::say_err!(
-                    "warning: {} device reading{} jumped farther than a hand moves ({} m/s), up to {:.3e} m from the last good pose, and {} held back, the pose used following no faster than that (a glitching device or network; haptic.csv's flags bit 8 marks the ticks)",
+                    "warning: in {} servo tick{} the device's reading jumped farther than a hand moves ({} m/s), up to {:.3e} m from the last good pose, and was held back, the pose used following no faster than that (a glitching device or network; haptic.csv's flags bit 8 marks those ticks and the ones catching up)",
                     h.servo.held_poses,
                     if h.servo.held_poses == 1 { "" } else { "s" },
                     h.servo.max_hand_speed,
                     h.servo.largest_pose_jump_m,
-                    if h.servo.held_poses == 1 { "was" } else { "were" }
                 );
             }
             if let Some(fast) = h.physics.hand_too_fast {
                 palpate::say_err!(
-                    "warning: the hand pressed or slid the tool into the tissue at up to {:.3e} m/s, faster than the {:.3e} m/s it can follow (half its shear wave speed at mass scaling {}), in {} physics batch{} from t = {:.3} s: the simulated tool lagged the hand there, the force felt coming from the tissue's static stiffness at the hand's pose (at a first contact, until that stiffness is known, from the lagging tool's force alone); a smaller [solver] mass_scaling raises the limit, at a cost in realtime capacity",
+                    "warning: the hand pressed or slid the tool into the tissue at up to {:.3e} m/s, faster than the {:.3e} m/s it can follow (half its shear wave speed at mass scaling {}), in {} physics batch{} from t = {:.3} s: the simulated tool lagged the hand there, the force felt coming from the tissue's static stiffness at the hand's pose (until that stiffness is known at a first contact, or with none, from the lagging tool's force alone); a smaller [solver] mass_scaling raises the limit, at a cost in realtime capacity",
                     fast.max_hand_speed,
                     h.physics.max_tool_speed,
                     scene.solver.mass_scaling,

@@ -165,13 +165,21 @@ impl LocalModel {
         self
     }
 
-    /// This model with the contact dampers' push D(Δ₀) taken out of f0 and no damper term:
-    /// for a tool that does not follow the proxy (held back to a speed limit), whose batch
-    /// move says nothing of the hand's (a tool that reached the tissue at the hand's speed
-    /// in its batch put the dampers' push at that speed, 0.2 N on lv_touch at 2 m/s, in the
-    /// hand for one batch).
-    pub fn without_damper(mut self) -> Self {
-        self.force -= self.damper_force;
+    /// This model with no damper term, and with the part of the dampers' push D(Δ₀) that a
+    /// move into the tissue beyond `cap` (m) made taken out of f0 (at most f0's component
+    /// along n̂, so f0 never turns to pull): for a tool that does not follow the proxy (held
+    /// back, its batches moving it no farther in than `cap`), whose arrival at the tissue
+    /// at the hand's speed put the dampers' push at that speed in f0 (0.2 N on lv_touch at
+    /// 2 m/s, in the hand for one batch). A move within `cap` keeps its push: the tissue
+    /// follows a tool that slow, so the estimate β·(−n̂·Δ₀), which takes the tissue as
+    /// still, would overstate it.
+    pub fn without_damper(mut self, cap: f64) -> Self {
+        if self.damper_rate > 0.0 {
+            let into = self.damper_force.length() / self.damper_rate;
+            let excess = self.damper_rate * (into - cap.max(0.0)).max(0.0);
+            let along = self.force.dot(self.damper_normal).max(0.0);
+            self.force -= self.damper_normal * excess.min(along);
+        }
         self.damper_rate = 0.0;
         self.damper_normal = DVec3::ZERO;
         self.damper_force = DVec3::ZERO;
@@ -301,5 +309,31 @@ mod tests {
         }
         let m = LocalModel::default().with_batch_damper(1e4, 3e-5, 1e-3, DVec3::NEG_Z);
         assert_eq!(m.damper_rate, 0.0);
+    }
+    #[test]
+    fn without_the_damper_only_the_push_of_a_move_beyond_the_cap_leaves_f0() {
+        // β = 300 N/m; the batch moved the tool 0.2 mm in: push 0.06 N in f0 = 0.5 N.
+        let m = LocalModel {
+            force: DVec3::new(0.0, 0.0, 0.5),
+            ..Default::default()
+        }
+        .with_batch_damper(1.0e4, 3.0e-5, 1.0e-3, DVec3::new(0.0, 0.0, -2e-4));
+        // Held back at 0.05 mm a batch: the push of the other 0.15 mm goes, 0.045 N.
+        let held = m.without_damper(5e-5);
+        assert!(
+            (held.force.z - (0.5 - 300.0 * 1.5e-4)).abs() < 1e-12,
+            "{held:?}"
+        );
+        assert_eq!((held.damper_rate, held.damper_force), (0.0, DVec3::ZERO));
+        // A move within the cap keeps its push.
+        assert_eq!(m.without_damper(3e-4).force, m.force);
+        // Never below zero along the normal: f0 = 0.01 N against a 0.06 N push.
+        let weak = LocalModel {
+            force: DVec3::new(0.002, 0.0, 0.01),
+            ..Default::default()
+        }
+        .with_batch_damper(1.0e4, 3.0e-5, 1.0e-3, DVec3::new(0.0, 0.0, -2e-4));
+        let w = weak.without_damper(0.0);
+        assert!(w.force.dot(weak.damper_normal).abs() < 1e-12, "{w:?}");
     }
 }

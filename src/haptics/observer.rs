@@ -87,6 +87,15 @@ impl PassivityObserver {
         self.energy
     }
 
+    /// Take the device as being at `x` at time `t` without accounting for how it got there
+    /// (a device that comes back after it stopped being fresh: its jump is no motion the
+    /// loop saw, and earns no damping credit).
+    pub fn restart(&mut self, t: f64, x: DVec3) {
+        self.last = Some((t, x));
+        self.velocity = DVec3::ZERO;
+        self.previous_velocity = DVec3::ZERO;
+    }
+
     /// The force sent this tick (held until the next `observe`), N.
     pub fn set_force(&mut self, force: DVec3) {
         self.force = force;

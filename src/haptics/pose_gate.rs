@@ -32,19 +32,27 @@ pub const MAX_HAND_SPEED: f64 = 2.0;
 /// Geomagic Touch resolves 0.055 mm).
 pub const POSE_NOISE: f64 = 0.2e-3;
 
+/// s: readings implausible for this long in a row make the device count as not fresh (the
+/// force fades): a real move is plausible again after |jump|/v_max (25 ms for 50 mm), a
+/// device sending nonsense never is.
+pub const IMPLAUSIBLE_STALE: f64 = 0.1;
+
 /// What [`PoseGate::filter`] passes on for a tick.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct GatedPose {
     /// m: the position to use.
     pub position: DVec3,
-    /// m/s: the velocity to use (the reading's when the pose is the reading; else the last
-    /// plausible reading's while held, the pose's own while it catches up).
+    /// m/s: the velocity to use (the reading's when the pose is the reading, else the
+    /// pose's own: zero while held in place, its step over the tick while catching up).
     pub velocity: DVec3,
     /// The pose is not the reading: the reading was not plausible, or the pose is still
     /// catching up with it.
     pub held: bool,
     /// The reading itself was not plausible (a subset of `held`).
     pub implausible: bool,
+    /// The readings have been implausible for [`IMPLAUSIBLE_STALE`] or longer: treat the
+    /// device as not fresh.
+    pub stale: bool,
 }
 
 /// Holds back readings that jump farther than a hand can move (see the module doc).
@@ -59,6 +67,7 @@ pub struct PoseGate {
     implausible: u64,
     catching_up: u64,
     largest_jump: f64,
+    implausible_since: Option<f64>,
 }
 
 impl PoseGate {
@@ -72,7 +81,17 @@ impl PoseGate {
             implausible: 0,
             catching_up: 0,
             largest_jump: 0.0,
+            implausible_since: None,
         }
+    }
+
+    /// Forget the readings so far (not the counts): the next reading is taken as it is. For
+    /// a device that comes back after it stopped being fresh (the force faded out and fades
+    /// back in), or a network device's first packet.
+    pub fn reset(&mut self) {
+        self.plausible = None;
+        self.pose = None;
+        self.implausible_since = None;
     }
 
     /// The pose to use at tick time `now` (s) for the reading `position`, `velocity` sampled
@@ -103,7 +122,13 @@ impl PoseGate {
         };
         if implausible {
             self.implausible += 1;
+            self.implausible_since.get_or_insert(now);
+        } else {
+            self.implausible_since = None;
         }
+        let stale = self
+            .implausible_since
+            .is_some_and(|t0| now - t0 >= IMPLAUSIBLE_STALE);
         if !implausible {
             self.plausible = Some((sampled, position, velocity));
         }
@@ -114,6 +139,7 @@ impl PoseGate {
                 velocity: DVec3::ZERO,
                 held: true,
                 implausible: true,
+                stale,
             };
         };
         let (position_used, velocity_used) = match self.pose {
@@ -123,7 +149,13 @@ impl PoseGate {
                 let step = self.max_speed * dt + self.noise;
                 let gap = target - u;
                 if gap.length() <= step {
-                    (target, target_velocity)
+                    // On the target: held in place (still) while the reading is off.
+                    let v = if implausible {
+                        DVec3::ZERO
+                    } else {
+                        target_velocity
+                    };
+                    (target, v)
                 } else {
                     let moved = gap * (step / gap.length());
                     let v = if dt > 0.0 { moved / dt } else { DVec3::ZERO };
@@ -138,15 +170,10 @@ impl PoseGate {
         }
         GatedPose {
             position: position_used,
-            velocity: if held && implausible && position_used == target {
-                target_velocity
-            } else if held {
-                velocity_used
-            } else {
-                velocity
-            },
+            velocity: if held { velocity_used } else { velocity },
             held,
             implausible,
+            stale,
         }
     }
 
@@ -193,7 +220,8 @@ mod tests {
             assert_eq!((p.held, p.implausible), (n == 5, n == 5), "tick {n}");
             let expected = if n == 5 { z(-0.5 * 4.0 * T) } else { x };
             assert_eq!(p.position, expected, "tick {n}");
-            assert_eq!(p.velocity, z(-0.5), "tick {n}");
+            let v = if n == 5 { DVec3::ZERO } else { z(-0.5) };
+            assert_eq!(p.velocity, v, "tick {n}");
         }
         assert_eq!((g.implausible(), g.catching_up()), (1, 0));
         assert!((g.largest_jump() - 0.0105).abs() < 1e-12);
@@ -245,6 +273,22 @@ mod tests {
             }
         }
         assert_eq!((g.implausible(), g.catching_up()), (0, 2));
+    }
+
+    #[test]
+    fn nonsense_goes_stale_and_a_reset_takes_the_next_reading_as_it_is() {
+        let mut g = PoseGate::new(MAX_HAND_SPEED, POSE_NOISE);
+        g.filter(0.0, 0.0, DVec3::ZERO, DVec3::ZERO);
+        let far = z(0.5);
+        for n in 1..=120 {
+            let t = n as f64 * T;
+            let p = g.filter(t, t, if n % 2 == 0 { DVec3::NAN } else { far }, DVec3::ZERO);
+            assert!(p.implausible && p.position == DVec3::ZERO, "tick {n}");
+            assert_eq!(p.stale, t >= 1e-3 + IMPLAUSIBLE_STALE - 1e-12, "tick {n}");
+        }
+        g.reset();
+        let p = g.filter(0.121, 0.121, far, DVec3::ZERO);
+        assert!(!p.held && !p.stale && p.position == far);
     }
 
     #[test]

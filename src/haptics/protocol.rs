@@ -420,7 +420,12 @@ impl ForcePacket {
     /// The force a driver should apply at device position `x` between packets:
     /// F = f0 + K·(x − x0), zero where it would point against f0 (no pull), clamped in
     /// magnitude to `max_force` keeping its direction; plus the damping part of `force`.
+    /// With `POSE_HELD` set, `force` as sent: palpate did not trust the pose, so the
+    /// driver's own position is not to be trusted to extrapolate with either.
     pub fn extrapolate(&self, x: DVec3) -> DVec3 {
+        if self.flags & crate::haptics::model::flags::POSE_HELD != 0 {
+            return self.force;
+        }
         let mut f = self.model_force + self.stiffness * (x - self.model_position);
         if f.dot(self.model_force) <= 0.0 {
             f = DVec3::ZERO;

@@ -217,6 +217,7 @@ pub struct ServoCore {
     shaper: ForceShaper,
     observer: PassivityObserver,
     gate: PoseGate,
+    device_was_fresh: bool,
     k_max: f64,
     last_time: Option<f64>,
     last_sequence: u64,
@@ -233,6 +234,7 @@ impl ServoCore {
             shaper: ForceShaper::new(config.shaping),
             observer: PassivityObserver::new(config.physical_damping),
             gate: PoseGate::new(config.max_hand_speed, POSE_NOISE),
+            device_was_fresh: false,
             k_max: config.max_passive_stiffness(),
             last_time: None,
             last_sequence: 0,
@@ -256,15 +258,28 @@ impl ServoCore {
         let c = &mut self.counters;
         c.ticks += 1;
 
+        // A device fresh again (back after its keep-alive expired, or a network device's
+        // first packet) is taken where it is: the force faded out meanwhile and fades back
+        // in, and the observer does not count the jump as motion.
+        let back = reading.fresh && !self.device_was_fresh;
+        self.device_was_fresh = reading.fresh;
+        if back {
+            self.gate.reset();
+        }
         // The observer, like everything after it, sees the pose used: a held reading moves
-        // nothing, a catch-up moves no faster than a hand (no credit for a teleport).
+        // nothing, a catch-up moves no faster than a hand.
         let pose = self.gate.filter(
             now,
             reading.sampled.unwrap_or(now),
             reading.position,
             reading.velocity,
         );
-        let energy = self.observer.observe(now, pose.position);
+        let energy = if back {
+            self.observer.restart(now, pose.position);
+            self.observer.energy()
+        } else {
+            self.observer.observe(now, pose.position)
+        };
 
         let has_model = sequence > 0;
         if sequence > self.last_sequence {
@@ -290,7 +305,7 @@ impl ServoCore {
         let cause = FadeCause {
             stale: !fresh_model,
             diverged: has_model && !usable,
-            device_stale: !reading.fresh,
+            device_stale: !reading.fresh || pose.stale,
         };
         if cause.stale {
             c.stale_ticks += 1;
@@ -515,8 +530,9 @@ pub struct ServoStats {
     pub max_passive_stiffness: f64,
     /// Ticks run but not logged (log full).
     pub unlogged_ticks: u64,
-    /// Device readings the pose gate held back: each lay farther from the last plausible
-    /// one than `max_hand_speed` allows since (a glitching device or network).
+    /// Ticks whose device reading the pose gate held back: it lay farther from the last
+    /// plausible one than `max_hand_speed` allows since (a glitching device or network; a
+    /// network device slower than the loop repeats a bad pose over several ticks).
     pub held_poses: u64,
     /// m, the largest distance of a held reading from the last plausible one (0 if none).
     pub largest_pose_jump_m: f64,
