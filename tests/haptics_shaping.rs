@@ -270,3 +270,50 @@ fn no_force_out_of_contact_or_before_the_first_model() {
     let out = core.tick(1.5, &reading, &model, 1);
     assert_eq!(out.command.force, DVec3::ZERO);
 }
+
+/// A network device's first pose 50 mm from home (before it, the device reads the origin and
+/// is not fresh): taken where it is — no tick held, no catch-up from the origin, no damping
+/// credit in the observer for the jump — and the same after the device is lost and comes
+/// back elsewhere.
+#[test]
+fn a_device_fresh_again_is_taken_where_it_is() {
+    let config = ServoConfig::new(DeviceSpec::TOUCH);
+    let mut core = ServoCore::new(&config);
+    let far = DVec3::new(0.05, 0.0, 0.02);
+    let mut t = 0.0;
+    let mut tick = |core: &mut ServoCore, position: DVec3, fresh: bool| {
+        let reading = DeviceReading {
+            position,
+            fresh,
+            sampled: fresh.then_some(t),
+            ..Default::default()
+        };
+        let out = core.tick(t, &reading, &LocalModel::default(), 0);
+        t += T;
+        out
+    };
+    for _ in 0..50 {
+        tick(&mut core, DVec3::ZERO, false);
+    }
+    for _ in 0..50 {
+        let out = tick(&mut core, far, true);
+        assert_eq!(out.pose.position, far);
+        assert_eq!(out.command.flags & flags::POSE_HELD, 0);
+    }
+    // Lost for 0.2 s, back 30 mm away.
+    for _ in 0..200 {
+        tick(&mut core, far, false);
+    }
+    let back = far + DVec3::new(0.0, 0.03, 0.0);
+    let out = tick(&mut core, back, true);
+    assert_eq!(out.pose.position, back);
+    assert_eq!(core.counters().ticks, 301);
+    assert!(
+        core.observer().energy().abs() < 1e-12,
+        "the observer credited {} J for the jumps",
+        core.observer().energy()
+    );
+    // Without the restart a 30 mm jump in a tick is held back (the sanity case).
+    let out = tick(&mut core, back + DVec3::new(0.0, 0.03, 0.0), true);
+    assert!(out.pose.implausible && out.pose.position == back);
+}
