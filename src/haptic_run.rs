@@ -488,7 +488,6 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
     let mut last_hand = (DVec3::ZERO, clock.now());
     // Batches in a row that warmed compliance columns for a refresh still to come.
     let mut warming_batches = 0u32;
-    // Loop-clock time the contact's first static K was computed (its gain ramps up from it).
     // The static K rendered before the last refresh and the loop time of that refresh (the
     // new K ramps in from it); and whether `published_k` is the contact springs' K.
     let mut stiffness_ramp: Option<(DMat3, f64)> = None;
