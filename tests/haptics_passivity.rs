@@ -323,9 +323,10 @@ fn a_pose_glitch_reaches_neither_the_hand_nor_the_observer() {
         println!("{ticks}-tick glitch, not gated: force differs by up to {max_df:.2} N, observer energy by {de:.2e} J");
         assert!(max_df > 1.0, "sanity: the ungated glitch kicks: {max_df} N");
         assert!(de > 10.0 * EPS, "sanity: the observer credits it: {de} J");
-    } // A reading that stays 10 mm off for 0.2 s (an encoder that slipped, a device re-homed
-      // while held): the pose follows it at 2.2 mm a tick, so the force rises over ticks, not
-      // in one; without the gate it jumps by newtons at once.
+    }
+    // A reading that stays 10 mm off for 0.2 s (an encoder that slipped, a device re-homed
+    // while held): the pose follows it at 2.2 mm a tick, so the force rises over ticks, not
+    // in one; without the gate it jumps by newtons at once.
     let steepest = |o: &common::Outcome| {
         o.trace
             .windows(2)
