@@ -165,6 +165,11 @@ pub struct PhysicsStats {
     /// stopped at its surface. The tool then lagged the hand, or the physics caught up
     /// after falling behind (a long stride from a slow hand).
     pub speed_limited_batches: u64,
+    /// Batches out of contact whose stride was measured against the deformed surface (a
+    /// state read and a scan of the surface); a stride shorter than a lower bound of the
+    /// clearance (the last measured one less the tool's travel and the surface's since) is
+    /// not measured.
+    pub approach_scans: u64,
     /// Those of them that started in contact with the hand itself moving faster than the
     /// limit (absent: none).
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -482,6 +487,10 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
     let mut last_used = 0u64;
     // The direction the tissue pushed the tool at the end of the last batch, in contact.
     let mut contact_normal: Option<DVec3> = None;
+    // Out of contact: a lower bound of the tool's clearance from the tissue's surface, from
+    // the last scan less the tool's travel and twice the surface's fastest vertex speed over
+    // each batch since (None: unknown).
+    let mut clearance_floor: Option<f64> = None;
     // The hand's pose (offset from home) and stamp when the last batch started: at home when
     // the session starts, as the tool is (a hand that moved before the first batch did so
     // since then).
@@ -547,8 +556,11 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
             let stride = target - sim.tool_position;
             let limited = match contact_normal {
                 Some(normal) => limit_pressing_stride(stride, normal, reach),
+                // Clear of the surface by more than the stride: nothing to limit.
+                None if clearance_floor.is_some_and(|f| f >= stride.length()) => None,
                 None if stride.length() > reach => {
                     // Physics-thread work (a state read, the surface's distance): busy time.
+                    stats.approach_scans += 1;
                     let t = Instant::now();
                     let state = match rest.is_asleep() {
                         true => None,
@@ -556,6 +568,7 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                     };
                     let [clear, clear_after] =
                         rest.clearances(state.as_ref(), [sim.tool_position, target]);
+                    clearance_floor = Some(clear);
                     busy_seconds += t.elapsed().as_secs_f64();
                     // Towards the tissue, up to its surface at the hand's speed and into it
                     // at the limit from the next batch on (a batch moves the tool at one
@@ -590,8 +603,11 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                 }
             }
             sim.tool_target = Some(target);
+            let tool_from = sim.tool_position;
             if rest.is_asleep() && !rest.wakes_for(target) {
                 pass_time_at_rest(&mut sim, steps);
+                // Asleep, the surface stays where it is.
+                clearance_floor = clearance_floor.map(|f| f - (target - tool_from).length());
                 stats.slept_seconds += steps as f64 * sim.dt;
                 physics.publish(LocalModel {
                     proxy: sim.tool_position - home,
@@ -637,6 +653,16 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
             };
             let report = sim.last_tool.unwrap_or_default();
             let in_contact = report.contacts > 0 && !diverged;
+            // Less the tool's travel and the surface's over the batch (twice its fastest
+            // vertex at the batch's end: a settling surface slows); unknown in contact or
+            // after a divergence (the state went back).
+            clearance_floor = match &result {
+                Guarded::Done(s) if !in_contact => clearance_floor.map(|f| {
+                    f - (sim.tool_position - tool_before).length()
+                        - 2.0 * s.max_speed() * batch_seconds
+                }),
+                _ => None,
+            };
             let held_back = (wanted - sim.tool_position).length() > lag_limit;
             contact_normal =
                 (in_contact && report.force.length() > 0.0).then(|| report.force.normalize());

@@ -594,6 +594,53 @@ fn a_press_held_back_with_only_the_frozen_stiffness_does_not_render_the_lag() {
     );
 }
 
+/// A hand circling in free space near lv_touch's wall at 0.1 m/s, faster than the tool may
+/// enter the tissue (0.048 m/s): each batch's stride is longer than the speed limit's reach,
+/// but the surface is measured (a state read and a scan of every boundary face) only when a
+/// lower bound of the clearance, the last measured one less the tool's and the surface's
+/// travel since, falls below the stride: 82 scans in 1,348 batches, against 862 in 1,351.
+#[test]
+fn a_hand_moving_in_free_space_measures_its_clearance_now_and_then() {
+    let _one = one_at_a_time();
+    let scene = Scene::load("lv_touch").unwrap();
+    let dir = out_dir("free_circle");
+    // A circle of radius 5 mm in the y–z plane through home (1 mm clear of the wall).
+    let w = 0.1 / 0.005;
+    let rows: Vec<(f64, DVec3)> = (0..=100)
+        .map(|i| {
+            let t = i as f64 * 0.01;
+            let a = w * t;
+            (t, DVec3::new(0.0, 0.005 * a.sin(), 0.005 * (a.cos() - 1.0)))
+        })
+        .collect();
+    let csv = write_trajectory(&dir, &rows);
+    let h = run_haptic(
+        &scene,
+        &HapticOptions {
+            backend: Backend::Cpu,
+            device: format!("scripted:{}", csv.display()),
+            out: dir,
+            sleep_at_rest: false,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let p = &h.haptic.physics;
+    eprintln!(
+        "{} batches, {} approach scans, {} speed-limited, {} in contact",
+        p.batches, p.approach_scans, p.speed_limited_batches, p.contact_batches
+    );
+    assert_eq!(h.run.status, "ok");
+    assert!(p.batches > 500, "{}", p.batches);
+    assert_eq!(p.contact_batches, 0);
+    assert!(
+        p.approach_scans > 0 && 10 * p.approach_scans < p.batches,
+        "{} scans in {} batches",
+        p.approach_scans,
+        p.batches
+    );
+}
+
 fn palpate() -> Command {
     Command::new(env!("CARGO_BIN_EXE_palpate"))
 }
