@@ -603,11 +603,11 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                 }
             }
             sim.tool_target = Some(target);
-            let tool_from = sim.tool_position;
+            let tool_before = sim.tool_position;
             if rest.is_asleep() && !rest.wakes_for(target) {
                 pass_time_at_rest(&mut sim, steps);
                 // Asleep, the surface stays where it is.
-                clearance_floor = clearance_floor.map(|f| f - (target - tool_from).length());
+                clearance_floor = clearance_floor.map(|f| f - (target - tool_before).length());
                 stats.slept_seconds += steps as f64 * sim.dt;
                 physics.publish(LocalModel {
                     proxy: sim.tool_position - home,
@@ -620,7 +620,6 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
             }
             let t0 = Instant::now();
             let batch_seconds = steps as f64 * sim.dt;
-            let tool_before = sim.tool_position;
             let result = sim.advance_with(steps, DivergencePolicy::HalveDt)?;
             let elapsed = t0.elapsed().as_secs_f64();
             busy_seconds += elapsed;

@@ -93,6 +93,39 @@ fn write_trajectory(dir: &Path, rows: &[(f64, DVec3)]) -> PathBuf {
     path
 }
 
+/// A session on `scene` with a scripted hand following `rows` (its trajectory and outputs in
+/// `out_dir(name)`), on the CPU backend, with the rest of `opts` as given.
+fn scripted_session(
+    scene: &Scene,
+    name: &str,
+    rows: &[(f64, DVec3)],
+    opts: HapticOptions,
+) -> HapticSummary {
+    let dir = out_dir(name);
+    let csv = write_trajectory(&dir, rows);
+    run_haptic(
+        scene,
+        &HapticOptions {
+            backend: Backend::Cpu,
+            device: format!("scripted:{}", csv.display()),
+            out: dir,
+            ..opts
+        },
+    )
+    .unwrap()
+}
+
+/// Rows of a hand pressing `depth` along −x from `start` over `ramp` s, held to `end`.
+fn press_along_minus_x(depth: f64, start: f64, ramp: f64, end: f64) -> [(f64, DVec3); 4] {
+    let d = DVec3::new(-depth, 0.0, 0.0);
+    [
+        (0.0, DVec3::ZERO),
+        (start, DVec3::ZERO),
+        (start + ramp, d),
+        (end, d),
+    ]
+}
+
 /// Press the device `depth` along `direction` over 0.5 s and hold until `seconds`.
 fn press_and_hold(
     scene: &Scene,
@@ -101,29 +134,22 @@ fn press_and_hold(
     seconds: f64,
     name: &str,
 ) -> HapticSummary {
-    let dir = out_dir(name);
-    let csv = write_trajectory(
-        &dir,
+    scripted_session(
+        scene,
+        name,
         &[
             (0.0, DVec3::ZERO),
             (0.5, direction * depth),
             (seconds, direction * depth),
         ],
-    );
-    run_haptic(
-        scene,
-        &HapticOptions {
-            backend: Backend::Cpu,
+        HapticOptions {
             // Two physics threads beside the servo thread: about 2.1× real time on `lv`
             // against 1.26× with one (BENCHMARKS.md), so a host slowed by up to 2× still
             // keeps up; a physics thread that falls behind the hand never settles the hold.
             threads: Some(2),
-            device: format!("scripted:{}", csv.display()),
-            out: dir,
             ..Default::default()
         },
     )
-    .unwrap()
 }
 
 /// The static tool force with the tool moved from `home` to `at` over 0.2 s and held there.
@@ -462,27 +488,16 @@ fn lv_touch_pressed_faster_than_its_tissue_follows_stays_stable() {
     // Pressing `depth` from `start` over `ramp` s, held to `end`; the median force over the
     // last 0.5 s.
     let session = |depth: f64, start: f64, ramp: f64, end: f64, name: &str| {
-        let dir = out_dir(name);
-        let csv = write_trajectory(
-            &dir,
-            &[
-                (0.0, DVec3::ZERO),
-                (start, DVec3::ZERO),
-                (start + ramp, DVec3::new(-depth, 0.0, 0.0)),
-                (end, DVec3::new(-depth, 0.0, 0.0)),
-            ],
-        );
-        let h = run_haptic(
+        let h = scripted_session(
             &scene,
-            &HapticOptions {
-                backend: Backend::Cpu,
+            name,
+            &press_along_minus_x(depth, start, ramp, end),
+            HapticOptions {
                 threads: Some(2),
-                device: format!("scripted:{}", csv.display()),
-                out: dir.clone(),
                 ..Default::default()
             },
-        )
-        .unwrap();
+        );
+        let dir = out_dir(name);
         let held = held_force(&dir, "force_x", end - 0.5, end);
         let (step, at) = largest_tick_step(&dir, "force_x");
         eprintln!(
@@ -557,29 +572,17 @@ fn lv_touch_pressed_faster_than_its_tissue_follows_stays_stable() {
 fn a_press_held_back_with_only_the_frozen_stiffness_does_not_render_the_lag() {
     let _one = one_at_a_time();
     let scene = Scene::load("lv_touch").unwrap();
-    let dir = out_dir("frozen_fast_press");
-    let csv = write_trajectory(
-        &dir,
-        &[
-            (0.0, DVec3::ZERO),
-            (1.2, DVec3::ZERO),
-            (1.203, DVec3::new(-0.006, 0.0, 0.0)),
-            (2.7, DVec3::new(-0.006, 0.0, 0.0)),
-        ],
-    );
-    let h = run_haptic(
+    let h = scripted_session(
         &scene,
-        &HapticOptions {
-            backend: Backend::Cpu,
+        "frozen_fast_press",
+        &press_along_minus_x(0.006, 1.2, 0.003, 2.7),
+        HapticOptions {
             threads: Some(2),
-            device: format!("scripted:{}", csv.display()),
-            out: dir.clone(),
             frozen_stiffness: true,
             ..Default::default()
         },
-    )
-    .unwrap();
-    let held = held_force(&dir, "force_x", 2.2, 2.7);
+    );
+    let held = held_force(&out_dir("frozen_fast_press"), "force_x", 2.2, 2.7);
     let peak = h.haptic.servo.max_force_n;
     eprintln!(
         "frozen stiffness, fast press: {} ({} batches held to the speed limit), peak {peak:.3} N, held {held:.4} N",
@@ -603,7 +606,6 @@ fn a_press_held_back_with_only_the_frozen_stiffness_does_not_render_the_lag() {
 fn a_hand_moving_in_free_space_measures_its_clearance_now_and_then() {
     let _one = one_at_a_time();
     let scene = Scene::load("lv_touch").unwrap();
-    let dir = out_dir("free_circle");
     // A circle of radius 5 mm in the y–z plane through home (1 mm clear of the wall).
     let w = 0.1 / 0.005;
     let rows: Vec<(f64, DVec3)> = (0..=100)
@@ -613,18 +615,15 @@ fn a_hand_moving_in_free_space_measures_its_clearance_now_and_then() {
             (t, DVec3::new(0.0, 0.005 * a.sin(), 0.005 * (a.cos() - 1.0)))
         })
         .collect();
-    let csv = write_trajectory(&dir, &rows);
-    let h = run_haptic(
+    let h = scripted_session(
         &scene,
-        &HapticOptions {
-            backend: Backend::Cpu,
-            device: format!("scripted:{}", csv.display()),
-            out: dir,
+        "free_circle",
+        &rows,
+        HapticOptions {
             sleep_at_rest: false,
             ..Default::default()
         },
-    )
-    .unwrap();
+    );
     let p = &h.haptic.physics;
     eprintln!(
         "{} batches, {} approach scans, {} speed-limited, {} in contact",

@@ -170,7 +170,7 @@ impl PoseGate {
         }
         GatedPose {
             position: position_used,
-            velocity: if held { velocity_used } else { velocity },
+            velocity: velocity_used,
             held,
             implausible,
             stale,

@@ -205,7 +205,8 @@ pub struct TickOutput {
     pub command: ForceCommand,
     /// The log row (lateness and work time filled in by the loop).
     pub record: TickRecord,
-    /// The device pose the tick used (the reading, or the last accepted one when held).
+    /// The device pose the tick used (the reading; held in place or catching up with it
+    /// when the pose gate did not take it).
     pub pose: GatedPose,
 }
 
