@@ -273,6 +273,24 @@ pub fn limit_pressing_stride(stride: DVec3, normal: DVec3, reach: f64) -> Option
     (length > reach).then(|| away * normal + limited * (reach / length))
 }
 
+/// A tool move `stride` out of contact, limited to where the tool meets the tissue (the
+/// `survey`'s clearance at its start) or to `reach` (m), whichever is longer: towards the
+/// tissue, up to its surface at the hand's speed and into it at the limit from the next batch
+/// on (a batch moves the tool at one speed: one that ended a reach inside met the tissue at
+/// up to 0.8 m/s, its contact dampers pushing 0.9 N into the hand). Straight away from it
+/// (the clearance grows by at least 0.9 × the stride, and the centre crosses no face of the
+/// surface: not a long stride, after a stall, that ends clear on the body's far side), or
+/// within that limit: None, no limit.
+pub fn limit_approaching_stride(
+    stride: DVec3,
+    survey: crate::rest::StrideSurvey,
+    reach: f64,
+) -> Option<DVec3> {
+    let free = survey.clear.max(reach);
+    let away = !survey.crosses && survey.clear_after >= survey.clear + 0.9 * stride.length();
+    (!away && stride.length() > free).then(|| stride * (free / stride.length()))
+}
+
 /// The `haptic` section of `summary.json`.
 #[derive(Clone, Debug, Serialize)]
 pub struct HapticStats {
@@ -566,19 +584,10 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                         true => None,
                         false => Some(sim.state()?),
                     };
-                    let [clear, clear_after] =
-                        rest.clearances(state.as_ref(), [sim.tool_position, target]);
-                    clearance_floor = Some(clear);
+                    let survey = rest.survey_stride(state.as_ref(), sim.tool_position, target);
+                    clearance_floor = Some(survey.clear);
                     busy_seconds += t.elapsed().as_secs_f64();
-                    // Towards the tissue, up to its surface at the hand's speed and into it
-                    // at the limit from the next batch on (a batch moves the tool at one
-                    // speed: one that ended a reach inside met the tissue at up to 0.8 m/s,
-                    // its contact dampers pushing 0.9 N into the hand); straight away from it
-                    // (the clearance grows by about the stride: not a stride that ends clear
-                    // on the body's far side), free.
-                    let free = clear.max(reach);
-                    let away = clear_after >= clear + 0.9 * stride.length();
-                    (!away && stride.length() > free).then(|| stride * (free / stride.length()))
+                    limit_approaching_stride(stride, survey, reach)
                 }
                 None => None,
             };
@@ -894,8 +903,39 @@ fn wait_for_a_tick(
 
 #[cfg(test)]
 mod tests {
-    use super::limit_pressing_stride;
+    use super::{limit_approaching_stride, limit_pressing_stride};
+    use crate::rest::StrideSurvey;
     use glam::DVec3;
+
+    #[test]
+    fn an_approaching_stride_stops_at_the_surface_unless_it_moves_straight_away() {
+        let survey = |clear, clear_after, crosses| StrideSurvey {
+            clear,
+            clear_after,
+            crosses,
+        };
+        let close = |a: DVec3, b: DVec3| (a - b).length() < 1e-12;
+        let stride = DVec3::new(0.0, 0.0, -0.5);
+        // Towards the tissue 0.1 away: stopped there.
+        let s = limit_approaching_stride(stride, survey(0.1, 0.0, true), 0.01).unwrap();
+        assert!(close(s, DVec3::new(0.0, 0.0, -0.1)));
+        // Closer than a reach: a reach.
+        let s = limit_approaching_stride(stride, survey(0.001, 0.0, true), 0.01).unwrap();
+        assert!(close(s, DVec3::new(0.0, 0.0, -0.01)));
+        // Within the clearance: free.
+        assert_eq!(
+            limit_approaching_stride(stride, survey(0.6, 0.1, false), 0.01),
+            None
+        );
+        // Straight away: free, however long.
+        assert_eq!(
+            limit_approaching_stride(stride, survey(0.1, 0.6, false), 0.01),
+            None
+        );
+        // The same clearances, but the centre crossed the body to its far side: stopped.
+        let s = limit_approaching_stride(stride, survey(0.1, 0.6, true), 0.01).unwrap();
+        assert!(close(s, DVec3::new(0.0, 0.0, -0.1)));
+    }
 
     #[test]
     fn a_pressing_stride_is_limited_and_a_withdrawal_is_not() {

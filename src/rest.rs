@@ -55,6 +55,37 @@ struct Sleeping {
     tool: DVec3,
 }
 
+/// [`RestWatch::survey_stride`]'s answer: clearances (m, the tool's surface to the body's)
+/// where a move starts and ends, and whether its centre crosses the body's surface between.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StrideSurvey {
+    /// Clearance at the start.
+    pub clear: f64,
+    /// Clearance at the end.
+    pub clear_after: f64,
+    /// The segment between the centres crosses a boundary face.
+    pub crosses: bool,
+}
+
+/// Whether the segment p → q meets triangle (a, b, c), its ends and edges included
+/// (Möller–Trumbore: p + t(q − p) = a + u(b − a) + v(c − a) with t, u, v, u + v in [0, 1]);
+/// a segment in the triangle's plane counts as missing it (a closed surface's neighbouring
+/// faces catch a segment that crosses there).
+fn segment_crosses_triangle(p: DVec3, q: DVec3, a: DVec3, b: DVec3, c: DVec3) -> bool {
+    let (d, e1, e2) = (q - p, b - a, c - a);
+    let h = d.cross(e2);
+    let det = e1.dot(h);
+    if det.abs() <= 1e-12 * d.length() * e1.length() * e2.length() {
+        return false;
+    }
+    let s = p - a;
+    let u = s.dot(h) / det;
+    let k = s.cross(e1);
+    let v = d.dot(k) / det;
+    let t = e2.dot(k) / det;
+    (0.0..=1.0).contains(&u) && v >= 0.0 && u + v <= 1.0 && (0.0..=1.0).contains(&t)
+}
+
 /// Whether a batch finds the body at rest: residual ≤ `tolerance` × load and
 /// kinetic ≤ `tolerance`² × elastic energy.
 pub fn at_rest(force: ResidualAndLoad, energy: BodyEnergy, tolerance: f64) -> bool {
@@ -148,14 +179,12 @@ impl RestWatch {
         distance_to_triangles(surface.iter().copied(), centre) - self.tool_radius
     }
 
-    /// [`RestWatch::clearance`] of tools at `centres`, the surface built once: while asleep
-    /// the sleeping body's (it does not move; `state` may be None, no read needed), else the
-    /// body's in `state` (infinite clearances without one).
-    pub fn clearances<const N: usize>(
-        &self,
-        state: Option<&State>,
-        centres: [DVec3; N],
-    ) -> [f64; N] {
+    /// What a tool move from `from` to `to` meets on the body in `state` (the sleeping body's
+    /// while asleep, `state` may then be None; nothing without either): the clearances at
+    /// both ends ([`RestWatch::clearance`]) and whether the tool's centre crosses the body's
+    /// surface on the way (a move that ends clear on the body's far side), the surface
+    /// built once.
+    pub fn survey_stride(&self, state: Option<&State>, from: DVec3, to: DVec3) -> StrideSurvey {
         let built;
         let surface = match (&self.asleep, state) {
             (Some(s), _) => &s.surface,
@@ -163,9 +192,21 @@ impl RestWatch {
                 built = self.surface(state);
                 &built
             }
-            (None, None) => return [f64::INFINITY; N],
+            (None, None) => {
+                return StrideSurvey {
+                    clear: f64::INFINITY,
+                    clear_after: f64::INFINITY,
+                    crosses: false,
+                }
+            }
         };
-        centres.map(|c| self.clearance_to(surface, c))
+        StrideSurvey {
+            clear: self.clearance_to(surface, from),
+            clear_after: self.clearance_to(surface, to),
+            crosses: surface
+                .iter()
+                .any(|&[a, b, c]| segment_crosses_triangle(from, to, a, b, c)),
+        }
     }
 
     /// Sleep, with the body as it is in `state`, if the tool at `tool` is clear of it by
@@ -217,5 +258,62 @@ pub fn pass_time_at_rest(sim: &mut Simulation, steps: u32) {
     sim.time += steps as f64 * sim.dt;
     if let Some(target) = sim.tool_target {
         sim.tool_position = target;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::RestWatch;
+    use crate::scene::Scene;
+    use crate::stepper::State;
+    use glam::DVec3;
+
+    #[test]
+    fn a_stride_through_the_body_to_its_far_side_is_seen_to_cross_it() {
+        // A 10 × 2 × 2 cm bar (z from 0 to 2 cm) and a 1 cm tool 1 mm above it.
+        let text = r#"name = "bar"
+[mesh]
+generator = "beam"
+size = [0.1, 0.02, 0.02]
+cells = [10, 2, 2]
+[material]
+youngs_modulus = 3.0e5
+poisson_ratio = 0.4
+density = 1000.0
+[tool]
+radius = 0.01
+stiffness = 2.0e7
+home = [0.08, 0.01, 0.031]
+"#;
+        let scene = Scene::from_toml(text, "bar", "bar", None).unwrap();
+        let watch = RestWatch::new(&scene);
+        let n = scene.mesh.positions.len();
+        let state = State {
+            displacements: vec![0.0; 3 * n],
+            velocities: vec![0.0; 3 * n],
+        };
+        let above = DVec3::new(0.08, 0.01, 0.031);
+        // Straight up: no crossing, the clearance grows by the stride.
+        let up = watch.survey_stride(Some(&state), above, above + DVec3::new(0.0, 0.0, 0.5));
+        assert!((up.clear - 0.001).abs() < 1e-9, "{up:?}");
+        assert!((up.clear_after - 0.501).abs() < 1e-9, "{up:?}");
+        assert!(!up.crosses);
+        // Down through the bar, 0.5 m: the clearance grows by more than 0.9 × the stride
+        // (what used to pass it as a move away), but the centre crosses the top face.
+        let through = watch.survey_stride(Some(&state), above, above - DVec3::new(0.0, 0.0, 0.5));
+        assert!(
+            through.clear_after >= through.clear + 0.9 * 0.5,
+            "{through:?}"
+        );
+        assert!(through.crosses);
+        // Along the top, 1 mm clear, and beyond its end: no crossing.
+        let along = watch.survey_stride(Some(&state), above, above + DVec3::new(0.5, 0.0, 0.0));
+        assert!(!along.crosses);
+        // Down onto the bar and stopping 1 mm inside its top face: crosses.
+        let into = watch.survey_stride(Some(&state), above, above - DVec3::new(0.0, 0.0, 0.012));
+        assert!(into.crosses);
+        // No state and awake: nothing known, nothing crossed.
+        let none = watch.survey_stride(None, above, above - DVec3::new(0.0, 0.0, 0.5));
+        assert!(none.clear.is_infinite() && !none.crosses);
     }
 }
