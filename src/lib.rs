@@ -6,6 +6,7 @@
 //! per-element and per-vertex stage is a WGSL kernel in `kernels/` with a CPU twin in
 //! [`cpu`]; see `ARCHITECTURE.md`.
 
+#![warn(missing_docs)] // every public item has a doc comment (STYLE; the brief)
 pub mod bench;
 pub mod compliance;
 pub mod console;

@@ -21,7 +21,8 @@ pub enum Backend {
     Auto,
     /// WGSL compute kernels through wgpu, on any adapter (software ones included).
     Gpu,
-    /// The CPU twins of the kernels, on all cores (the reference path).
+    /// The CPU twins of the kernels, on all cores by default (one fewer for `haptic`; the
+    /// reference path).
     Cpu,
 }
 
@@ -382,6 +383,13 @@ impl Simulation {
             Backend::Auto => pick_auto()?,
             Backend::Gpu => (Backend::Gpu, "--backend gpu".to_string(), None),
             Backend::Cpu => (Backend::Cpu, "--backend cpu".to_string(), None),
+        };
+        // Refused above with --backend gpu; `auto` choosing a GPU says it goes unused.
+        let backend_reason = match (backend, opts.threads) {
+            (Backend::Gpu, Some(t)) => {
+                format!("{backend_reason}; --threads {t} is for the CPU backend: unused")
+            }
+            _ => backend_reason,
         };
         let (stepper, threads): (Box<dyn Stepper>, usize) = match backend {
             Backend::Gpu => {

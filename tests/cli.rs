@@ -1154,7 +1154,7 @@ fn threads_are_recorded_and_bad_counts_missing_adapters_or_unknown_backends_are_
         ],
         &["--threads", "--backend gpu"],
     );
-    // No adapter at all: a backend set that this platform does not have.
+    // No adapter at all: Vulkan only, with the Vulkan loader pointed at no driver.
     let o = Command::new(env!("CARGO_BIN_EXE_palpate"))
         .args([
             "run",
@@ -1166,7 +1166,9 @@ fn threads_are_recorded_and_bad_counts_missing_adapters_or_unknown_backends_are_
             "--out",
             out,
         ])
-        .env("PALPATE_BACKEND", "dx12")
+        .env("PALPATE_BACKEND", "vulkan")
+        .env("VK_ICD_FILENAMES", "/nonexistent/palpate_no_driver.json")
+        .env("VK_DRIVER_FILES", "/nonexistent/palpate_no_driver.json")
         .output()
         .unwrap();
     let err = String::from_utf8_lossy(&o.stderr);
@@ -1176,6 +1178,22 @@ fn threads_are_recorded_and_bad_counts_missing_adapters_or_unknown_backends_are_
     assert_eq!(lines.len(), 1, "{err}");
     assert!(
         lines[0].contains("no GPU adapter") && lines[0].contains("mesa-vulkan-drivers"),
+        "{}",
+        lines[0]
+    );
+    // A backend this build does not compile in (wgpu's Vulkan and GL only): refused by name,
+    // with the ones it has, not left to find no adapter.
+    let o = Command::new(env!("CARGO_BIN_EXE_palpate"))
+        .args(["run", "beam", "--steps", "10", "--out", out])
+        .env("PALPATE_BACKEND", "dx12")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{err}");
+    let lines = error_lines(&err);
+    assert_eq!(lines.len(), 1, "{err}");
+    assert!(
+        lines[0].contains("no DX12 backend") && lines[0].contains("Vulkan, GL"),
         "{}",
         lines[0]
     );

@@ -84,7 +84,7 @@ enum Command {
         backend: Backend,
         /// CPU backend threads (default: one fewer than the cores, at least one; refused with
         /// --backend gpu).
-        #[arg(long)]
+        #[arg(long, allow_negative_numbers = true)]
         threads: Option<usize>,
         /// Keep stepping while the body is at rest and the tool clear of it (by default the
         /// physics then sleeps, and wakes as the tool approaches).
@@ -933,8 +933,6 @@ fn inversion_advice(scene: &Scene, particles: bool) -> &'static str {
     }
 }
 
-/// Warn when the tool at `centre` starts inside the tissue at rest: its contact then shoves
-/// the tissue out at once (or through the wall).
 /// What `run` and `haptic` warn of before they start: [`warn_reoriented`], a tool
 /// overlapping the tissue at `tool_at` (its centre, and when: "at t = 0"), and the scene's
 /// loads far beyond its material.
@@ -975,6 +973,8 @@ fn warn_reoriented(scene: &Scene) {
     }
 }
 
+/// Warn when the tool at `centre` starts inside the tissue at rest: its contact then shoves
+/// the tissue out at once (or through the wall).
 fn warn_tool_overlap(scene: &Scene, centre: glam::DVec3, when: &str) {
     if let Some(overlap) = scene
         .tool

@@ -4,7 +4,8 @@
 //! `integrate_particles` (the plan's `ExactStress`, `ExactForces`, `ExactGather`,
 //! `ExactIntegrate`); an activation under it is `cpu/exact_activation.rs`. Their kernels:
 //! `exact_stress.wgsl`, `exact_forces.wgsl`, `gather.wgsl::gather_exact`,
-//! `exact_slaving.wgsl` (the GPU runs design 8 under `activation = "all"` only).
+//! `exact_slaving.wgsl` (under the tool the GPU backend runs each activation on a CPU twin
+//! of the stepper and takes back what changed).
 //!
 //! One step: δ_q = u_q − Σ wₐ_q uₐ per dynamic particle; per particle p of S, A_p =
 //! [P(F̄_p + D_p) − P(F̄_p)] G_pᵀ, F_p = I + H̄_p + D_p, the remainder energy and the tangent

@@ -3,8 +3,9 @@
 //!
 //! Adapter choice: a hardware GPU first (discrete, integrated, virtual), then a software one
 //! (Vulkan lavapipe, llvmpipe through GL). `PALPATE_BACKEND` (`vulkan`, `gl`, `metal`,
-//! `dx12`, `all`) limits the backends; `PALPATE_ADAPTER` picks an adapter whose name contains
-//! the given text.
+//! `dx12`, `all`) limits the backends, among those the build has (Vulkan and GL;
+//! `Cargo.toml`'s wgpu features); `PALPATE_ADAPTER` picks an adapter whose name contains the
+//! given text.
 
 use crate::error::{PalpateError, Result};
 use std::sync::{Arc, Mutex};
@@ -33,18 +34,37 @@ struct CapturedError {
     thread_name: Option<String>,
 }
 
-/// Backends named by `PALPATE_BACKEND` (default: all compiled in).
+/// Backends named by `PALPATE_BACKEND` (default: all compiled in); one this build lacks (the
+/// crate compiles wgpu's Vulkan and GL backends only, `Cargo.toml`) is an error naming those
+/// it has.
 pub fn backends_from_env() -> Result<wgpu::Backends> {
-    match std::env::var("PALPATE_BACKEND").ok().as_deref() {
-        None | Some("") | Some("all") => Ok(wgpu::Backends::all()),
-        Some("vulkan") => Ok(wgpu::Backends::VULKAN),
-        Some("gl") => Ok(wgpu::Backends::GL),
-        Some("metal") => Ok(wgpu::Backends::METAL),
-        Some("dx12") => Ok(wgpu::Backends::DX12),
-        Some(other) => Err(PalpateError::Usage(format!(
-            "PALPATE_BACKEND='{other}' is not one of vulkan, gl, metal, dx12, all"
-        ))),
+    backends_named(std::env::var("PALPATE_BACKEND").ok().as_deref())
+}
+
+/// [`backends_from_env`] for the value `name`.
+fn backends_named(name: Option<&str>) -> Result<wgpu::Backends> {
+    let wanted = match name {
+        None | Some("") | Some("all") => return Ok(wgpu::Backends::all()),
+        Some("vulkan") => wgpu::Backends::VULKAN,
+        Some("gl") => wgpu::Backends::GL,
+        Some("metal") => wgpu::Backends::METAL,
+        Some("dx12") => wgpu::Backends::DX12,
+        Some(other) => {
+            return Err(PalpateError::Usage(format!(
+                "PALPATE_BACKEND='{other}' is not one of vulkan, gl, metal, dx12, all"
+            )))
+        }
+    };
+    let built = wgpu::Instance::enabled_backend_features();
+    if !built.contains(wanted) {
+        return Err(PalpateError::Usage(format!(
+            "PALPATE_BACKEND='{}': this build of palpate has no {} backend (it has {}; the wgpu features in Cargo.toml choose them)",
+            name.unwrap_or_default(),
+            backend_names(wanted),
+            backend_names(built)
+        )));
     }
+    Ok(wanted)
 }
 
 /// The process's one wgpu instance for `backends`, made on first use and shared by every
@@ -115,7 +135,8 @@ fn rank(info: &wgpu::AdapterInfo) -> (u8, u8) {
 }
 
 /// Every adapter that can run compute shaders, best first. Without `PALPATE_BACKEND`, the
-/// native backends (Vulkan, Metal, DX12) are tried first and GL only when they offer none.
+/// native backends (Vulkan; Metal and DX12 where a build has them) are tried first and GL
+/// only when they offer none.
 pub fn list_adapters() -> Result<Vec<wgpu::Adapter>> {
     let from_env = std::env::var("PALPATE_BACKEND").is_ok_and(|v| !v.is_empty());
     let backends = backends_from_env()?;
@@ -349,8 +370,36 @@ fn one_line(e: &wgpu::Error) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::without_indirect_validation;
+    use super::{backends_named, without_indirect_validation};
     use wgpu::InstanceFlags as F;
+
+    /// A backend the build lacks is refused with the ones it has, not left to find nothing.
+    #[test]
+    fn a_backend_missing_from_the_build_is_an_error_naming_those_it_has() {
+        assert_eq!(
+            backends_named(Some("vulkan")).unwrap(),
+            wgpu::Backends::VULKAN
+        );
+        assert_eq!(backends_named(None).unwrap(), wgpu::Backends::all());
+        let built = wgpu::Instance::enabled_backend_features();
+        for (name, b) in [
+            ("metal", wgpu::Backends::METAL),
+            ("dx12", wgpu::Backends::DX12),
+        ] {
+            match backends_named(Some(name)) {
+                Ok(got) => assert!(built.contains(b) && got == b),
+                Err(e) => {
+                    let text = e.to_string();
+                    assert!(!built.contains(b), "{text}");
+                    assert!(
+                        text.contains("has no") && text.contains("Vulkan, GL"),
+                        "{text}"
+                    );
+                }
+            }
+        }
+        assert!(backends_named(Some("cuda")).is_err());
+    }
 
     /// The indirect-call validation goes, except where Direct3D 12 may be picked; the other
     /// flags of the build stay.

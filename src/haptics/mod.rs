@@ -33,8 +33,6 @@
 //! (the physics side adds the scene's home), forces newtons (the force the tissue exerts on
 //! the tool; the device applies the same to the hand), times seconds on the [`LoopClock`].
 
-#![warn(missing_docs)]
-
 pub mod coupling;
 pub mod device;
 pub mod devices;

@@ -1,5 +1,6 @@
-//! Output files: VTU meshes with point and cell data (`state`), PVD series (`series`), and
-//! the summary JSON (`summary`).
+//! Output files: VTU meshes with point and cell data (`state`), the particles as a VTU point
+//! cloud (`particles`), PVD series (`series`), the summary JSON (`summary`) and the
+//! studies' PNG plots (`png`).
 //! Every file is written to a temporary name and renamed into place, so a failed run never
 //! leaves a half-written file under the final name.
 

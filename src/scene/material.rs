@@ -14,7 +14,9 @@ use serde::Deserialize;
 #[derive(Clone, Debug, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct MaterialSpec {
-    /// Constitutive model: `"stvk"`, `"stable_neohookean"` or `"corotational"`.
+    /// Constitutive model: `"stvk"` (default), `"stable_neohookean"`, `"corotational"`, their
+    /// deviatoric–volumetric splits `"stvk_split"`, `"stable_neohookean_split"`,
+    /// `"corotational_split"`, or `"guccione"` ([`crate::material::MaterialModel::EVERY`]).
     pub model: Option<String>,
     /// Young's modulus E, Pa.
     pub youngs_modulus: Option<f64>,

@@ -39,7 +39,8 @@ pub struct ParticleSpec {
     /// `"blend"` (default: the partition-of-unity energy blend of eq. 9–11) or `"exact"`
     /// (design 8 of `docs/hybrid_coupling.md`: full-energy tets plus each particle's
     /// Bregman remainder, zone-only vertices slaved to their particles; exact patch test).
-    /// `"exact"` needs `model = "tlsph"`; the GPU backend runs it with `activation = "all"`.
+    /// `"exact"` needs `model = "tlsph"`; under the tool the GPU backend runs each activation
+    /// on a CPU twin of the stepper (README).
     pub coupling: Option<String>,
 }
 

@@ -2,8 +2,8 @@
 //!
 //! Format: one row `t,x,y,z` per line (s, m; positions relative to the tool home, the
 //! physics side adds the scene's home). `#` starts a comment; blank lines are skipped; the
-//! first non-blank line may be a header (a line none of whose fields is a number, such as
-//! `t,x,y,z`). Times must be ≥ 0 and strictly increase. The position is linear between rows, held at
+//! first non-blank line may be the header `t,x,y,z` (any case; no other header is
+//! accepted). Times must be ≥ 0 and strictly increase. The position is linear between rows, held at
 //! the first row before it and at the last row after it. Time 0 is the device's first read.
 //! A row more than 10 workspace radii from the origin is refused (no device gets there).
 
