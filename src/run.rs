@@ -323,6 +323,9 @@ pub fn run_with_state(
         },
     )?;
     let model = sim.model.clone();
+    let dt0 = sim.dt;
+    // Every refusal before an earlier run's outputs are removed: a run refused keeps them.
+    let max_steps = steps_for(opts.length, dt0)?;
     let removed = crate::output::remove_earlier_outputs(&opts.out)?;
     if opts.announce && removed > 0 {
         crate::say_err!(
@@ -350,7 +353,6 @@ pub fn run_with_state(
             sim.backend_reason
         );
     }
-    let dt0 = sim.dt;
     if let (true, Some(t)) = (opts.announce, &model.tool) {
         let warning =
             crate::scene::longest_step_leg(t.tool.path.iter().copied(), dt0).and_then(|leg| {
@@ -378,7 +380,6 @@ pub fn run_with_state(
             }
         }
     }
-    let max_steps = steps_for(opts.length, dt0)?;
     let mut target_steps = max_steps;
     // The run's simulated length; halve-dt keeps it (so --steps N may take more than N steps
     // after a halving), and frames are spaced evenly over it.

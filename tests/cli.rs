@@ -1518,6 +1518,18 @@ fn a_new_run_removes_the_outputs_an_earlier_run_left_and_nothing_else() {
     );
     assert_eq!(summary(&out)["scene"], "beam");
 
+    // A run refused (its length checked after the scene and the backend) removes nothing.
+    for (flag, value) in [("--steps", "1099511627777"), ("--duration", "1e300")] {
+        let (ok, _, err) = palpate(&["run", "beam", flag, value, "--out", o]);
+        assert!(
+            !ok && (err.contains("2^40") || err.contains("1e300")),
+            "{err}"
+        );
+        assert!(!err.contains("note: removed"), "{err}");
+        assert_eq!(summary(&out)["scene"], "beam", "{flag} {value}");
+        assert!(out.join("final.vtu").exists());
+    }
+
     // A folder whose summary.json is not an earlier run's: nothing is removed.
     let mine = d.join("mine");
     std::fs::create_dir_all(&mine).unwrap();
