@@ -1,6 +1,9 @@
 //! Ctrl-C (SIGINT) and SIGTERM end a `palpate run` or `palpate haptic` cleanly: the first
 //! signal asks the job to stop after its current batch and write its outputs as usual (status
-//! `interrupted`, exit status 130); a second one ends the process at once. Nothing is
+//! `interrupted`, exit status 130); a second one ends the process at once, unless it came
+//! within [`REPEAT_WINDOW`] of the first: that is the same stop delivered twice (GNU
+//! `timeout` signals its command and then the command's process group, microseconds apart),
+//! not a user asking again. Nothing is
 //! installed unless [`install`] is called (the command line does; a library user keeps the
 //! default behaviour), and a signal the process inherited as ignored (a background job of a
 //! non-interactive shell) stays ignored. A stop asked for stays asked for until [`clear`].
@@ -28,6 +31,7 @@ pub fn request() {
 pub fn clear() {
     REQUESTED.store(false, Ordering::SeqCst);
     SIGNALS.store(0, Ordering::SeqCst);
+    FIRST_AT.store(0, Ordering::SeqCst);
 }
 
 /// What the first signal prints (on stderr).
@@ -37,14 +41,43 @@ pub const FIRST_NOTE: &str =
 /// What the second signal prints (on stderr) before ending the process.
 pub const SECOND_NOTE: &str = "\nerror: interrupted twice: stopped at once; the outputs were not written (frames already written stay, listed in series.pvd)\n";
 
-/// Signals received since [`install`] or [`clear`].
+/// Signals received since [`install`] or [`clear`] (repeats within [`REPEAT_WINDOW`] of the
+/// first not counted).
 static SIGNALS: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+
+/// A signal this soon after the first is that one delivered again, and ignored.
+pub const REPEAT_WINDOW: std::time::Duration = std::time::Duration::from_millis(250);
+
+/// When the first signal came, ns on the monotonic clock (0: none yet).
+static FIRST_AT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+
+/// The monotonic clock in ns, at least 1 (clock_gettime is async-signal-safe).
+#[cfg(unix)]
+fn monotonic_ns() -> u64 {
+    // SAFETY: a zeroed timespec is valid, and clock_gettime only writes the one it is given.
+    let t = unsafe {
+        let mut t: libc::timespec = std::mem::zeroed();
+        libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut t);
+        t
+    };
+    (t.tv_sec as u64)
+        .saturating_mul(1_000_000_000)
+        .saturating_add(t.tv_nsec as u64)
+        .max(1)
+}
 
 #[cfg(unix)]
 extern "C" fn on_signal(_: libc::c_int) {
     // Only async-signal-safe calls here: atomics, write(2) and _exit. Installed with
     // SA_NODEFER: a second signal interrupts a first handler blocked in write (a full pipe on
-    // stderr), and a third exits without writing.
+    // stderr), and a third exits without writing. The first signal's time is taken before it
+    // is counted, so a repeat nested in its handler is seen as one.
+    let now = monotonic_ns();
+    if let Err(first) = FIRST_AT.compare_exchange(0, now, Ordering::SeqCst, Ordering::SeqCst) {
+        if now.saturating_sub(first) < REPEAT_WINDOW.as_nanos() as u64 {
+            return;
+        }
+    }
     let n = SIGNALS.fetch_add(1, Ordering::SeqCst) + 1;
     REQUESTED.store(true, Ordering::SeqCst);
     let note = match n {

@@ -2888,15 +2888,16 @@ fn a_second_ctrl_c_stops_at_once_and_says_so() {
     use std::io::Read;
     let d = tmp("interrupt_twice");
     let out = d.join("out");
-    // hm1: its 27,751 particles make the outputs slow to write, so the second signal lands
-    // while the run is still working after the first (with lv, a first signal seen before
-    // the first batch once let the run write its small outputs and exit before the second
-    // came: status 130 without "interrupted twice").
+    // A 48,000-tet bar: its batch takes seconds (2.8 s from the first signal to the exit, on
+    // the 2-core VM), so the second signal, sent past the window in which a repeat counts as
+    // the same stop, lands while the run is still working after the first (hm1 stops and
+    // writes in 0.13 s).
+    let scene = slow_to_stop_scene(&d);
     let mut child = spawn_as_a_foreground_job(&[
         "run",
-        "hm1",
+        scene.to_str().unwrap(),
         "--duration",
-        "1e6",
+        "1e3",
         "--backend",
         "cpu",
         "--out",
@@ -2909,6 +2910,8 @@ fn a_second_ctrl_c_stops_at_once_and_says_so() {
         .unwrap()
         .read_exact(&mut first)
         .expect("the run announces itself");
+    // Into the first batch (a signal before it stops the run at t = 0, quickly).
+    std::thread::sleep(std::time::Duration::from_millis(500));
     // The second signal after the first one's note (two at once may merge into one).
     let stderr = std::io::BufReader::new(child.stderr.take().unwrap());
     let pid = child.id().to_string();
@@ -2930,6 +2933,7 @@ fn a_second_ctrl_c_stops_at_once_and_says_so() {
             break;
         }
     }
+    std::thread::sleep(2 * palpate::interrupt::REPEAT_WINDOW);
     interrupt();
     for line in lines {
         err.push_str(&line.unwrap());
@@ -2941,6 +2945,96 @@ fn a_second_ctrl_c_stops_at_once_and_says_so() {
         err.contains("error: interrupted twice: stopped at once"),
         "{err}"
     );
+}
+
+/// A scene file (in `dir`) whose run takes seconds a batch: a bar of 48,000 tets.
+#[cfg(unix)]
+fn slow_to_stop_scene(dir: &Path) -> PathBuf {
+    let scene = dir.join("slow_bar.toml");
+    std::fs::write(
+        &scene,
+        r#"name = "slow_bar"
+[mesh]
+generator = "beam"
+size = [0.1, 0.02, 0.02]
+cells = [100, 20, 20]
+[material]
+youngs_modulus = 3.0e5
+poisson_ratio = 0.4
+density = 1000.0
+[[fixed]]
+plane = { normal = [1.0, 0.0, 0.0], offset = 0.0 }
+"#,
+    )
+    .unwrap();
+    scene
+}
+
+/// GNU `timeout` sends SIGTERM to its command and then to the command's process group: two
+/// signals microseconds apart (merged into one when the first is still pending, not
+/// always). They are one stop: the run writes its outputs (it used to take the repeat for a
+/// second stop and end without them). Here the two come 5 ms apart, after the first batch
+/// has begun; then `timeout` itself.
+#[cfg(target_os = "linux")]
+#[test]
+fn a_stop_delivered_twice_at_once_is_one_stop() {
+    use std::io::Read;
+    let d = tmp("timeout");
+    let out = d.join("out");
+    let scene = slow_to_stop_scene(&d);
+    let mut child = spawn_as_a_foreground_job(&[
+        "run",
+        scene.to_str().unwrap(),
+        "--duration",
+        "1e3",
+        "--backend",
+        "cpu",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let mut first = [0u8; 1];
+    child
+        .stdout
+        .take()
+        .unwrap()
+        .read_exact(&mut first)
+        .expect("the run announces itself");
+    // Into the first batch (a signal before it stops the run at t = 0, quickly).
+    std::thread::sleep(std::time::Duration::from_millis(500));
+    let pid = child.id() as libc::pid_t;
+    // SAFETY: kill(2) on the child's pid, which has not been waited for (so not reused).
+    unsafe { libc::kill(pid, libc::SIGTERM) };
+    std::thread::sleep(std::time::Duration::from_millis(5));
+    // SAFETY: as above.
+    unsafe { libc::kill(pid, libc::SIGTERM) };
+    let mut err = String::new();
+    child
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut err)
+        .unwrap();
+    let status = child.wait().expect("wait");
+    assert_eq!(status.code(), Some(130), "{err}");
+    assert!(!err.contains("interrupted twice"), "{err}");
+    assert!(err.contains("outputs written"), "{err}");
+    let state = summary(&out)["status"].as_str().unwrap().to_string();
+    assert!(state.starts_with("interrupted"), "{state}");
+    assert!(out.join("final.vtu").is_file());
+
+    // `timeout` itself: its status 124 when it had to stop the command, and the outputs.
+    let out = d.join("timeout");
+    let o = Command::new("timeout")
+        .arg("1")
+        .arg(env!("CARGO_BIN_EXE_palpate"))
+        .args(["run", scene.to_str().unwrap(), "--duration", "1e3"])
+        .args(["--backend", "cpu", "--out", out.to_str().unwrap()])
+        .output()
+        .expect("GNU timeout (coreutils)");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(124), "{err}");
+    assert!(!err.contains("interrupted twice"), "{err}");
+    assert!(out.join("summary.json").is_file() && out.join("final.vtu").is_file());
 }
 
 #[test]
