@@ -624,8 +624,7 @@ impl HyperelasticParams {
             }
             if g.bf.max(g.bt).max(g.bfs) <= 0.0 {
                 return Err(
-                    "material.guccione_bf, guccione_bt, guccione_bfs are all 0: the law has no stiffness"
-                        .into(),
+                    "material.guccione_bf/bt/bfs are all 0: the law has no stiffness".into(),
                 );
             }
         }

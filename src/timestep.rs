@@ -41,7 +41,8 @@ pub struct TimeStepBounds {
     pub paper_wave_speed: f64,
     /// Our bound (see module docs), s.
     pub dt_bound: f64,
-    /// The paper's eq. (14) bound h_edge·sqrt(ρ/(2λ+μ)), s.
+    /// The paper's eq. (14) bound h_edge·sqrt(ρ/(2λ+μ)), s (NaN where 2λ + μ ≤ 0, ν ≤ −0.5:
+    /// the paper's speed is not real there; `summary.json` writes null).
     pub dt_paper_eq14: f64,
     /// The bound of the tissue alone (before the tool's contact springs), s.
     pub dt_elastic: f64,

@@ -136,6 +136,15 @@ fn bad_cardiac_input_is_one_line_naming_the_key() {
         &cardiac_beam(GOOD_MATERIAL, "").replace("guccione_bf = 8.0", "guccione_bf = 1.0e30"),
         "material.guccione_bf: must be at most 1000",
     );
+    // All three exponents 0: one key, named whole (the message used to be cut at
+    // "material.guccione_bf,").
+    refuses(
+        &cardiac_beam(GOOD_MATERIAL, "")
+            .replace("guccione_bf = 8.0", "guccione_bf = 0.0")
+            .replace("guccione_bt = 2.0", "guccione_bt = 0.0")
+            .replace("guccione_bfs = 4.0", "guccione_bfs = 0.0"),
+        "material.guccione_bf/bt/bfs: are all 0",
+    );
     // Fibred law (b_f, b_t, b_fs differ) on a beam mesh, which has no fibres, and no `fibre`.
     refuses(&cardiac_beam("bulk_modulus = 2.0e5", ""), "material.fibre");
     refuses(

@@ -2163,6 +2163,11 @@ fn bad_particle_sections_are_one_line_errors_naming_the_key() {
             &["particles.hourglass", "[0, 100]"],
         ),
         (
+            // tlsph's hourglass control given to the paper model: refused, not ignored.
+            "region = 0\nspacing = 0.002\nactivation_radius = 0.004\nmodel = \"paper\"\nhourglass = 0.5",
+            &["particles.hourglass", "not used by model \"paper\""],
+        ),
+        (
             "region = 0\nspacing = inf\nactivation_radius = 0.004",
             &["particles.spacing", "finite", "inf"],
         ),

@@ -810,6 +810,59 @@ fn gmsh_ascii_records_are_read_one_line_each_and_errors_name_that_line() {
     }
 }
 
+/// A count that declares more entries than its section holds: the error says so, where the
+/// section's end marker or the next keyword stands (it used to call `$EndNodes` a node tag
+/// that "is not a valid number").
+#[test]
+fn a_count_larger_than_its_section_is_named_as_such() {
+    let short = "the section holds fewer entries than its count declares";
+    let e = read_err(
+        "nodes_declared_10",
+        &[(
+            "t.msh",
+            TET_V22
+                .replacen("$Nodes\n4\n", "$Nodes\n10\n", 1)
+                .as_bytes(),
+        )],
+    );
+    assert_located(&e, "t.msh", "line 10 ($Nodes): found \"$EndNodes\" where");
+    assert!(e.contains(short), "{e}");
+    let e = read_err(
+        "cells_declared_9",
+        &[(
+            "t.vtk",
+            TET_VTK.replacen("CELLS 1 5", "CELLS 1 9", 1).as_bytes(),
+        )],
+    );
+    assert!(
+        e.contains("\"CELL_TYPES\" where") && e.contains(short),
+        "{e}"
+    );
+    // A word that is no keyword stays "not a valid number".
+    let e = read_err(
+        "node_tag_word",
+        &[(
+            "t.msh",
+            TET_V22.replacen("\n3 0 1 0", "\nthree 0 1 0", 1).as_bytes(),
+        )],
+    );
+    assert!(
+        e.contains("is not a valid number") && !e.contains(short),
+        "{e}"
+    );
+    // An openCARP fibre line with two directions where the header says one: the count found.
+    let files: [(&str, &[u8]); 3] = [
+        ("c.pts", PTS_4.as_bytes()),
+        ("c.elem", b"1\nTt 0 1 2 3\n"),
+        ("c.lon", b"1\n0 0 0 0 1 0\n"),
+    ];
+    assert_located(
+        &read_err("lon_two_directions", &files),
+        "c.lon",
+        "element 0: expected 3 finite numbers (1 direction an element, as the header says), found 6 values",
+    );
+}
+
 #[test]
 fn fibres_of_any_finite_length_keep_their_direction_and_a_zero_one_names_the_mesh_file() {
     // Lengths that over- or underflow when squared (1e300, 1e-200) were read as zero.

@@ -101,12 +101,17 @@ fn available_text(available: f64) -> String {
     }
 }
 
-/// Bytes as GB from 1 GB up, else MB (a small figure in GB reads "0.0 GB").
+/// Bytes as GB from 1 GB up, MB from 1 MB, kB from 1 kB, else bytes (a small figure in a
+/// large unit reads "0.0 GB").
 pub fn bytes_text(bytes: f64) -> String {
     if bytes >= 1e9 {
         format!("{:.1} GB", bytes / 1e9)
-    } else {
+    } else if bytes >= 1e6 {
         format!("{:.1} MB", bytes / 1e6)
+    } else if bytes >= 1e3 {
+        format!("{:.1} kB", bytes / 1e3)
+    } else {
+        format!("{bytes:.0} bytes")
     }
 }
 
@@ -206,6 +211,15 @@ mod tests {
                 && e.contains("about 1.000e6 particles"),
             "{e}"
         );
+    }
+
+    #[test]
+    fn small_amounts_read_in_a_unit_that_shows_them() {
+        assert_eq!(super::bytes_text(3.2e9), "3.2 GB");
+        assert_eq!(super::bytes_text(50e6), "50.0 MB");
+        assert_eq!(super::bytes_text(18_000.0), "18.0 kB");
+        assert_eq!(super::bytes_text(1000.0), "1.0 kB");
+        assert_eq!(super::bytes_text(999.0), "999 bytes");
     }
 
     #[test]

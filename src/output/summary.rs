@@ -160,7 +160,8 @@ pub struct RunSummary {
     pub dt: f64,
     /// Our stability bound, s.
     pub dt_bound: f64,
-    /// The paper's eq. (14) bound, s.
+    /// The paper's eq. (14) bound, s; null where 2λ + μ ≤ 0 (ν ≤ −0.5, e.g. a split law
+    /// with a bulk modulus below μ/6), whose "wave speed" sqrt((2λ+μ)/ρ) is not real.
     pub dt_paper_eq14: f64,
     /// How many times dt was halved after a divergence.
     pub dt_halvings: u32,

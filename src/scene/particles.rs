@@ -213,6 +213,12 @@ pub(super) fn resolve_particles(
             ),
         ));
     }
+    if spec.hourglass.is_some() && model == ParticleModel::Paper {
+        return Err(bad(
+            "particles.hourglass",
+            "is not used by model \"paper\" (it is tlsph's hourglass control): remove it".into(),
+        ));
+    }
     let hourglass = spec.hourglass.unwrap_or(0.1);
     if !(hourglass.is_finite() && (0.0..=MAX_HOURGLASS).contains(&hourglass)) {
         return Err(bad(

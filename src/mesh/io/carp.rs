@@ -195,9 +195,18 @@ fn read_lon(path: &Path, n_elements: usize) -> Result<Vec<DVec3>> {
         };
         let v: Vec<f64> = toks.iter().filter_map(|t| t.parse().ok()).collect();
         if toks.len() != 3 * dirs || v.len() != toks.len() || v.iter().any(|x| !x.is_finite()) {
+            let found = if toks.len() != 3 * dirs {
+                format!("{} values", toks.len())
+            } else {
+                "a value that is not a finite number".to_string()
+            };
             return Err(c.err(
                 start,
-                format!("element {e}: expected {} finite numbers", 3 * dirs),
+                format!(
+                    "element {e}: expected {} finite numbers ({dirs} direction{} an element, as the header says), found {found}",
+                    3 * dirs,
+                    if dirs == 1 { "" } else { "s" }
+                ),
             ));
         }
         fibres.push(DVec3::new(v[0], v[1], v[2]));

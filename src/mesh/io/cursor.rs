@@ -126,14 +126,21 @@ impl<'a> Cursor<'a> {
         Ok((start, s))
     }
 
-    /// The next token parsed as a number (any type implementing `FromStr`).
+    /// The next token parsed as a number (any type implementing `FromStr`). A section
+    /// marker or keyword where a number was due (`$EndNodes`, `CELL_TYPES`: fewer entries
+    /// than a count declared) is said to be one.
     pub fn num<T: FromStr>(&mut self, what: &str) -> Result<T> {
         let (start, s) = self.word(what)?;
         s.parse().map_err(|_| {
-            self.err(
-                start,
-                format!("{what} {} is not a valid number", show(s.as_bytes())),
-            )
+            let message = if is_section_word(s) {
+                format!(
+                    "found {} where {what} was due: the section holds fewer entries than its count declares",
+                    show(s.as_bytes())
+                )
+            } else {
+                format!("{what} {} is not a valid number", show(s.as_bytes()))
+            };
+            self.err(start, message)
         })
     }
 
@@ -283,4 +290,19 @@ pub(super) fn uint(b: &[u8], big_endian: bool) -> u64 {
 pub(super) fn sint(b: &[u8], big_endian: bool) -> i64 {
     let shift = 64 - 8 * b.len().clamp(1, 8) as u32;
     ((uint(b, big_endian) << shift) as i64) >> shift
+}
+
+/// A Gmsh section marker (`$EndNodes`) or a keyword of the legacy VTK format (`CELL_TYPES`,
+/// `POINT_DATA`): `$` then a letter, or two or more capitals and underscores that do not
+/// spell a non-finite number.
+fn is_section_word(s: &str) -> bool {
+    let b = s.as_bytes();
+    match b {
+        [b'$', c, ..] => c.is_ascii_alphabetic(),
+        _ => {
+            b.len() >= 2
+                && b.iter().all(|c| c.is_ascii_uppercase() || *c == b'_')
+                && !matches!(s, "NAN" | "INF" | "INFINITY")
+        }
+    }
 }

@@ -189,7 +189,10 @@ fn finish(path: &Path, mesh: &mut TetMesh) -> Result<()> {
         if !f.is_finite() {
             return Err(file_err(
                 path,
-                format!("fibre of tet {t} is not finite: {f:?}"),
+                format!(
+                    "fibre of tet {t} is not finite: ({}, {}, {})",
+                    f.x, f.y, f.z
+                ),
             ));
         }
         // Scaled first (crate::scene::unit_direction): a direction whose length over- or
