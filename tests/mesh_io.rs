@@ -687,6 +687,18 @@ fn mismatched_lengths_are_refused() {
         "p.vtu",
         "not a multiple of 3",
     );
+    // Points declared with 2 components (12 values: six 2-D points) are not read as xyz.
+    let vtu = vtu_ascii(PTS, "0 1 2 3", "4", "10", "").replacen(
+        "NumberOfComponents=\"3\"",
+        "NumberOfComponents=\"2\"",
+        1,
+    );
+    assert!(vtu.contains("NumberOfComponents=\"2\""));
+    assert_located(
+        &read_err("points2", &[("p2.vtu", vtu.as_bytes())]),
+        "p2.vtu",
+        "the Points array has NumberOfComponents = \"2\": points need 3",
+    );
     let msh = TET_V22.replace("$Nodes\n4\n", "$Nodes\n5\n");
     assert_located(
         &read_err("len", &[("l.msh", msh.as_bytes())]),

@@ -477,7 +477,21 @@ pub(super) fn read(path: &Path) -> Result<TetMesh> {
                             .and_then(|n| n.trim().parse().ok())
                             .unwrap_or(1);
                         match parent {
-                            Some(b"Points") => p.points = Some((tag.pos, r.array(tag)?)),
+                            Some(b"Points") => {
+                                // Absent: VTK's default of 1, which writers leave out; a
+                                // count given must be 3 (xyz), else the values are not points.
+                                let given = tag.attr("NumberOfComponents").map(str::trim);
+                                if given.is_some_and(|n| n != "3") {
+                                    return Err(r.c.err(
+                                        tag.pos,
+                                        format!(
+                                            "the Points array has NumberOfComponents = {}: points need 3 (x, y, z)",
+                                            show(given.unwrap_or("").as_bytes())
+                                        ),
+                                    ));
+                                }
+                                p.points = Some((tag.pos, r.array(tag)?));
+                            }
                             Some(b"Cells") => match name.as_str() {
                                 "connectivity" => p.connectivity = Some((tag.pos, r.array(tag)?)),
                                 "offsets" => p.offsets = Some((tag.pos, r.array(tag)?)),
