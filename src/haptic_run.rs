@@ -277,18 +277,19 @@ pub fn limit_pressing_stride(stride: DVec3, normal: DVec3, reach: f64) -> Option
 /// `survey`'s clearance at its start) or to `reach` (m), whichever is longer: towards the
 /// tissue, up to its surface at the hand's speed and into it at the limit from the next batch
 /// on (a batch moves the tool at one speed: one that ended a reach inside met the tissue at
-/// up to 0.8 m/s, its contact dampers pushing 0.9 N into the hand). Straight away from it
-/// (the clearance grows by at least 0.9 × the stride, and the centre crosses no face of the
-/// surface: not a long stride, after a stall, that ends clear on the body's far side), or
-/// within that limit: None, no limit.
+/// up to 0.8 m/s, its contact dampers pushing 0.9 N into the hand). None, no limit, where
+/// that is the whole stride or the tool swept along it stays clear of the tissue (or, when it
+/// starts touching a face, gets no closer than it starts: a move away): a long stride that
+/// grazes an edge or ends on the body's far side, after a stall, is limited too.
 pub fn limit_approaching_stride(
     stride: DVec3,
     survey: crate::rest::StrideSurvey,
     reach: f64,
 ) -> Option<DVec3> {
+    let length = stride.length();
+    let clear_path = survey.swept_clear > 0.0 || survey.swept_clear >= survey.clear - 1e-9 * length;
     let free = survey.clear.max(reach);
-    let away = !survey.crosses && survey.clear_after >= survey.clear + 0.9 * stride.length();
-    (!away && stride.length() > free).then(|| stride * (free / stride.length()))
+    (!clear_path && length > free).then(|| stride * (free / length))
 }
 
 /// The `haptic` section of `summary.json`.
@@ -908,33 +909,42 @@ mod tests {
     use glam::DVec3;
 
     #[test]
-    fn an_approaching_stride_stops_at_the_surface_unless_it_moves_straight_away() {
-        let survey = |clear, clear_after, crosses| StrideSurvey {
-            clear,
-            clear_after,
-            crosses,
-        };
+    fn an_approaching_stride_stops_at_the_surface_unless_it_stays_clear() {
+        let survey = |clear, swept_clear| StrideSurvey { clear, swept_clear };
         let close = |a: DVec3, b: DVec3| (a - b).length() < 1e-12;
         let stride = DVec3::new(0.0, 0.0, -0.5);
-        // Towards the tissue 0.1 away: stopped there.
-        let s = limit_approaching_stride(stride, survey(0.1, 0.0, true), 0.01).unwrap();
+        // Towards the tissue 0.1 away (the swept tool meets it): stopped there.
+        let s = limit_approaching_stride(stride, survey(0.1, -0.01), 0.01).unwrap();
         assert!(close(s, DVec3::new(0.0, 0.0, -0.1)));
         // Closer than a reach: a reach.
-        let s = limit_approaching_stride(stride, survey(0.001, 0.0, true), 0.01).unwrap();
+        let s = limit_approaching_stride(stride, survey(0.001, -0.01), 0.01).unwrap();
         assert!(close(s, DVec3::new(0.0, 0.0, -0.01)));
         // Within the clearance: free.
         assert_eq!(
-            limit_approaching_stride(stride, survey(0.6, 0.1, false), 0.01),
+            limit_approaching_stride(stride, survey(0.6, 0.1), 0.01),
             None
         );
-        // Straight away: free, however long.
+        // Clear all the way (away, or past the body): free, however long.
         assert_eq!(
-            limit_approaching_stride(stride, survey(0.1, 0.6, false), 0.01),
+            limit_approaching_stride(stride, survey(0.1, 0.1), 0.01),
             None
         );
-        // The same clearances, but the centre crossed the body to its far side: stopped.
-        let s = limit_approaching_stride(stride, survey(0.1, 0.6, true), 0.01).unwrap();
+        assert_eq!(
+            limit_approaching_stride(stride, survey(0.1, 1e-6), 0.01),
+            None
+        );
+        // Grazing an edge on the way (the swept tool dips into it): stopped at the start's
+        // clearance.
+        let s = limit_approaching_stride(stride, survey(0.1, -0.002), 0.01).unwrap();
         assert!(close(s, DVec3::new(0.0, 0.0, -0.1)));
+        // Starting on a face (clearance −1 mm, contact found at no vertex): away, getting no
+        // closer, free; deeper, a reach.
+        assert_eq!(
+            limit_approaching_stride(stride, survey(-0.001, -0.001), 0.01),
+            None
+        );
+        let s = limit_approaching_stride(stride, survey(-0.001, -0.004), 0.01).unwrap();
+        assert!(close(s, DVec3::new(0.0, 0.0, -0.01)));
     }
 
     #[test]

@@ -36,7 +36,7 @@ pub fn clear() {
 
 /// What the first signal prints (on stderr).
 pub const FIRST_NOTE: &str =
-    "\nnote: stopping after the current batch and writing the outputs (a second Ctrl-C or SIGTERM stops at once)\n";
+    "\nnote: stopping after the current batch and writing the outputs (a later second Ctrl-C or SIGTERM stops at once)\n";
 
 /// What the second signal prints (on stderr) before ending the process.
 pub const SECOND_NOTE: &str = "\nerror: interrupted twice: stopped at once; the outputs were not written (frames already written stay, listed in series.pvd)\n";
@@ -51,31 +51,35 @@ pub const REPEAT_WINDOW: std::time::Duration = std::time::Duration::from_millis(
 /// When the first signal came, ns on the monotonic clock (0: none yet).
 static FIRST_AT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
 
-/// The monotonic clock in ns, at least 1 (clock_gettime is async-signal-safe).
+/// The monotonic clock in ns, at least 1 (clock_gettime is async-signal-safe); None if it
+/// fails (then every signal counts).
 #[cfg(unix)]
-fn monotonic_ns() -> u64 {
+fn monotonic_ns() -> Option<u64> {
     // SAFETY: a zeroed timespec is valid, and clock_gettime only writes the one it is given.
-    let t = unsafe {
+    let (ok, t) = unsafe {
         let mut t: libc::timespec = std::mem::zeroed();
-        libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut t);
-        t
+        let r = libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut t);
+        (r == 0, t)
     };
-    (t.tv_sec as u64)
-        .saturating_mul(1_000_000_000)
-        .saturating_add(t.tv_nsec as u64)
-        .max(1)
+    ok.then(|| {
+        (t.tv_sec as u64)
+            .saturating_mul(1_000_000_000)
+            .saturating_add(t.tv_nsec as u64)
+            .max(1)
+    })
 }
 
 #[cfg(unix)]
 extern "C" fn on_signal(_: libc::c_int) {
     // Only async-signal-safe calls here: atomics, write(2) and _exit. Installed with
     // SA_NODEFER: a second signal interrupts a first handler blocked in write (a full pipe on
-    // stderr), and a third exits without writing. The first signal's time is taken before it
+    // stderr), and a third exits without writing (each counted outside the repeat window). The first signal's time is taken before it
     // is counted, so a repeat nested in its handler is seen as one.
-    let now = monotonic_ns();
-    if let Err(first) = FIRST_AT.compare_exchange(0, now, Ordering::SeqCst, Ordering::SeqCst) {
-        if now.saturating_sub(first) < REPEAT_WINDOW.as_nanos() as u64 {
-            return;
+    if let Some(now) = monotonic_ns() {
+        if let Err(first) = FIRST_AT.compare_exchange(0, now, Ordering::SeqCst, Ordering::SeqCst) {
+            if now.saturating_sub(first) < REPEAT_WINDOW.as_nanos() as u64 {
+                return;
+            }
         }
     }
     let n = SIGNALS.fetch_add(1, Ordering::SeqCst) + 1;

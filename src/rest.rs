@@ -14,7 +14,7 @@
 //! the touch is small against the touch itself. Before any touch, a body under no load at
 //! all is at rest only exactly so (zero residual and kinetic energy).
 
-use crate::particles::sampling::distance_to_triangles;
+use crate::particles::sampling::{distance_to_triangles, segment_distance_to_triangles};
 use crate::run::{BodyEnergy, ResidualAndLoad};
 use crate::scene::Scene;
 use crate::sim::Simulation;
@@ -55,35 +55,15 @@ struct Sleeping {
     tool: DVec3,
 }
 
-/// [`RestWatch::survey_stride`]'s answer: clearances (m, the tool's surface to the body's)
-/// where a move starts and ends, and whether its centre crosses the body's surface between.
+/// [`RestWatch::survey_stride`]'s answer: how far the tool's surface is from the body's (m)
+/// where a move starts, and the least of it over the whole move (the tool swept along the
+/// segment between its centres; ≤ 0: it touches or enters the body on the way).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct StrideSurvey {
     /// Clearance at the start.
     pub clear: f64,
-    /// Clearance at the end.
-    pub clear_after: f64,
-    /// The segment between the centres crosses a boundary face.
-    pub crosses: bool,
-}
-
-/// Whether the segment p → q meets triangle (a, b, c), its ends and edges included
-/// (Möller–Trumbore: p + t(q − p) = a + u(b − a) + v(c − a) with t, u, v, u + v in [0, 1]);
-/// a segment in the triangle's plane counts as missing it (a closed surface's neighbouring
-/// faces catch a segment that crosses there).
-fn segment_crosses_triangle(p: DVec3, q: DVec3, a: DVec3, b: DVec3, c: DVec3) -> bool {
-    let (d, e1, e2) = (q - p, b - a, c - a);
-    let h = d.cross(e2);
-    let det = e1.dot(h);
-    if det.abs() <= 1e-12 * d.length() * e1.length() * e2.length() {
-        return false;
-    }
-    let s = p - a;
-    let u = s.dot(h) / det;
-    let k = s.cross(e1);
-    let v = d.dot(k) / det;
-    let t = e2.dot(k) / det;
-    (0.0..=1.0).contains(&u) && v >= 0.0 && u + v <= 1.0 && (0.0..=1.0).contains(&t)
+    /// The least clearance over the move.
+    pub swept_clear: f64,
 }
 
 /// Whether a batch finds the body at rest: residual ≤ `tolerance` × load and
@@ -180,10 +160,9 @@ impl RestWatch {
     }
 
     /// What a tool move from `from` to `to` meets on the body in `state` (the sleeping body's
-    /// while asleep, `state` may then be None; nothing without either): the clearances at
-    /// both ends ([`RestWatch::clearance`]) and whether the tool's centre crosses the body's
-    /// surface on the way (a move that ends clear on the body's far side), the surface
-    /// built once.
+    /// while asleep, `state` may then be None; nothing without either): the clearance where
+    /// it starts ([`RestWatch::clearance`]) and the least over the move, the surface built
+    /// once.
     pub fn survey_stride(&self, state: Option<&State>, from: DVec3, to: DVec3) -> StrideSurvey {
         let built;
         let surface = match (&self.asleep, state) {
@@ -195,17 +174,14 @@ impl RestWatch {
             (None, None) => {
                 return StrideSurvey {
                     clear: f64::INFINITY,
-                    clear_after: f64::INFINITY,
-                    crosses: false,
+                    swept_clear: f64::INFINITY,
                 }
             }
         };
         StrideSurvey {
             clear: self.clearance_to(surface, from),
-            clear_after: self.clearance_to(surface, to),
-            crosses: surface
-                .iter()
-                .any(|&[a, b, c]| segment_crosses_triangle(from, to, a, b, c)),
+            swept_clear: segment_distance_to_triangles(surface.iter().copied(), from, to)
+                - self.tool_radius,
         }
     }
 
@@ -269,8 +245,8 @@ mod tests {
     use glam::DVec3;
 
     #[test]
-    fn a_stride_through_the_body_to_its_far_side_is_seen_to_cross_it() {
-        // A 10 × 2 × 2 cm bar (z from 0 to 2 cm) and a 1 cm tool 1 mm above it.
+    fn a_stride_is_surveyed_along_the_whole_sweep_of_the_tool() {
+        // A 10 × 2 × 2 cm bar (x from 0 to 10 cm, y and z from 0 to 2 cm) and a 1 cm tool.
         let text = r#"name = "bar"
 [mesh]
 generator = "beam"
@@ -292,28 +268,49 @@ home = [0.08, 0.01, 0.031]
             displacements: vec![0.0; 3 * n],
             velocities: vec![0.0; 3 * n],
         };
-        let above = DVec3::new(0.08, 0.01, 0.031);
-        // Straight up: no crossing, the clearance grows by the stride.
-        let up = watch.survey_stride(Some(&state), above, above + DVec3::new(0.0, 0.0, 0.5));
-        assert!((up.clear - 0.001).abs() < 1e-9, "{up:?}");
-        assert!((up.clear_after - 0.501).abs() < 1e-9, "{up:?}");
-        assert!(!up.crosses);
-        // Down through the bar, 0.5 m: the clearance grows by more than 0.9 × the stride
-        // (what used to pass it as a move away), but the centre crosses the top face.
-        let through = watch.survey_stride(Some(&state), above, above - DVec3::new(0.0, 0.0, 0.5));
+        let near = |a: f64, b: f64| (a - b).abs() < 1e-9;
+        // Above the top face, on the mesh's grid lines and off them.
+        for above in [
+            DVec3::new(0.08, 0.01, 0.031),
+            DVec3::new(0.083, 0.013, 0.031),
+        ] {
+            let survey = |by: DVec3| watch.survey_stride(Some(&state), above, above + by);
+            // Straight up: clear all the way, 1 mm at the start.
+            let up = survey(DVec3::new(0.0, 0.0, 0.5));
+            assert!(
+                near(up.clear, 0.001) && near(up.swept_clear, 0.001),
+                "{up:?}"
+            );
+            // Down through the bar to 0.47 m below it: the centre crosses the top face.
+            let through = survey(DVec3::new(0.0, 0.0, -0.5));
+            assert!(near(through.swept_clear, -0.01), "{through:?}");
+            // Along the top, 1 mm clear, and on past its end.
+            let along = survey(DVec3::new(0.5, 0.0, 0.0));
+            assert!(near(along.swept_clear, 0.001), "{along:?}");
+            // Down, stopping with the tool 1 mm into the top face.
+            let into = survey(DVec3::new(0.0, 0.0, -0.002));
+            assert!(near(into.swept_clear, -0.001), "{into:?}");
+        }
+        // Across the bar's far top edge (x = 0.1, z = 0.02), from above it to below beyond
+        // its end: the centre passes 2 mm outside the edge, the 1 cm tool 8 mm into it.
+        let h = 0.002 / 2f64.sqrt();
+        let closest = DVec3::new(0.1 + h, 0.01, 0.02 + h);
+        let along = DVec3::new(1.0, 0.0, -1.0) / 2f64.sqrt();
+        let (from, to) = (closest - 0.2 * along, closest + 0.2 * along);
+        let past = watch.survey_stride(Some(&state), from, to);
         assert!(
-            through.clear_after >= through.clear + 0.9 * 0.5,
-            "{through:?}"
+            past.clear > 0.1 && near(past.swept_clear, -0.008),
+            "{past:?}"
         );
-        assert!(through.crosses);
-        // Along the top, 1 mm clear, and beyond its end: no crossing.
-        let along = watch.survey_stride(Some(&state), above, above + DVec3::new(0.5, 0.0, 0.0));
-        assert!(!along.crosses);
-        // Down onto the bar and stopping 1 mm inside its top face: crosses.
-        let into = watch.survey_stride(Some(&state), above, above - DVec3::new(0.0, 0.0, 0.012));
-        assert!(into.crosses);
-        // No state and awake: nothing known, nothing crossed.
-        let none = watch.survey_stride(None, above, above - DVec3::new(0.0, 0.0, 0.5));
-        assert!(none.clear.is_infinite() && !none.crosses);
+        // The centre passing through the edge itself, shared by two faces.
+        let edge = watch.survey_stride(
+            Some(&state),
+            DVec3::new(0.1 + 0.2, 0.01, 0.02 + 0.2),
+            DVec3::new(0.1 - 0.2, 0.01, 0.02 - 0.2),
+        );
+        assert!(near(edge.swept_clear, -0.01), "{edge:?}");
+        // No state and awake: nothing known.
+        let none = watch.survey_stride(None, from, to);
+        assert!(none.clear.is_infinite() && none.swept_clear.is_infinite());
     }
 }

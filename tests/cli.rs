@@ -1167,6 +1167,7 @@ fn threads_are_recorded_and_bad_counts_missing_adapters_or_unknown_backends_are_
             out,
         ])
         .env("PALPATE_BACKEND", "vulkan")
+        .env_remove("VK_ADD_DRIVER_FILES")
         .env("VK_ICD_FILENAMES", "/nonexistent/palpate_no_driver.json")
         .env("VK_DRIVER_FILES", "/nonexistent/palpate_no_driver.json")
         .output()
@@ -2511,6 +2512,7 @@ fn spawn_as_a_foreground_job(args: &[&str]) -> std::process::Child {
     unsafe {
         command.pre_exec(|| {
             libc::signal(libc::SIGINT, libc::SIG_DFL);
+            libc::signal(libc::SIGTERM, libc::SIG_DFL);
             Ok(())
         });
     }
@@ -2987,7 +2989,8 @@ plane = { normal = [1.0, 0.0, 0.0], offset = 0.0 }
 /// signals microseconds apart (merged into one when the first is still pending, not
 /// always). They are one stop: the run writes its outputs (it used to take the repeat for a
 /// second stop and end without them). Here the two come 5 ms apart, after the first batch
-/// has begun; then `timeout` itself.
+/// has begun; then `timeout` itself. A run still going 60 s after the signals is killed and
+/// the test fails (a regression must not hang CI).
 #[cfg(target_os = "linux")]
 #[test]
 fn a_stop_delivered_twice_at_once_is_one_stop() {
@@ -3012,6 +3015,11 @@ fn a_stop_delivered_twice_at_once_is_one_stop() {
         .unwrap()
         .read_exact(&mut first)
         .expect("the run announces itself");
+    let mut stderr = child.stderr.take().unwrap();
+    let errors = std::thread::spawn(move || {
+        let mut err = String::new();
+        stderr.read_to_string(&mut err).map(|_| err)
+    });
     // Into the first batch (a signal before it stops the run at t = 0, quickly).
     std::thread::sleep(std::time::Duration::from_millis(500));
     let pid = child.id() as libc::pid_t;
@@ -3020,14 +3028,18 @@ fn a_stop_delivered_twice_at_once_is_one_stop() {
     std::thread::sleep(std::time::Duration::from_millis(5));
     // SAFETY: as above.
     unsafe { libc::kill(pid, libc::SIGTERM) };
-    let mut err = String::new();
-    child
-        .stderr
-        .take()
-        .unwrap()
-        .read_to_string(&mut err)
-        .unwrap();
-    let status = child.wait().expect("wait");
+    let start = std::time::Instant::now();
+    let status = loop {
+        if let Some(status) = child.try_wait().expect("wait") {
+            break status;
+        }
+        if start.elapsed().as_secs_f64() > 60.0 {
+            let _ = child.kill();
+            panic!("the run did not stop within 60 s of two SIGTERMs");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    };
+    let err = errors.join().unwrap().unwrap();
     assert_eq!(status.code(), Some(130), "{err}");
     assert!(!err.contains("interrupted twice"), "{err}");
     assert!(err.contains("outputs written"), "{err}");
@@ -3035,10 +3047,13 @@ fn a_stop_delivered_twice_at_once_is_one_stop() {
     assert!(state.starts_with("interrupted"), "{state}");
     assert!(out.join("final.vtu").is_file());
 
-    // `timeout` itself: its status 124 when it had to stop the command, and the outputs.
+    // `timeout` itself: its status 124 when it had to stop the command, and the outputs. The
+    // handler is installed once the scene is loaded (0.4 s for this bar: a signal before
+    // then ends the process with nothing written, which keeps an earlier run's files), so
+    // the timeout is well past that; -k: killed (status 137) 60 s after, should it hang.
     let out = d.join("timeout");
     let o = Command::new("timeout")
-        .arg("1")
+        .args(["-k", "60", "4"])
         .arg(env!("CARGO_BIN_EXE_palpate"))
         .args(["run", scene.to_str().unwrap(), "--duration", "1e3"])
         .args(["--backend", "cpu", "--out", out.to_str().unwrap()])

@@ -827,7 +827,7 @@ fn gmsh_ascii_records_are_read_one_line_each_and_errors_name_that_line() {
 /// that "is not a valid number").
 #[test]
 fn a_count_larger_than_its_section_is_named_as_such() {
-    let short = "the section holds fewer entries than its count declares";
+    let short = "(a count larger than the entries after it, or a value missing)";
     let e = read_err(
         "nodes_declared_10",
         &[(
@@ -837,7 +837,11 @@ fn a_count_larger_than_its_section_is_named_as_such() {
                 .as_bytes(),
         )],
     );
-    assert_located(&e, "t.msh", "line 10 ($Nodes): found \"$EndNodes\" where");
+    assert_located(
+        &e,
+        "t.msh",
+        "line 10 ($Nodes): found the keyword \"$EndNodes\" where",
+    );
     assert!(e.contains(short), "{e}");
     let e = read_err(
         "cells_declared_9",
@@ -847,7 +851,7 @@ fn a_count_larger_than_its_section_is_named_as_such() {
         )],
     );
     assert!(
-        e.contains("\"CELL_TYPES\" where") && e.contains(short),
+        e.contains("keyword \"CELL_TYPES\" where") && e.contains(short),
         "{e}"
     );
     // A word that is no keyword stays "not a valid number".

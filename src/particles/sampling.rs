@@ -201,6 +201,89 @@ pub fn distance_to_triangles(triangles: impl IntoIterator<Item = [DVec3; 3]>, x:
         .fold(f64::INFINITY, f64::min)
 }
 
+/// The distance from the segment p–q to the nearest of `triangles` (+∞ for none): 0 where
+/// it meets one, else the least of its ends' distances to the triangle and its distances to
+/// the triangle's edges (where a segment misses a triangle, the closest pair has an end of
+/// the segment or a point of an edge; Ericson, *Real-Time Collision Detection*, §5.1.9).
+pub fn segment_distance_to_triangles(
+    triangles: impl IntoIterator<Item = [DVec3; 3]>,
+    p: DVec3,
+    q: DVec3,
+) -> f64 {
+    triangles
+        .into_iter()
+        .map(|[a, b, c]| {
+            if segment_meets_triangle(p, q, a, b, c) {
+                return 0.0;
+            }
+            let ends = (closest_on_triangle(p, a, b, c) - p)
+                .length()
+                .min((closest_on_triangle(q, a, b, c) - q).length());
+            [(a, b), (b, c), (c, a)]
+                .iter()
+                .map(|&(e0, e1)| segment_segment_distance(p, q, e0, e1))
+                .fold(ends, f64::min)
+        })
+        .fold(f64::INFINITY, f64::min)
+}
+
+/// Whether the segment p → q meets triangle (a, b, c) (Möller–Trumbore: p + t(q − p) =
+/// a + u(b − a) + v(c − a) with t, u, v, u + v in [0, 1], each bound given 1e-9 of slack so
+/// that a segment through an edge shared by two faces, rounded differently in each, still
+/// meets one). A segment in the triangle's plane counts as missing it: its distance to the
+/// triangle's edges, taken beside this, covers it.
+fn segment_meets_triangle(p: DVec3, q: DVec3, a: DVec3, b: DVec3, c: DVec3) -> bool {
+    const SLACK: f64 = 1e-9;
+    let (d, e1, e2) = (q - p, b - a, c - a);
+    let h = d.cross(e2);
+    let det = e1.dot(h);
+    if det.abs() <= 1e-12 * d.length() * e1.length() * e2.length() {
+        return false;
+    }
+    let s = p - a;
+    let u = s.dot(h) / det;
+    let k = s.cross(e1);
+    let v = d.dot(k) / det;
+    let t = e2.dot(k) / det;
+    u >= -SLACK && v >= -SLACK && u + v <= 1.0 + SLACK && (-SLACK..=1.0 + SLACK).contains(&t)
+}
+
+/// The distance between segments p1–q1 and p2–q2 (Ericson §5.1.9: the closest points at
+/// parameters s, t in [0, 1], clamped in turn; a segment of zero length is a point).
+fn segment_segment_distance(p1: DVec3, q1: DVec3, p2: DVec3, q2: DVec3) -> f64 {
+    let (d1, d2, r) = (q1 - p1, q2 - p2, p1 - p2);
+    let (a, e, f) = (d1.length_squared(), d2.length_squared(), d2.dot(r));
+    let tiny = f64::MIN_POSITIVE;
+    let (s, t) = if a <= tiny && e <= tiny {
+        (0.0, 0.0)
+    } else if a <= tiny {
+        (0.0, (f / e).clamp(0.0, 1.0))
+    } else {
+        let c = d1.dot(r);
+        if e <= tiny {
+            ((-c / a).clamp(0.0, 1.0), 0.0)
+        } else {
+            let b = d1.dot(d2);
+            let denom = a * e - b * b;
+            // Parallel segments (denom 0): any s; take 0.
+            let s = if denom > 0.0 {
+                ((b * f - c * e) / denom).clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+            let t = (b * s + f) / e;
+            if t < 0.0 {
+                ((-c / a).clamp(0.0, 1.0), 0.0)
+            } else if t > 1.0 {
+                (((b - c) / a).clamp(0.0, 1.0), 1.0)
+            } else {
+                (s, t)
+            }
+        }
+    };
+    ((p1 + d1 * s) - (p2 + d2 * t)).length()
+}
+
 /// The closest point of triangle (a, b, c) to p (Ericson, *Real-Time Collision Detection*,
 /// §5.1.5).
 fn closest_on_triangle(p: DVec3, a: DVec3, b: DVec3, c: DVec3) -> DVec3 {

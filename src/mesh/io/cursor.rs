@@ -127,14 +127,14 @@ impl<'a> Cursor<'a> {
     }
 
     /// The next token parsed as a number (any type implementing `FromStr`). A section
-    /// marker or keyword where a number was due (`$EndNodes`, `CELL_TYPES`: fewer entries
-    /// than a count declared) is said to be one.
+    /// marker or keyword where a number was due (`$EndNodes`, `CELL_TYPES`: most often a
+    /// count larger than the entries after it) is said to be one.
     pub fn num<T: FromStr>(&mut self, what: &str) -> Result<T> {
         let (start, s) = self.word(what)?;
         s.parse().map_err(|_| {
             let message = if is_section_word(s) {
                 format!(
-                    "found {} where {what} was due: the section holds fewer entries than its count declares",
+                    "found the keyword {} where {what} was due (a count larger than the entries after it, or a value missing)",
                     show(s.as_bytes())
                 )
             } else {
@@ -293,16 +293,29 @@ pub(super) fn sint(b: &[u8], big_endian: bool) -> i64 {
 }
 
 /// A Gmsh section marker (`$EndNodes`) or a keyword of the legacy VTK format (`CELL_TYPES`,
-/// `POINT_DATA`): `$` then a letter, or two or more capitals and underscores that do not
-/// spell a non-finite number.
+/// `POINT_DATA`, any case): `$` then a letter, or one of the format's keywords.
 fn is_section_word(s: &str) -> bool {
-    let b = s.as_bytes();
-    match b {
+    const VTK_KEYWORDS: [&str; 17] = [
+        "DATASET",
+        "POINTS",
+        "CELLS",
+        "CELL_TYPES",
+        "OFFSETS",
+        "CONNECTIVITY",
+        "POINT_DATA",
+        "CELL_DATA",
+        "SCALARS",
+        "LOOKUP_TABLE",
+        "VECTORS",
+        "NORMALS",
+        "TENSORS",
+        "FIELD",
+        "METADATA",
+        "COLOR_SCALARS",
+        "TEXTURE_COORDINATES",
+    ];
+    match s.as_bytes() {
         [b'$', c, ..] => c.is_ascii_alphabetic(),
-        _ => {
-            b.len() >= 2
-                && b.iter().all(|c| c.is_ascii_uppercase() || *c == b'_')
-                && !matches!(s, "NAN" | "INF" | "INFINITY")
-        }
+        _ => VTK_KEYWORDS.iter().any(|k| k.eq_ignore_ascii_case(s)),
     }
 }

@@ -478,8 +478,8 @@ pub(super) fn read(path: &Path) -> Result<TetMesh> {
                             .unwrap_or(1);
                         match parent {
                             Some(b"Points") => {
-                                // Absent: VTK's default of 1, which writers leave out; a
-                                // count given must be 3 (xyz), else the values are not points.
+                                // Absent (VTK's default would be 1, but point writers
+                                // leave it out): read as xyz. Given, it must be 3.
                                 let given = tag.attr("NumberOfComponents").map(str::trim);
                                 if given.is_some_and(|n| n != "3") {
                                     return Err(r.c.err(
