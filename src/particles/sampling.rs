@@ -210,21 +210,30 @@ pub fn segment_distance_to_triangles(
     p: DVec3,
     q: DVec3,
 ) -> f64 {
-    triangles
-        .into_iter()
-        .map(|[a, b, c]| {
-            if segment_meets_triangle(p, q, a, b, c) {
-                return 0.0;
-            }
-            let ends = (closest_on_triangle(p, a, b, c) - p)
-                .length()
-                .min((closest_on_triangle(q, a, b, c) - q).length());
-            [(a, b), (b, c), (c, a)]
-                .iter()
-                .map(|&(e0, e1)| segment_segment_distance(p, q, e0, e1))
-                .fold(ends, f64::min)
-        })
-        .fold(f64::INFINITY, f64::min)
+    let mut best = f64::INFINITY;
+    for [a, b, c] in triangles {
+        // A lower bound first (the segment's distance to the centroid less the triangle's
+        // reach from it): most faces are far from a stride and are passed over on it.
+        let centroid = (a + b + c) / 3.0;
+        let reach = [a, b, c]
+            .iter()
+            .map(|v| v.distance(centroid))
+            .fold(0.0, f64::max);
+        if segment_segment_distance(p, q, centroid, centroid) - reach >= best {
+            continue;
+        }
+        if segment_meets_triangle(p, q, a, b, c) {
+            return 0.0;
+        }
+        let ends = (closest_on_triangle(p, a, b, c) - p)
+            .length()
+            .min((closest_on_triangle(q, a, b, c) - q).length());
+        best = [(a, b), (b, c), (c, a)]
+            .iter()
+            .map(|&(e0, e1)| segment_segment_distance(p, q, e0, e1))
+            .fold(ends.min(best), f64::min);
+    }
+    best
 }
 
 /// Whether the segment p → q meets triangle (a, b, c) (Möller–Trumbore: p + t(q − p) =
