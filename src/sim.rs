@@ -322,9 +322,9 @@ impl Simulation {
             .check_f32()
             .map_err(|e| PalpateError::Usage(format!("{}: {e}", scene.origin)))?;
         let dt = choose_dt(scene, &model, opts.dt, opts.allow_unstable, opts.dt_flags)?;
-        if !(dt as f32 > 0.0 && (dt as f32).is_finite()) {
+        if !is_normal_f32_step(dt) {
             return Err(PalpateError::Usage(format!(
-                "{}: {} = {dt:e} s is not a positive single-precision number",
+                "{}: {} = {dt:e} s is not a positive single-precision number (at least 1.2e-38: GPUs flush smaller ones to zero)",
                 scene.origin,
                 dt_source(scene, opts.dt)
             )));
@@ -360,9 +360,9 @@ impl Simulation {
         origin: &str,
     ) -> Result<Simulation> {
         model.check_f32()?;
-        if !(dt as f32 > 0.0 && (dt as f32).is_finite()) {
+        if !is_normal_f32_step(dt) {
             return Err(PalpateError::Usage(format!(
-                "dt = {dt:e} s is not a positive single-precision number"
+                "dt = {dt:e} s is not a positive single-precision number (at least 1.2e-38: GPUs flush smaller ones to zero)"
             )));
         }
         let params = model.step_params(dt, damping);
@@ -717,4 +717,11 @@ impl Simulation {
     pub fn set_state(&mut self, state: &State) -> Result<()> {
         self.stepper.write_state(state)
     }
+}
+
+/// Whether `dt` is a positive, finite, normal single-precision number (a subnormal step
+/// is flushed to zero by GPUs and slows every CPU multiply that meets it).
+fn is_normal_f32_step(dt: f64) -> bool {
+    let d = dt as f32;
+    d.is_finite() && d >= f32::MIN_POSITIVE
 }

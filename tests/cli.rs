@@ -619,6 +619,19 @@ fn missing_files_and_unknown_scenes_are_clear_errors() {
         ],
         &["dt = 1e-300", "single-precision"],
     );
+    // A subnormal single-precision step (GPUs flush it to zero): refused, whatever the run.
+    assert_one_line_error(
+        &[
+            "run",
+            "beam",
+            "--steps",
+            "1",
+            "--dt",
+            "1e-40",
+            "--allow-unstable",
+        ],
+        &["dt = 1e-40", "single-precision", "1.2e-38"],
+    );
     assert_one_line_error(
         &[
             "run",
