@@ -7,7 +7,7 @@ use crate::output::series::FrameSeries;
 use crate::output::state::state_vtu;
 pub use crate::output::summary::{RunStatus, RunSummary};
 use crate::output::write_atomic;
-use crate::scene::Scene;
+use crate::scene::{Num, Scene};
 use crate::sim::{Backend, DivergencePolicy, Guarded, SimOptions, Simulation};
 use crate::stepper::BatchStats;
 use std::io::IsTerminal;
@@ -161,8 +161,14 @@ pub fn check_duration(t: f64) -> Result<()> {
     )))
 }
 
-/// Steps a run of `length` takes at time step `dt` (the step cap for `--until-static`).
-fn steps_for(length: RunLength, dt: f64) -> Result<u64> {
+/// Steps a run of `length` takes at time step `dt` (the step cap for `--until-static`); a
+/// duration too long is named as `scene`'s `solver.duration` when it is that value, else as
+/// `--duration`.
+fn steps_for(length: RunLength, dt: f64, scene: &Scene) -> Result<u64> {
+    let duration_named = |t: f64| match scene.solver.duration {
+        Some(d) if d == t => format!("{}: solver.duration = {} s", scene.origin, Num(t)),
+        _ => format!("--duration {}", Num(t)),
+    };
     let n = match length {
         RunLength::Steps(n) => n,
         RunLength::Duration(t) => {
@@ -171,8 +177,8 @@ fn steps_for(length: RunLength, dt: f64) -> Result<u64> {
             let x = t / dt;
             if x > MAX_RUN_STEPS as f64 {
                 return Err(PalpateError::Usage(format!(
-                    "a run of {} s (--duration, or the scene's solver.duration) would take {x:.3e} steps of {dt:.3e} s (more than {MAX_RUN_STEPS}); use a larger --dt or a shorter run",
-                    crate::scene::Num(t)
+                    "{} would take {x:.3e} steps of {dt:.3e} s (more than {MAX_RUN_STEPS}); use a larger --dt or a shorter run",
+                    duration_named(t)
                 )));
             }
             let n = if (x - x.round()).abs() < 1e-9 * x.max(1.0) {
@@ -195,8 +201,9 @@ fn steps_for(length: RunLength, dt: f64) -> Result<u64> {
                 format!("--max-steps {n}: at most {MAX_RUN_STEPS} (2^40) steps")
             }
             RunLength::Steps(_) => format!("--steps {n}: at most {MAX_RUN_STEPS} (2^40) steps"),
-            RunLength::Duration(_) => format!(
-                "the run would take {n} steps of {dt:.3e} s (more than {MAX_RUN_STEPS}); use a larger --dt or a shorter run"
+            RunLength::Duration(t) => format!(
+                "{} would take {n} steps of {dt:.3e} s (more than {MAX_RUN_STEPS}); use a larger --dt or a shorter run",
+                duration_named(t)
             ),
         }));
     }
@@ -325,7 +332,7 @@ pub fn run_with_state(
     let model = sim.model.clone();
     let dt0 = sim.dt;
     // Every refusal before an earlier run's outputs are removed: a run refused keeps them.
-    let max_steps = steps_for(opts.length, dt0)?;
+    let max_steps = steps_for(opts.length, dt0, scene)?;
     let removed = crate::output::remove_earlier_outputs(&opts.out)?;
     if opts.announce && removed > 0 {
         crate::say_err!(

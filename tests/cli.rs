@@ -1543,6 +1543,21 @@ fn a_new_run_removes_the_outputs_an_earlier_run_left_and_nothing_else() {
         assert_eq!(summary(&out)["scene"], "beam", "{flag} {value}");
         assert!(out.join("final.vtu").exists());
     }
+    // The scene's own solver.duration too long: named as the scene's key, not --duration.
+    let long = d.join("long.toml");
+    std::fs::write(
+        &long,
+        "[mesh]\ngenerator = \"beam\"\nsize = [0.1, 0.02, 0.02]\ncells = [2, 1, 1]\n\
+         [material]\nyoungs_modulus = 3.0e5\npoisson_ratio = 0.4\ndensity = 1000.0\n\
+         [solver]\nduration = 1e300\n",
+    )
+    .unwrap();
+    let (ok, _, err) = palpate(&["run", long.to_str().unwrap(), "--out", o]);
+    assert!(
+        !ok && err.contains("long.toml: solver.duration = 1e300 s would take"),
+        "{err}"
+    );
+    assert_eq!(summary(&out)["scene"], "beam");
 
     // A folder whose summary.json is not an earlier run's: nothing is removed.
     let mine = d.join("mine");
@@ -3117,7 +3132,7 @@ fn a_run_too_long_names_the_option_that_made_it() {
     );
     assert_one_line_error(
         &["run", "beam", "--duration", "1e300", "--backend", "cpu"],
-        &["a run of 1e300 s (--duration, or the scene's solver.duration)"],
+        &["--duration 1e300 would take", "steps of"],
     );
 }
 
