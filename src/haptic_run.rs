@@ -277,19 +277,25 @@ pub fn limit_pressing_stride(stride: DVec3, normal: DVec3, reach: f64) -> Option
 /// `survey`'s clearance at its start) or to `reach` (m), whichever is longer: towards the
 /// tissue, up to its surface at the hand's speed and into it at the limit from the next batch
 /// on (a batch moves the tool at one speed: one that ended a reach inside met the tissue at
-/// up to 0.8 m/s, its contact dampers pushing 0.9 N into the hand). None, no limit, where
-/// that is the whole stride or the tool swept along it stays clear of the tissue (or, when it
-/// starts touching a face, gets no closer than it starts: a move away): a long stride that
-/// grazes an edge or ends on the body's far side, after a stall, is limited too.
+/// up to 0.8 m/s, its contact dampers pushing 0.9 N into the hand). None, no limit, where that
+/// is the whole stride; where the tool swept along it stays clear of the tissue by more than
+/// `margin` (m: what the surface may move meanwhile); or where it moves away (the clearance
+/// grows by at least 0.9 × the stride, and the swept tool gets no closer than it starts).
+/// So a long stride after a stall that grazes an edge or ends on the body's far side is
+/// limited, and so is a slide along a face the tool already touches (no contact found at a
+/// vertex, or after a rollback).
 pub fn limit_approaching_stride(
     stride: DVec3,
     survey: crate::rest::StrideSurvey,
     reach: f64,
+    margin: f64,
 ) -> Option<DVec3> {
     let length = stride.length();
-    let clear_path = survey.swept_clear > 0.0 || survey.swept_clear >= survey.clear - 1e-9 * length;
+    let clear_path = survey.swept_clear > margin;
+    let away = survey.clear_after >= survey.clear + 0.9 * length
+        && survey.swept_clear >= survey.clear - 1e-9 * length;
     let free = survey.clear.max(reach);
-    (!clear_path && length > free).then(|| stride * (free / length))
+    (!clear_path && !away && length > free).then(|| stride * (free / length))
 }
 
 /// The `haptic` section of `summary.json`.
@@ -510,6 +516,8 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
     // the last scan less the tool's travel and twice the surface's fastest vertex speed over
     // each batch since (None: unknown).
     let mut clearance_floor: Option<f64> = None;
+    // The surface's fastest vertex after the last batch, m/s (0 asleep or before any).
+    let mut surface_speed = 0.0f64;
     // The hand's pose (offset from home) and stamp when the last batch started: at home when
     // the session starts, as the tool is (a hand that moved before the first batch did so
     // since then).
@@ -588,7 +596,12 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                     let survey = rest.survey_stride(state.as_ref(), sim.tool_position, target);
                     clearance_floor = Some(survey.clear);
                     busy_seconds += t.elapsed().as_secs_f64();
-                    limit_approaching_stride(stride, survey, reach)
+                    // What the surface may move while the batch runs (nothing asleep).
+                    let margin = match rest.is_asleep() {
+                        true => 0.0,
+                        false => 2.0 * surface_speed * steps as f64 * sim.dt,
+                    };
+                    limit_approaching_stride(stride, survey, reach, margin)
                 }
                 None => None,
             };
@@ -665,6 +678,10 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
             // Less the tool's travel and the surface's over the batch (twice its fastest
             // vertex at the batch's end: a settling surface slows); unknown in contact or
             // after a divergence (the state went back).
+            surface_speed = match &result {
+                Guarded::Done(s) => s.max_speed(),
+                _ => 0.0,
+            };
             clearance_floor = match &result {
                 Guarded::Done(s) if !in_contact => clearance_floor.map(|f| {
                     f - (sim.tool_position - tool_before).length()
@@ -910,40 +927,39 @@ mod tests {
 
     #[test]
     fn an_approaching_stride_stops_at_the_surface_unless_it_stays_clear() {
-        let survey = |clear, swept_clear| StrideSurvey { clear, swept_clear };
+        let survey = |clear, clear_after, swept_clear| StrideSurvey {
+            clear,
+            clear_after,
+            swept_clear,
+        };
         let close = |a: DVec3, b: DVec3| (a - b).length() < 1e-12;
         let stride = DVec3::new(0.0, 0.0, -0.5);
+        let limit = |s, margin| limit_approaching_stride(stride, s, 0.01, margin);
         // Towards the tissue 0.1 away (the swept tool meets it): stopped there.
-        let s = limit_approaching_stride(stride, survey(0.1, -0.01), 0.01).unwrap();
+        let s = limit(survey(0.1, 0.0, -0.01), 0.0).unwrap();
         assert!(close(s, DVec3::new(0.0, 0.0, -0.1)));
         // Closer than a reach: a reach.
-        let s = limit_approaching_stride(stride, survey(0.001, -0.01), 0.01).unwrap();
+        let s = limit(survey(0.001, 0.0, -0.01), 0.0).unwrap();
         assert!(close(s, DVec3::new(0.0, 0.0, -0.01)));
         // Within the clearance: free.
-        assert_eq!(
-            limit_approaching_stride(stride, survey(0.6, 0.1), 0.01),
-            None
-        );
-        // Clear all the way (away, or past the body): free, however long.
-        assert_eq!(
-            limit_approaching_stride(stride, survey(0.1, 0.1), 0.01),
-            None
-        );
-        assert_eq!(
-            limit_approaching_stride(stride, survey(0.1, 1e-6), 0.01),
-            None
-        );
+        assert_eq!(limit(survey(0.6, 0.1, 0.1), 0.0), None);
+        // Clear all the way past the body, by more than the surface may move: free.
+        assert_eq!(limit(survey(0.1, 0.1, 0.05), 0.01), None);
+        // Passing 1 µm over an awake surface: limited to the start's clearance.
+        let s = limit(survey(0.1, 0.1, 1e-6), 0.01).unwrap();
+        assert!(close(s, DVec3::new(0.0, 0.0, -0.1)));
+        // Straight away: free, however long, and from a face it touches too.
+        assert_eq!(limit(survey(0.001, 0.501, 0.001), 0.01), None);
+        assert_eq!(limit(survey(-0.001, 0.499, -0.001), 0.01), None);
         // Grazing an edge on the way (the swept tool dips into it): stopped at the start's
         // clearance.
-        let s = limit_approaching_stride(stride, survey(0.1, -0.002), 0.01).unwrap();
+        let s = limit(survey(0.1, 0.6, -0.002), 0.0).unwrap();
         assert!(close(s, DVec3::new(0.0, 0.0, -0.1)));
-        // Starting on a face (clearance −1 mm, contact found at no vertex): away, getting no
-        // closer, free; deeper, a reach.
-        assert_eq!(
-            limit_approaching_stride(stride, survey(-0.001, -0.001), 0.01),
-            None
-        );
-        let s = limit_approaching_stride(stride, survey(-0.001, -0.004), 0.01).unwrap();
+        // Sliding along a face it touches (clearance −1 mm all the way, contact found at no
+        // vertex): a reach, as a slide in contact; deeper, a reach too.
+        let s = limit(survey(-0.001, -0.001, -0.001), 0.0).unwrap();
+        assert!(close(s, DVec3::new(0.0, 0.0, -0.01)));
+        let s = limit(survey(-0.001, -0.004, -0.004), 0.0).unwrap();
         assert!(close(s, DVec3::new(0.0, 0.0, -0.01)));
     }
 

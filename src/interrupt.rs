@@ -71,10 +71,11 @@ fn monotonic_ns() -> Option<u64> {
 
 #[cfg(unix)]
 extern "C" fn on_signal(_: libc::c_int) {
-    // Only async-signal-safe calls here: atomics, write(2) and _exit. Installed with
-    // SA_NODEFER: a second signal interrupts a first handler blocked in write (a full pipe on
-    // stderr), and a third exits without writing (each counted outside the repeat window). The first signal's time is taken before it
-    // is counted, so a repeat nested in its handler is seen as one.
+    // Only async-signal-safe calls here: atomics, clock_gettime, write(2) and _exit.
+    // Installed with SA_NODEFER: a second signal interrupts a first handler blocked in write
+    // (a full pipe on stderr), and a third exits without writing (each counted outside the
+    // repeat window). The first signal's time is taken before it is counted, so a repeat
+    // nested in its handler is seen as one.
     if let Some(now) = monotonic_ns() {
         if let Err(first) = FIRST_AT.compare_exchange(0, now, Ordering::SeqCst, Ordering::SeqCst) {
             if now.saturating_sub(first) < REPEAT_WINDOW.as_nanos() as u64 {

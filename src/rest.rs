@@ -56,12 +56,15 @@ struct Sleeping {
 }
 
 /// [`RestWatch::survey_stride`]'s answer: how far the tool's surface is from the body's (m)
-/// where a move starts, and the least of it over the whole move (the tool swept along the
-/// segment between its centres; ≤ 0: it touches or enters the body on the way).
+/// where a move starts and where it ends, and the least of it over the whole move (the tool
+/// swept along the segment between its centres; ≤ 0: it touches or enters the body on the
+/// way).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct StrideSurvey {
     /// Clearance at the start.
     pub clear: f64,
+    /// Clearance at the end.
+    pub clear_after: f64,
     /// The least clearance over the move.
     pub swept_clear: f64,
 }
@@ -160,9 +163,9 @@ impl RestWatch {
     }
 
     /// What a tool move from `from` to `to` meets on the body in `state` (the sleeping body's
-    /// while asleep, `state` may then be None; nothing without either): the clearance where
-    /// it starts ([`RestWatch::clearance`]) and the least over the move, the surface built
-    /// once.
+    /// while asleep, `state` may then be None; nothing without either): the clearances where
+    /// it starts and ends ([`RestWatch::clearance`]) and the least over the move, the surface
+    /// built once.
     pub fn survey_stride(&self, state: Option<&State>, from: DVec3, to: DVec3) -> StrideSurvey {
         let built;
         let surface = match (&self.asleep, state) {
@@ -174,12 +177,14 @@ impl RestWatch {
             (None, None) => {
                 return StrideSurvey {
                     clear: f64::INFINITY,
+                    clear_after: f64::INFINITY,
                     swept_clear: f64::INFINITY,
                 }
             }
         };
         StrideSurvey {
             clear: self.clearance_to(surface, from),
+            clear_after: self.clearance_to(surface, to),
             swept_clear: segment_distance_to_triangles(surface.iter().copied(), from, to)
                 - self.tool_radius,
         }
@@ -281,6 +286,7 @@ home = [0.08, 0.01, 0.031]
                 near(up.clear, 0.001) && near(up.swept_clear, 0.001),
                 "{up:?}"
             );
+            assert!(near(up.clear_after, 0.501), "{up:?}");
             // Down through the bar to 0.47 m below it: the centre crosses the top face.
             let through = survey(DVec3::new(0.0, 0.0, -0.5));
             assert!(near(through.swept_clear, -0.01), "{through:?}");

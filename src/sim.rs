@@ -324,7 +324,7 @@ impl Simulation {
         let dt = choose_dt(scene, &model, opts.dt, opts.allow_unstable, opts.dt_flags)?;
         if !is_normal_f32_step(dt) {
             return Err(PalpateError::Usage(format!(
-                "{}: {} = {dt:e} s is not a positive single-precision number (at least 1.2e-38: GPUs flush smaller ones to zero)",
+                "{}: {} = {dt:e} s is not a positive single-precision number (at least 1.18e-38: GPUs flush smaller ones to zero)",
                 scene.origin,
                 dt_source(scene, opts.dt)
             )));
@@ -362,7 +362,7 @@ impl Simulation {
         model.check_f32()?;
         if !is_normal_f32_step(dt) {
             return Err(PalpateError::Usage(format!(
-                "dt = {dt:e} s is not a positive single-precision number (at least 1.2e-38: GPUs flush smaller ones to zero)"
+                "dt = {dt:e} s is not a positive single-precision number (at least 1.18e-38: GPUs flush smaller ones to zero)"
             )));
         }
         let params = model.step_params(dt, damping);
@@ -456,6 +456,11 @@ impl Simulation {
 
     /// Change the time step (e.g. after a divergence).
     pub fn set_dt(&mut self, dt: f64) -> Result<()> {
+        if !is_normal_f32_step(dt) {
+            return Err(PalpateError::Usage(format!(
+                "dt = {dt:e} s is not a positive single-precision number (at least 1.18e-38: GPUs flush smaller ones to zero)"
+            )));
+        }
         self.dt = dt;
         self.stepper
             .set_params(&self.model.step_params(dt, self.damping))

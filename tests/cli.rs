@@ -630,7 +630,7 @@ fn missing_files_and_unknown_scenes_are_clear_errors() {
             "1e-40",
             "--allow-unstable",
         ],
-        &["dt = 1e-40", "single-precision", "1.2e-38"],
+        &["dt = 1e-40", "single-precision", "1.18e-38"],
     );
     assert_one_line_error(
         &[

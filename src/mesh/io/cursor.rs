@@ -295,7 +295,7 @@ pub(super) fn sint(b: &[u8], big_endian: bool) -> i64 {
 /// A Gmsh section marker (`$EndNodes`) or a keyword of the legacy VTK format (`CELL_TYPES`,
 /// `POINT_DATA`, any case): `$` then a letter, or one of the format's keywords.
 fn is_section_word(s: &str) -> bool {
-    const VTK_KEYWORDS: [&str; 17] = [
+    const VTK_KEYWORDS: [&str; 20] = [
         "DATASET",
         "POINTS",
         "CELLS",
@@ -309,6 +309,9 @@ fn is_section_word(s: &str) -> bool {
         "VECTORS",
         "NORMALS",
         "TENSORS",
+        "TENSORS6",
+        "GLOBAL_IDS",
+        "PEDIGREE_IDS",
         "FIELD",
         "METADATA",
         "COLOR_SCALARS",
