@@ -436,6 +436,21 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                 spec.name
             );
         }
+        // In contact the tool moves no faster than the speed limit: its travel between two
+        // particle activation updates.
+        if let Some(ps) = scene.particles.as_ref().filter(|p| !p.all_active) {
+            let speed = model.max_tool_speed();
+            let travel = speed * ps.activation_interval as f64 * sim.dt;
+            if let Some(w) = crate::scene::activation_lag_warning(
+                "the tool presses into the tissue",
+                speed,
+                travel,
+                ps.activation_interval,
+                ps.activation_radius,
+            ) {
+                crate::say_err!("warning: {}: {w}", scene.origin);
+            }
+        }
     }
     // (No tunnelling warning for a fast scripted hand: near the tissue the physics moves
     // the tool no farther in a batch than its clearance to the surface plus the speed

@@ -373,6 +373,23 @@ pub fn run_with_state(
         if let Some(w) = warning {
             crate::say_err!("warning: {}: {w}", scene.origin);
         }
+        // Particles woken around the tool: its path's travel between two updates.
+        if let Some(ps) = scene.particles.as_ref().filter(|p| !p.all_active) {
+            let interval = ps.activation_interval as f64 * dt0;
+            let lag = crate::scene::longest_step_leg(t.tool.path.iter().copied(), interval)
+                .and_then(|(speed, from, to)| {
+                    crate::scene::activation_lag_warning(
+                        "tool.path moves the tool",
+                        speed,
+                        speed * interval.min(to - from),
+                        ps.activation_interval,
+                        ps.activation_radius,
+                    )
+                });
+            if let Some(w) = lag {
+                crate::say_err!("warning: {}: {w}", scene.origin);
+            }
+        }
         if let Some((speed, from, to)) = t.tool.fastest_pressing_leg(&scene.mesh) {
             if speed > model.max_tool_speed() {
                 crate::say_err!(

@@ -3358,6 +3358,52 @@ fn a_haptic_session_warns_of_tissue_out_of_reach_and_of_a_hand_beyond_the_worksp
     );
 }
 
+/// Particles woken only every 1000 steps (0.74 s on lv_touch) with a 1 mm activation radius:
+/// the tool moves farther than that between two updates, on its path (`run`) and at the
+/// speed limit in contact (`haptic`), and both say so; the scene as shipped does not.
+#[test]
+fn an_activation_interval_too_long_for_the_tool_is_warned_of() {
+    let d = tmp("activation_lag");
+    let text = palpate::scene::Scene::builtin_text("lv_touch").unwrap();
+    let lagging = text
+        .replacen(
+            "activation_radius = 3.0e-3",
+            "activation_radius = 1.0e-3\nactivation_interval = 1000",
+            1,
+        )
+        .replacen("name = \"lv_touch\"", "name = \"lagging\"", 1);
+    assert!(lagging.contains("activation_interval = 1000"));
+    let path = scene_file(&d, "lagging.toml", &lagging);
+    let out = d.join("out");
+    let o = out.to_str().unwrap();
+    let says = "between two activation updates (particles.activation_interval = 1000 steps), more than particles.activation_radius = 1.000e-3 m";
+    let (ok, _, err) = palpate(&["run", &path, "--steps", "2", "--backend", "cpu", "--out", o]);
+    assert!(ok, "{err}");
+    assert!(
+        err.contains("tool.path moves the tool at up to") && err.contains(says),
+        "{err}"
+    );
+    let (ok, _, err) = haptic_null_on_cpu(&path, "0.05", o);
+    assert!(ok, "{err}");
+    assert!(
+        err.contains("the tool presses into the tissue") && err.contains(says),
+        "{err}"
+    );
+    let (ok, _, err) = palpate(&[
+        "run",
+        "lv_touch",
+        "--steps",
+        "2",
+        "--backend",
+        "cpu",
+        "--out",
+        o,
+    ]);
+    assert!(ok && !err.contains("activation updates"), "{err}");
+    let (ok, _, err) = haptic_null_on_cpu("lv_touch", "0.05", o);
+    assert!(ok && !err.contains("activation updates"), "{err}");
+}
+
 #[test]
 fn a_mesh_file_without_an_extension_says_so() {
     let d = tmp("noext");

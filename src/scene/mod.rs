@@ -20,7 +20,8 @@ pub use mesh::MeshSpec;
 pub use particles::{ParticleModel, ParticleSettings, ParticleSpec, MAX_PARTICLES};
 pub use solver::{DtSpec, SolverSettings, SolverSpec};
 pub use tool::{
-    fastest_leg, longest_step_leg, short_time, tunnelling_warning, Tool, ToolOverlap, ToolSpec,
+    activation_lag_warning, fastest_leg, longest_step_leg, short_time, tunnelling_warning, Tool,
+    ToolOverlap, ToolSpec,
 };
 
 use crate::error::{PalpateError, Result};

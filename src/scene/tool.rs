@@ -316,6 +316,25 @@ pub fn tunnelling_warning(
     })
 }
 
+/// The warning for a tool that `what` moves `travel` m (at `speed` m/s) between two
+/// activation updates of the particles (`steps` core steps apart) when that is more than
+/// their `activation_radius`: the tool can then reach particles still embedded in their host
+/// tets (their contact goes to the host, the coarse core's response) before an update wakes
+/// them.
+pub fn activation_lag_warning(
+    what: &str,
+    speed: f64,
+    travel: f64,
+    steps: u32,
+    activation_radius: f64,
+) -> Option<String> {
+    (travel > activation_radius).then(|| {
+        format!(
+            "{what} at up to {speed:.3e} m/s: {travel:.3e} m between two activation updates (particles.activation_interval = {steps} steps), more than particles.activation_radius = {activation_radius:.3e} m, so it can touch particles before they wake (the coarse core answers there); lower activation_interval or raise activation_radius"
+        )
+    })
+}
+
 /// A time for a message: as written when short (a keyframe's `0.5`), else to 5 significant
 /// digits (a computed `0.04997868126357471` as `4.9979e-2`).
 pub fn short_time(t: f64) -> String {
