@@ -373,24 +373,25 @@ pub fn run_with_state(
         if let Some(w) = warning {
             crate::say_err!("warning: {}: {w}", scene.origin);
         }
-        // Particles woken around the tool: its path's travel between two updates.
+        let pressing = t.tool.fastest_pressing_leg(&scene.mesh);
+        // Particles woken around the tool: its path's travel between two updates, on its
+        // fastest leg into or within the tissue (in free space nothing needs waking).
         if let Some(ps) = scene.particles.as_ref().filter(|p| !p.all_active) {
             let interval = ps.activation_interval as f64 * dt0;
-            let lag = crate::scene::longest_step_leg(t.tool.path.iter().copied(), interval)
-                .and_then(|(speed, from, to)| {
-                    crate::scene::activation_lag_warning(
-                        "tool.path moves the tool",
-                        speed,
-                        speed * interval.min(to - from),
-                        ps.activation_interval,
-                        ps.activation_radius,
-                    )
-                });
+            let lag = pressing.and_then(|(speed, from, to)| {
+                crate::scene::activation_lag_warning(
+                    "tool.path presses the tool into the tissue",
+                    speed,
+                    speed * interval.min(to - from),
+                    ps.activation_interval,
+                    ps.activation_radius,
+                )
+            });
             if let Some(w) = lag {
                 crate::say_err!("warning: {}: {w}", scene.origin);
             }
         }
-        if let Some((speed, from, to)) = t.tool.fastest_pressing_leg(&scene.mesh) {
+        if let Some((speed, from, to)) = pressing {
             if speed > model.max_tool_speed() {
                 crate::say_err!(
                     "warning: {}: tool.path moves the tool into or along the tissue at {speed:.3e} m/s from t = {} to {} s, faster than the {:.3e} m/s it can follow (half its shear wave speed, {:.3e} m/s at mass scaling {}): the tissue cannot move out of the tool's way and the layer under it can be crushed until the run diverges (a haptic session holds the tool to that speed); slow the press down",

@@ -3380,9 +3380,32 @@ fn an_activation_interval_too_long_for_the_tool_is_warned_of() {
     let (ok, _, err) = palpate(&["run", &path, "--steps", "2", "--backend", "cpu", "--out", o]);
     assert!(ok, "{err}");
     assert!(
-        err.contains("tool.path moves the tool at up to") && err.contains(says),
+        err.contains("tool.path presses the tool into the tissue at up to") && err.contains(says),
         "{err}"
     );
+    // A path that comes in fast through free space (0.1 m in 10 ms) and presses slowly (3 mm
+    // in 0.5 s, less than a 3.5 mm radius between updates): nothing to wake out there.
+    let approach = lagging
+        .replacen("activation_radius = 1.0e-3", "activation_radius = 3.5e-3", 1)
+        .replacen(
+            "path = [[0.0, 0.0147, 0.0, -0.005],",
+            "path = [[0.0, 0.1147, 0.0, -0.005], [0.01, 0.0147, 0.0, -0.005], [0.02, 0.0147, 0.0, -0.005],",
+            1,
+        )
+        .replacen("[0.5, 0.0117, 0.0, -0.005]", "[0.52, 0.0117, 0.0, -0.005]", 1);
+    assert!(approach.contains("[0.01, 0.0147") && approach.contains("[0.52, 0.0117"));
+    let path2 = scene_file(&d, "approach.toml", &approach);
+    let (ok, _, err) = palpate(&[
+        "run",
+        &path2,
+        "--steps",
+        "2",
+        "--backend",
+        "cpu",
+        "--out",
+        o,
+    ]);
+    assert!(ok && !err.contains("activation updates"), "{err}");
     let (ok, _, err) = haptic_null_on_cpu(&path, "0.05", o);
     assert!(ok, "{err}");
     assert!(
