@@ -251,22 +251,11 @@ mod tests {
 
     #[test]
     fn a_stride_is_surveyed_along_the_whole_sweep_of_the_tool() {
-        // A 10 × 2 × 2 cm bar (x from 0 to 10 cm, y and z from 0 to 2 cm) and a 1 cm tool.
-        let text = r#"name = "bar"
-[mesh]
-generator = "beam"
-size = [0.1, 0.02, 0.02]
-cells = [10, 2, 2]
-[material]
-youngs_modulus = 3.0e5
-poisson_ratio = 0.4
-density = 1000.0
-[tool]
-radius = 0.01
-stiffness = 2.0e7
-home = [0.08, 0.01, 0.031]
-"#;
-        let scene = Scene::from_toml(text, "bar", "bar", None).unwrap();
+        // The built-in beam, a 10 × 2 × 2 cm bar (x from 0 to 10 cm, y and z from 0 to 2 cm,
+        // cells of 5 mm), and a 1 cm tool.
+        let text = Scene::builtin_text("beam").unwrap().to_string()
+            + "\n[tool]\nradius = 0.01\nstiffness = 2.0e7\nhome = [0.08, 0.01, 0.031]\n";
+        let scene = Scene::from_toml(&text, "beam", "beam", None).unwrap();
         let watch = RestWatch::new(&scene);
         let n = scene.mesh.positions.len();
         let state = State {

@@ -2920,7 +2920,6 @@ fn a_killed_runs_frames_are_an_indexed_series_and_the_next_run_removes_them() {
 #[cfg(unix)]
 #[test]
 fn a_second_ctrl_c_stops_at_once_and_says_so() {
-    use std::io::Read;
     let d = tmp("interrupt_twice");
     let out = d.join("out");
     // A 48,000-tet bar on one thread: a batch takes seconds (5 s on the 2-core VM), so the
@@ -2930,27 +2929,7 @@ fn a_second_ctrl_c_stops_at_once_and_says_so() {
     // no second signal: tried again, three times at most.
     let scene = slow_to_stop_scene(&d);
     for attempt in 1..=3 {
-        let mut child = spawn_as_a_foreground_job(&[
-            "run",
-            scene.to_str().unwrap(),
-            "--duration",
-            "1e3",
-            "--backend",
-            "cpu",
-            "--threads",
-            "1",
-            "--out",
-            out.to_str().unwrap(),
-        ]);
-        let mut first = [0u8; 1];
-        child
-            .stdout
-            .take()
-            .unwrap()
-            .read_exact(&mut first)
-            .expect("the run announces itself");
-        // Into the first batch (a signal before it stops the run at t = 0, quickly).
-        std::thread::sleep(std::time::Duration::from_millis(500));
+        let mut child = start_slow_run(&scene, &out, &["--threads", "1"]);
         // The second signal after the first one's note (two at once may merge into one).
         let stderr = std::io::BufReader::new(child.stderr.take().unwrap());
         let pid = child.id() as libc::pid_t;
@@ -2990,6 +2969,35 @@ fn a_second_ctrl_c_stops_at_once_and_says_so() {
     }
 }
 
+/// `palpate run scene` (a [`slow_to_stop_scene`]) on the CPU for 1e3 s with `extra` flags,
+/// as a foreground job writing to `out`, returned once it has announced itself and is half a
+/// second into its first batch (a signal before that batch stops the run at t = 0, quickly).
+#[cfg(unix)]
+fn start_slow_run(scene: &Path, out: &Path, extra: &[&str]) -> std::process::Child {
+    use std::io::Read;
+    let mut args = vec![
+        "run",
+        scene.to_str().unwrap(),
+        "--duration",
+        "1e3",
+        "--backend",
+        "cpu",
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    let mut child = spawn_as_a_foreground_job(&args);
+    let mut first = [0u8; 1];
+    child
+        .stdout
+        .take()
+        .unwrap()
+        .read_exact(&mut first)
+        .expect("the run announces itself");
+    std::thread::sleep(std::time::Duration::from_millis(500));
+    child
+}
+
 /// A scene file (in `dir`) whose run takes seconds a batch: a bar of 48,000 tets.
 #[cfg(unix)]
 fn slow_to_stop_scene(dir: &Path) -> PathBuf {
@@ -3026,30 +3034,12 @@ fn a_stop_delivered_twice_at_once_is_one_stop() {
     let d = tmp("timeout");
     let out = d.join("out");
     let scene = slow_to_stop_scene(&d);
-    let mut child = spawn_as_a_foreground_job(&[
-        "run",
-        scene.to_str().unwrap(),
-        "--duration",
-        "1e3",
-        "--backend",
-        "cpu",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    let mut first = [0u8; 1];
-    child
-        .stdout
-        .take()
-        .unwrap()
-        .read_exact(&mut first)
-        .expect("the run announces itself");
+    let mut child = start_slow_run(&scene, &out, &[]);
     let mut stderr = child.stderr.take().unwrap();
     let errors = std::thread::spawn(move || {
         let mut err = String::new();
         stderr.read_to_string(&mut err).map(|_| err)
     });
-    // Into the first batch (a signal before it stops the run at t = 0, quickly).
-    std::thread::sleep(std::time::Duration::from_millis(500));
     let pid = child.id() as libc::pid_t;
     // SAFETY: kill(2) on the child's pid, which has not been waited for (so not reused).
     unsafe { libc::kill(pid, libc::SIGTERM) };

@@ -10,58 +10,77 @@ use crate::cpu::activate::ParticleStatic;
 use crate::model::Model;
 use crate::particles::params::mode;
 use crate::stepper::{ParticleSnapshot, State};
+use glam::Vec3;
 
-/// The particles' displacements: their own when dynamic, else embedded in their host.
-pub fn particle_displacements(model: &Model, nodes: &State, snap: &ParticleSnapshot) -> Vec<f32> {
-    let Some(p) = &model.particles else {
-        return Vec::new();
-    };
+/// Per particle, packed xyz (empty without particles): its own value from `own` when
+/// dynamic, else `embedded(k, mode, Σ wᵢ aᵢ)` with a the vertices' `field`.
+fn own_or_embedded(
+    model: &Model,
+    field: &[f32],
+    own: &[f32],
+    snap: &ParticleSnapshot,
+    embedded: impl Fn(usize, u32, Vec3) -> Vec3,
+) -> Vec<f32> {
     let Some(st) = ParticleStatic::of(model) else {
         return Vec::new();
     };
-    (0..p.len())
+    (0..st.host.len())
         .flat_map(|k| {
             let m = snap.modes[k];
-            let u = if m & mode::DYNAMIC != 0 {
-                crate::cpu::load3(&snap.displacements, k)
+            let x = if m & mode::DYNAMIC != 0 {
+                crate::cpu::load3(own, k)
             } else {
-                let mut u = st.embed(&nodes.displacements, k);
-                if m & mode::BLENDING != 0 {
-                    let b = (1.0 - snap.timers[k] / p.settings.blend.max(1e-30) as f32).max(0.0);
-                    u += crate::cpu::load3(&snap.offsets, k) * b;
-                }
-                u
+                embedded(k, m, st.embed(field, k))
             };
-            u.to_array()
+            x.to_array()
         })
         .collect()
+}
+
+/// The particles' blend time, s (never 0: it divides).
+fn blend_seconds(model: &Model) -> f32 {
+    model
+        .particles
+        .as_ref()
+        .map_or(1e-30, |p| p.settings.blend.max(1e-30) as f32)
+}
+
+/// The particles' displacements: their own when dynamic, else embedded in their host.
+pub fn particle_displacements(model: &Model, nodes: &State, snap: &ParticleSnapshot) -> Vec<f32> {
+    let blend = blend_seconds(model);
+    own_or_embedded(
+        model,
+        &nodes.displacements,
+        &snap.displacements,
+        snap,
+        |k, m, u| {
+            if m & mode::BLENDING != 0 {
+                let b = (1.0 - snap.timers[k] / blend).max(0.0);
+                u + crate::cpu::load3(&snap.offsets, k) * b
+            } else {
+                u
+            }
+        },
+    )
 }
 
 /// The particles' velocities: their own when dynamic, else their host's, v = Σ wᵢ vᵢ, less
 /// offset/blend while a releasing particle's offset fades (as `follow` gives them).
 pub fn particle_velocities(model: &Model, nodes: &State, snap: &ParticleSnapshot) -> Vec<f32> {
-    let Some(p) = &model.particles else {
-        return Vec::new();
-    };
-    let Some(st) = ParticleStatic::of(model) else {
-        return Vec::new();
-    };
-    let blend = p.settings.blend.max(1e-30) as f32;
-    (0..p.len())
-        .flat_map(|k| {
-            let m = snap.modes[k];
-            let v = if m & mode::DYNAMIC != 0 {
-                crate::cpu::load3(&snap.velocities, k)
+    let blend = blend_seconds(model);
+    own_or_embedded(
+        model,
+        &nodes.velocities,
+        &snap.velocities,
+        snap,
+        |k, m, v| {
+            if m & mode::BLENDING != 0 && 1.0 - snap.timers[k] / blend > 0.0 {
+                v - crate::cpu::load3(&snap.offsets, k) / blend
             } else {
-                let mut v = st.embed(&nodes.velocities, k);
-                if m & mode::BLENDING != 0 && 1.0 - snap.timers[k] / blend > 0.0 {
-                    v -= crate::cpu::load3(&snap.offsets, k) / blend;
-                }
                 v
-            };
-            v.to_array()
-        })
-        .collect()
+            }
+        },
+    )
 }
 
 /// The `particles_final.vtu` text.
