@@ -410,6 +410,50 @@ fn tetgen_elements_that_disagree_with_their_header_are_refused() {
     }
 }
 
+/// A TetGen `.node` row whose width disagrees with its header's attributes and boundary
+/// markers (a lost column, a 2-D row, an extra value), or a header with a marker count other
+/// than 0 or 1, is refused at its line.
+#[test]
+fn tetgen_nodes_that_disagree_with_their_header_are_refused() {
+    let ele = b"1 4 0\n0 0 1 2 3\n";
+    for (node, line, expected) in [
+        (
+            "4 3 1 0\n0 0 0 0\n1 1 0 0 7\n2 0 1 0 7\n3 0 0 1 7\n",
+            "line 2",
+            "expected 5",
+        ),
+        (
+            "4 3 0 1\n0 0 0 0 1\n1 1 0 0 1\n2 0 1\n3 0 0 1 1\n",
+            "line 4",
+            "expected 5",
+        ),
+        (
+            "4 3 0 0\n0 0 0 0\n1 1 0 0 5\n2 0 1 0\n3 0 0 1\n",
+            "line 3",
+            "expected 4",
+        ),
+        (
+            "4 3 0 2\n0 0 0 0 1 1\n1 1 0 0 1 1\n2 0 1 0 1 1\n3 0 0 1 1 1\n",
+            "line 1",
+            "marker count 2",
+        ),
+    ] {
+        let e = read_err(
+            "tetgen_node_width",
+            &[("w.ele", ele.as_slice()), ("w.node", node.as_bytes())],
+        );
+        assert_located(&e, "w.node", line);
+        assert!(e.contains(expected), "{e}");
+    }
+    // The header's columns read as declared: an attribute and a marker after x, y, z.
+    let node = "4 3 1 1\n0 0 0 0 9 1\n1 1 0 0 9 1\n2 0 1 0 9 0\n3 0 0 1 9 0\n";
+    let dir = scratch("tetgen_node_width_ok");
+    std::fs::write(dir.join("k.node"), node).unwrap();
+    std::fs::write(dir.join("k.ele"), ele).unwrap();
+    let m = read(&dir.join("k.node")).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!((m.n_vertices(), m.n_tets()), (4, 1));
+}
+
 /// A `.vtu` piece whose NumberOfPoints or NumberOfCells disagrees with its arrays, or is not
 /// a count, is refused at the piece's line.
 #[test]

@@ -43,7 +43,8 @@ fn parse<T: std::str::FromStr>(
 }
 
 /// TetGen `.node` + `.ele` (either path may be given; the other is found beside it).
-/// Indices may start at 0 or 1 (the first node's index decides). The first `.ele` attribute
+/// Indices may start at 0 or 1 (the first node's index decides); every `.node` row has the
+/// index, x, y, z and the header's attributes and boundary marker (unused). The first `.ele` attribute
 /// column, a non-negative integer, becomes the region id; 10-node tets keep their corners.
 pub(super) fn read(path: &Path) -> Result<TetMesh> {
     let node_path = path.with_extension("node");
@@ -61,9 +62,40 @@ pub(super) fn read(path: &Path) -> Result<TetMesh> {
             format!("line {hl}: dimension {dim}, expected 3"),
         ));
     }
+    let n_attr: usize = match header.get(2) {
+        Some(_) => parse(&node_path, hl, header.get(2), "attribute count")?,
+        None => 0,
+    };
+    let n_marker: usize = match header.get(3) {
+        Some(_) => parse(&node_path, hl, header.get(3), "boundary marker count")?,
+        None => 0,
+    };
+    if n_marker > 1 {
+        return Err(file_err(
+            &node_path,
+            format!("line {hl}: boundary marker count {n_marker}, expected 0 or 1"),
+        ));
+    }
+    // Index, x, y, z, the attributes and the marker: a row of another width is a file whose
+    // header does not describe it (a 2-D file, a lost column), whose columns would be misread.
+    let want = n_attr.checked_add(4 + n_marker).ok_or_else(|| {
+        file_err(
+            &node_path,
+            format!("line {hl}: attribute count {n_attr} is too large"),
+        )
+    })?;
     let mut positions = Vec::with_capacity(n.min(node_text.len() / 8 + 1));
     let mut first_index = None;
     for (ln, toks) in lines.by_ref().take(n) {
+        if toks.len() != want {
+            return Err(file_err(
+                &node_path,
+                format!(
+                    "line {ln}: {} values, but the header (line {hl}) declares {n_attr} attributes and {n_marker} boundary markers per node: expected {want}",
+                    toks.len()
+                ),
+            ));
+        }
         let idx: i64 = parse(&node_path, ln, toks.first(), "node index")?;
         let base = *first_index.get_or_insert(idx);
         if idx.checked_sub(base) != Some(positions.len() as i64) {
