@@ -170,6 +170,10 @@ pub struct PhysicsStats {
     /// clearance (the last measured one less the tool's travel and the surface's since) is
     /// not measured.
     pub approach_scans: u64,
+    /// Batches in contact whose withdrawal went farther than the penetration and a reach
+    /// ([`withdrawal_head`]): the rest of it was measured against the deformed surface, and
+    /// limited where it would meet tissue again ([`limit_withdrawal_remainder`]).
+    pub withdrawal_scans: u64,
     /// Those of them that started in contact with the hand itself moving faster than the
     /// limit (absent: none).
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -271,6 +275,43 @@ pub fn limit_pressing_stride(stride: DVec3, normal: DVec3, reach: f64) -> Option
     let limited = stride - away * normal;
     let length = limited.length();
     (length > reach).then(|| away * normal + limited * (reach / length))
+}
+
+/// The part of an in-contact `stride` (m, already [`limit_pressing_stride`]'s) that is free
+/// without a look at the surface: up to where it has withdrawn `penetration` + `reach` (m)
+/// along the tissue's push `normal` (unit), out of the touched surface and a reach past it.
+/// None where the whole stride withdraws no farther (every stride of a hand within the speed
+/// limit): it is free.
+pub fn withdrawal_head(
+    stride: DVec3,
+    normal: DVec3,
+    penetration: f64,
+    reach: f64,
+) -> Option<DVec3> {
+    let away = stride.dot(normal);
+    let free = penetration.max(0.0) + reach;
+    (away > free).then(|| stride * (free / away))
+}
+
+/// The rest of a long withdrawal in contact, `remainder` (m, the stride after its
+/// [`withdrawal_head`]), limited where the tool swept along it would meet tissue again: the
+/// opposite wall of a cavity after a stall, say, which a withdrawal kept whole used to put the
+/// tool deep into. The `survey` is of the remainder (from the head's end). None, no limit,
+/// where the swept tool stays clear by more than `margin` (m: what the surface may move
+/// meanwhile), or gets no closer to the tissue anywhere than where the remainder starts (out
+/// of a dimple, whatever its depth); otherwise cut to that start's clearance or `reach`,
+/// whichever is longer, as a move towards the tissue ([`limit_approaching_stride`]).
+pub fn limit_withdrawal_remainder(
+    remainder: DVec3,
+    survey: crate::rest::StrideSurvey,
+    reach: f64,
+    margin: f64,
+) -> Option<DVec3> {
+    let length = remainder.length();
+    let clear_path = survey.swept_clear > margin;
+    let receding = survey.swept_clear >= survey.clear - 1e-9 * length;
+    let free = survey.clear.max(reach);
+    (!clear_path && !receding && length > free).then(|| remainder * (free / length))
 }
 
 /// A tool move `stride` out of contact, limited to where the tool meets the tissue (the
@@ -597,7 +638,38 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
             let reach = stats.max_tool_speed * steps as f64 * sim.dt;
             let stride = target - sim.tool_position;
             let limited = match contact_normal {
-                Some(normal) => limit_pressing_stride(stride, normal, reach),
+                Some(normal) => {
+                    let pressed = limit_pressing_stride(stride, normal, reach);
+                    let kept = pressed.unwrap_or(stride);
+                    let penetration = sim.last_tool.map_or(0.0, |r| r.max_penetration);
+                    match withdrawal_head(kept, normal, penetration, reach) {
+                        None => pressed,
+                        Some(head) => {
+                            // A withdrawal longer than the speed limit's reach past the
+                            // touched surface (after a stall, or a hand faster than the
+                            // limit): what the tool sweeps past that may be more tissue.
+                            stats.withdrawal_scans += 1;
+                            let t = Instant::now();
+                            let state = match rest.is_asleep() {
+                                true => None,
+                                false => Some(sim.state()?),
+                            };
+                            let tool = sim.tool_position;
+                            let survey = rest.survey_withdrawal(
+                                state.as_ref(),
+                                tool,
+                                tool + head,
+                                tool + kept,
+                            );
+                            busy_seconds += t.elapsed().as_secs_f64();
+                            let margin = 2.0 * surface_speed * steps as f64 * sim.dt;
+                            match limit_withdrawal_remainder(kept - head, survey, reach, margin) {
+                                Some(rest_of_it) => Some(head + rest_of_it),
+                                None => pressed,
+                            }
+                        }
+                    }
+                }
                 // Clear of the surface by more than the stride: nothing to limit.
                 None if clearance_floor.is_some_and(|f| f >= stride.length()) => None,
                 None if stride.length() > reach => {
@@ -936,7 +1008,10 @@ fn wait_for_a_tick(
 
 #[cfg(test)]
 mod tests {
-    use super::{limit_approaching_stride, limit_pressing_stride};
+    use super::{
+        limit_approaching_stride, limit_pressing_stride, limit_withdrawal_remainder,
+        withdrawal_head,
+    };
     use crate::rest::StrideSurvey;
     use glam::DVec3;
 
@@ -976,6 +1051,148 @@ mod tests {
         assert!(close(s, DVec3::new(0.0, 0.0, -0.01)));
         let s = limit(survey(-0.001, -0.004, -0.004), 0.0).unwrap();
         assert!(close(s, DVec3::new(0.0, 0.0, -0.01)));
+    }
+
+    #[test]
+    fn a_long_withdrawal_stops_at_tissue_it_would_meet_again() {
+        let n = DVec3::Z;
+        let close = |a: DVec3, b: DVec3| (a - b).length() < 1e-12;
+        // Within the penetration and a reach (1 mm and 10 mm): no head, nothing to survey.
+        assert_eq!(withdrawal_head(0.011 * n, n, 0.001, 0.01), None);
+        assert_eq!(
+            withdrawal_head(DVec3::new(0.01, 0.0, -0.5), n, 0.001, 0.01),
+            None
+        );
+        // Farther: the head is the stride up to 11 mm out, along the stride.
+        let stride = DVec3::new(0.01, 0.0, 0.044);
+        let head = withdrawal_head(stride, n, 0.001, 0.01).unwrap();
+        assert!(close(head, stride / 4.0));
+        // A negative penetration counts as none.
+        assert!(close(
+            withdrawal_head(0.04 * n, n, -0.5, 0.01).unwrap(),
+            0.01 * n
+        ));
+        let survey = |clear, clear_after, swept_clear| StrideSurvey {
+            clear,
+            clear_after,
+            swept_clear,
+        };
+        let remainder = 0.05 * n;
+        let limit = |s, margin| limit_withdrawal_remainder(remainder, s, 0.01, margin);
+        // Out of a shallow dimple into free space, clearance growing: free.
+        assert_eq!(limit(survey(0.01, 0.06, 0.01), 0.02), None);
+        // Out of a deep dimple (the clearance grows slower than the stride, and the surface
+        // springs back faster than the margin allows): still free, it never gets closer.
+        assert_eq!(limit(survey(0.002, 0.02, 0.002), 0.02), None);
+        // Still overlapping the dimple's rim where it starts, and receding: free.
+        assert_eq!(limit(survey(-0.001, 0.01, -0.001), 0.02), None);
+        // Across a cavity into its opposite wall 30 mm on (the swept tool meets it): cut to
+        // the start's clearance, 30 mm of clearance the wall leaves at the start...
+        let s = limit(survey(0.03, -0.015, -0.02), 0.0).unwrap();
+        assert!(close(s, 0.03 * n));
+        // ... or to a reach where the start is closer than that.
+        let s = limit(survey(0.004, -0.015, -0.02), 0.0).unwrap();
+        assert!(close(s, 0.01 * n));
+        // Past another part of the body without touching it, by more than the margin: free.
+        assert_eq!(limit(survey(0.02, 0.05, 0.005), 0.001), None);
+        // Past it by less than the surface may move: cut.
+        let s = limit(survey(0.02, 0.05, 0.005), 0.01).unwrap();
+        assert!(close(s, 0.02 * n));
+    }
+
+    /// On the built-in LV (SI, the cavity about 1 cm across at z = -5 mm) with a 1 mm tool:
+    /// a withdrawal from the endocardium across the cavity does not jump into the far wall, and one
+    /// from the epicardium out into the room, or back from the endocardium to the cavity's
+    /// middle, is free.
+    #[test]
+    fn a_withdrawal_across_the_lv_cavity_does_not_jump_into_its_far_wall() {
+        use crate::rest::RestWatch;
+        use crate::scene::Scene;
+        use crate::stepper::State;
+        let text = Scene::builtin_text("lv").unwrap().to_string()
+            + "\n[tool]\nradius = 0.001\nstiffness = 1.0e8\nhome = [0.0, 0.0, 0.02]\n";
+        let scene = Scene::from_toml(&text, "lv", "lv", None).unwrap();
+        let watch = RestWatch::new(&scene);
+        let n = scene.mesh.positions.len();
+        let state = State {
+            displacements: vec![0.0; 3 * n],
+            velocities: vec![0.0; 3 * n],
+        };
+        let r = 0.001;
+        let (reach, p) = (5e-4, 1e-4);
+        let at = |c: DVec3| watch.survey_stride(Some(&state), c, c).clear;
+        // Where a line from the axis at z = -5 mm along `dir` crosses the surface (a point's
+        // distance, the clearance plus r, at a local minimum near zero): the endocardium,
+        // then the epicardium.
+        let axis = DVec3::new(0.0, 0.0, -0.005);
+        let crossings = |dir: DVec3| {
+            let d = |k: usize| at(axis + dir * (k as f64 * 1e-5)) + r;
+            (1..2000)
+                .filter(|&k| d(k) < 2e-5 && d(k) <= d(k - 1) && d(k) <= d(k + 1))
+                .map(|k| k as f64 * 1e-5)
+                .collect::<Vec<_>>()
+        };
+        let (minus, plus) = (crossings(-DVec3::X), crossings(DVec3::X));
+        assert!(minus.len() == 2 && plus.len() == 2, "{minus:?} {plus:?}");
+        assert!(plus[0] > 0.003 && plus[1] > plus[0] + 0.002, "{plus:?}");
+        // Pressing the endocardium at -x (the push along +x), 0.1 mm in.
+        let c = axis - DVec3::X * (minus[0] - r + p);
+        let limited = |stride: DVec3, normal: DVec3| {
+            let head = withdrawal_head(stride, normal, p, reach)?;
+            let survey = watch.survey_withdrawal(Some(&state), c, c + head, c + stride);
+            limit_withdrawal_remainder(stride - head, survey, reach, 0.0).map(|s| head + s)
+        };
+        // Across the cavity to 2 mm into the far wall, in one batch (a stall): it leaves the
+        // near wall by the head and the remainder's start clearance, clear of both walls.
+        let across = DVec3::X * (minus[0] + plus[0] - 2.0 * r + p + 0.002);
+        let s = limited(across, DVec3::X).expect("limited");
+        assert!(
+            s.x > p + reach && at(c + s) > 0.0,
+            "{s:?} leaves {}",
+            at(c + s)
+        );
+        // The batches after it, out of contact, approach the far wall no deeper than a reach
+        // into it (a sphere march at the clearance): as fast as they may, never a jump in.
+        let (mut tool, target) = (c + s, c + across);
+        let mut batches = 0;
+        while at(tool) > 0.0 {
+            let stride = target - tool;
+            let survey = watch.survey_stride(Some(&state), tool, target);
+            tool += limit_approaching_stride(stride, survey, reach, 0.0).unwrap_or(stride);
+            batches += 1;
+            assert!(
+                at(tool) >= -reach - 1e-9 && batches < 100,
+                "{tool:?}: {}",
+                at(tool)
+            );
+        }
+        assert!(batches > 1 && tool.x < target.x, "{batches} {tool:?}");
+        // Back to the cavity's middle: free.
+        assert_eq!(limited(DVec3::X * (minus[0] - r + p), DVec3::X), None);
+        // From the epicardium at +x out 5 cm into the room: free.
+        let c_out = axis + DVec3::X * (plus[1] + r - p);
+        let head = withdrawal_head(0.05 * DVec3::X, DVec3::X, p, reach).unwrap();
+        let survey =
+            watch.survey_withdrawal(Some(&state), c_out, c_out + head, c_out + 0.05 * DVec3::X);
+        assert_eq!(
+            limit_withdrawal_remainder(0.05 * DVec3::X - head, survey, reach, 0.0),
+            None,
+            "{survey:?}"
+        );
+        // The same with the tool's centre 1 mm inside the epicardium (as where particles
+        // resolve a deep press and the coarse surface passes through the tool): free, though
+        // against the whole surface the way out first nears it.
+        let c_in = axis + DVec3::X * (plus[1] - 0.001);
+        let out = 0.05 * DVec3::X;
+        let head = withdrawal_head(out, DVec3::X, p, reach).unwrap();
+        let survey = watch.survey_withdrawal(Some(&state), c_in, c_in + head, c_in + out);
+        assert_eq!(
+            limit_withdrawal_remainder(out - head, survey, reach, 0.0),
+            None,
+            "{survey:?}"
+        );
+        let whole = watch.survey_stride(Some(&state), c_in + head, c_in + out);
+        assert!(limit_withdrawal_remainder(out - head, whole, reach, 0.0).is_some());
     }
 
     #[test]

@@ -167,6 +167,34 @@ impl RestWatch {
     /// it starts and ends ([`RestWatch::clearance`]) and the least over the move, the surface
     /// built once.
     pub fn survey_stride(&self, state: Option<&State>, from: DVec3, to: DVec3) -> StrideSurvey {
+        self.survey_faces(state, from, to, |_| true)
+    }
+
+    /// [`RestWatch::survey_stride`] of the rest of a withdrawal, `from` → `to`, against the
+    /// body less the surface the tool at `tool` touches: the faces within a tool radius of
+    /// its surface (closer than 2r to its centre), which it withdraws from. (Where particles
+    /// resolve a deep press, the coarse surface there may pass through the tool; its unsigned
+    /// distance would read the way out of it as a way in.)
+    pub fn survey_withdrawal(
+        &self,
+        state: Option<&State>,
+        tool: DVec3,
+        from: DVec3,
+        to: DVec3,
+    ) -> StrideSurvey {
+        let touched = 2.0 * self.tool_radius;
+        self.survey_faces(state, from, to, |f| {
+            distance_to_triangles([*f], tool) >= touched
+        })
+    }
+
+    fn survey_faces(
+        &self,
+        state: Option<&State>,
+        from: DVec3,
+        to: DVec3,
+        keep: impl Fn(&[DVec3; 3]) -> bool,
+    ) -> StrideSurvey {
         let built;
         let surface = match (&self.asleep, state) {
             (Some(s), _) => &s.surface,
@@ -182,11 +210,12 @@ impl RestWatch {
                 }
             }
         };
+        let kept = || surface.iter().copied().filter(|f| keep(f));
+        let r = self.tool_radius;
         StrideSurvey {
-            clear: self.clearance_to(surface, from),
-            clear_after: self.clearance_to(surface, to),
-            swept_clear: segment_distance_to_triangles(surface.iter().copied(), from, to)
-                - self.tool_radius,
+            clear: distance_to_triangles(kept(), from) - r,
+            clear_after: distance_to_triangles(kept(), to) - r,
+            swept_clear: segment_distance_to_triangles(kept(), from, to) - r,
         }
     }
 
