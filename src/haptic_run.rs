@@ -268,12 +268,30 @@ fn ramped_stiffness(to: DMat3, ramp: Option<(DMat3, f64)>, t: f64) -> DMat3 {
 
 /// A tool move `stride` in contact, limited to `reach` (m) except for its withdrawal: the part
 /// along the tissue's push `normal` (unit, out of the tissue) that moves away from it is kept
-/// whole, the rest (the press in and the slide along) shortened to `reach`. None when the
-/// stride needs no limit.
-pub fn limit_pressing_stride(stride: DVec3, normal: DVec3, reach: f64) -> Option<DVec3> {
+/// whole, the rest (the press in and the slide along) shortened so that it moves no more than
+/// `reach` while it still touches. A pull (within 30° of the normal) that withdraws by more
+/// than the `penetration` (m) leaves the tissue after that fraction of it: a straight pull
+/// whose contact normal is tilted slides along only that far in contact. (Out of a dimple
+/// whose rim is 60° around the tool from its bottom, a press half the radius deep, a pull
+/// within 30° moves away from every point of it; a stride more sideways would drag the
+/// tool across the rim, and counts as sliding all the way.) None when the stride needs no
+/// limit.
+pub fn limit_pressing_stride(
+    stride: DVec3,
+    normal: DVec3,
+    penetration: f64,
+    reach: f64,
+) -> Option<DVec3> {
     let away = stride.dot(normal).max(0.0);
     let limited = stride - away * normal;
-    let length = limited.length();
+    let depth = penetration.max(0.0);
+    let pull = away >= 30f64.to_radians().cos() * stride.length();
+    let touching = if pull && away > depth {
+        depth / away
+    } else {
+        1.0
+    };
+    let length = limited.length() * touching;
     (length > reach).then(|| away * normal + limited * (reach / length))
 }
 
@@ -639,9 +657,9 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
             let stride = target - sim.tool_position;
             let limited = match contact_normal {
                 Some(normal) => {
-                    let pressed = limit_pressing_stride(stride, normal, reach);
-                    let kept = pressed.unwrap_or(stride);
                     let penetration = sim.last_tool.map_or(0.0, |r| r.max_penetration);
+                    let pressed = limit_pressing_stride(stride, normal, penetration, reach);
+                    let kept = pressed.unwrap_or(stride);
                     match withdrawal_head(kept, normal, penetration, reach) {
                         None => pressed,
                         Some(head) => {
@@ -1199,22 +1217,41 @@ mod tests {
     fn a_pressing_stride_is_limited_and_a_withdrawal_is_not() {
         let n = DVec3::X;
         let close = |a: DVec3, b: DVec3| (a - b).length() < 1e-12;
+        // 0.1 of penetration, deeper than any stride below unless said.
+        let limit = |s, p| limit_pressing_stride(s, n, p, 1.0);
         // Straight out of the tissue, however far: no limit.
-        assert_eq!(limit_pressing_stride(10.0 * n, n, 1.0), None);
+        assert_eq!(limit(10.0 * n, 20.0), None);
         // Within reach: no limit.
-        assert_eq!(
-            limit_pressing_stride(DVec3::new(-0.5, 0.5, 0.0), n, 1.0),
-            None
-        );
+        assert_eq!(limit(DVec3::new(-0.5, 0.5, 0.0), 20.0), None);
         // Straight in: shortened to the reach.
-        assert!(close(limit_pressing_stride(-3.0 * n, n, 1.0).unwrap(), -n));
-        // Out and along: the withdrawal kept whole, the slide shortened.
+        assert!(close(limit(-3.0 * n, 20.0).unwrap(), -n));
+        // Out and along, still touching all the way: the withdrawal kept whole, the slide
+        // shortened.
         assert!(close(
-            limit_pressing_stride(DVec3::new(5.0, 3.0, 0.0), n, 1.0).unwrap(),
+            limit(DVec3::new(5.0, 3.0, 0.0), 20.0).unwrap(),
             DVec3::new(5.0, 1.0, 0.0)
         ));
+        // A pull 25° off the normal from a penetration of 1: it leaves the tissue after a
+        // tenth of it, having slid 0.47 in contact: free. From 4: 1.9 in contact, the slide
+        // shortened to 1 / 0.4.
+        let pull_25 = DVec3::new(10.0, 10.0 * 25f64.to_radians().tan(), 0.0);
+        assert_eq!(limit(pull_25, 1.0), None);
+        assert!(close(
+            limit(pull_25, 4.0).unwrap(),
+            DVec3::new(10.0, 2.5, 0.0)
+        ));
+        // A stride 31° off it, from a penetration of 1: sliding all the way, shortened to 1.
+        let s = limit(DVec3::new(10.0, 10.0 * 31f64.to_radians().tan(), 0.0), 1.0);
+        assert!(close(s.unwrap(), DVec3::new(10.0, 1.0, 0.0)));
+        // A straight pull of 20 whose contact normal is tilted 10° from it, from a penetration
+        // of 2: it slides 0.35 in contact, free; from no penetration, free too.
+        let pull = 20.0 * DVec3::new(10f64.to_radians().cos(), 10f64.to_radians().sin(), 0.0);
+        assert_eq!(limit(pull, 2.0), None);
+        assert_eq!(limit(pull, 0.0), None);
+        // ... while deeper than the pull, the whole slide is in contact: shortened.
+        assert!(limit(pull, 30.0).is_some());
         // In and along: the whole stride shortened, its direction kept.
-        let s = limit_pressing_stride(DVec3::new(-2.0, 0.0, 2.0), n, 1.0).unwrap();
+        let s = limit(DVec3::new(-2.0, 0.0, 2.0), 0.0).unwrap();
         assert!(close(s, DVec3::new(-1.0, 0.0, 1.0) / 2f64.sqrt()));
     }
 }
