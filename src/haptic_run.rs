@@ -1124,18 +1124,10 @@ mod tests {
     /// middle, is free.
     #[test]
     fn a_withdrawal_across_the_lv_cavity_does_not_jump_into_its_far_wall() {
-        use crate::rest::RestWatch;
-        use crate::scene::Scene;
-        use crate::stepper::State;
-        let text = Scene::builtin_text("lv").unwrap().to_string()
-            + "\n[tool]\nradius = 0.001\nstiffness = 1.0e8\nhome = [0.0, 0.0, 0.02]\n";
-        let scene = Scene::from_toml(&text, "lv", "lv", None).unwrap();
-        let watch = RestWatch::new(&scene);
-        let n = scene.mesh.positions.len();
-        let state = State {
-            displacements: vec![0.0; 3 * n],
-            velocities: vec![0.0; 3 * n],
-        };
+        let (watch, state) = crate::rest::tests::watch_at_rest(
+            "lv",
+            "radius = 0.001\nstiffness = 1.0e8\nhome = [0.0, 0.0, 0.02]\n",
+        );
         let r = 0.001;
         let (reach, p) = (5e-4, 1e-4);
         let at = |c: DVec3| watch.survey_stride(Some(&state), c, c).clear;

@@ -272,25 +272,33 @@ pub fn pass_time_at_rest(sim: &mut Simulation, steps: u32) {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::RestWatch;
     use crate::scene::Scene;
     use crate::stepper::State;
     use glam::DVec3;
 
-    #[test]
-    fn a_stride_is_surveyed_along_the_whole_sweep_of_the_tool() {
-        // The built-in beam, a 10 × 2 × 2 cm bar (x from 0 to 10 cm, y and z from 0 to 2 cm,
-        // cells of 5 mm), and a 1 cm tool.
-        let text = Scene::builtin_text("beam").unwrap().to_string()
-            + "\n[tool]\nradius = 0.01\nstiffness = 2.0e7\nhome = [0.08, 0.01, 0.031]\n";
-        let scene = Scene::from_toml(&text, "beam", "beam", None).unwrap();
-        let watch = RestWatch::new(&scene);
+    /// The watch of the built-in scene `name` with a `[tool]` of this TOML text added, and
+    /// the scene's body at rest in its reference shape.
+    pub(crate) fn watch_at_rest(name: &str, tool: &str) -> (RestWatch, State) {
+        let text = Scene::builtin_text(name).unwrap().to_string() + "\n[tool]\n" + tool;
+        let scene = Scene::from_toml(&text, name, name, None).unwrap();
         let n = scene.mesh.positions.len();
         let state = State {
             displacements: vec![0.0; 3 * n],
             velocities: vec![0.0; 3 * n],
         };
+        (RestWatch::new(&scene), state)
+    }
+
+    #[test]
+    fn a_stride_is_surveyed_along_the_whole_sweep_of_the_tool() {
+        // The built-in beam, a 10 × 2 × 2 cm bar (x from 0 to 10 cm, y and z from 0 to 2 cm,
+        // cells of 5 mm), and a 1 cm tool.
+        let (watch, state) = watch_at_rest(
+            "beam",
+            "radius = 0.01\nstiffness = 2.0e7\nhome = [0.08, 0.01, 0.031]\n",
+        );
         let near = |a: f64, b: f64| (a - b).abs() < 1e-9;
         // Above the top face, on the mesh's grid lines and off them.
         for above in [
