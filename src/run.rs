@@ -612,7 +612,13 @@ pub fn summarize(
         steps_per_second: sim.steps_done as f64 / wall.max(1e-9),
         realtime_factor: sim.time / wall.max(1e-9),
         max_displacement: max_displacement(&state.displacements),
-        max_particle_displacement: particles.map(|p| max_displacement(&p.displacements)),
+        // Every particle's, an embedded one's as its host moves it (its own stored state is
+        // current only while it is dynamic), as particles_final.vtu has it.
+        max_particle_displacement: particles.map(|p| {
+            max_displacement(&crate::output::particles::particle_displacements(
+                model, state, p,
+            ))
+        }),
         kinetic_energy: sim.last.kinetic_energy()
             + sim.last_particles.map_or(0.0, |p| p.kinetic_energy),
         elastic_energy: sim.last.elastic_energy()

@@ -380,7 +380,29 @@ fn frames_of_a_particle_scene_include_the_particles() {
     );
     let s = summary(&d);
     assert!(s["active_particles_max"].as_u64().unwrap() > 0);
-    // The particles' largest displacement is summary.json's, as particles_final.vtu has it.
+    assert_particle_displacement_as_in_the_file(&d);
+    // The same bar sagging under gravity with the tool 5 cm above it, every particle
+    // embedded: their displacement is their host's, in the file and in summary.json (which
+    // once read 0 from the particles' own stored state).
+    let scene = beam_with("[particles]\nregion = 0\nspacing = 0.002\nactivation_radius = 0.004\n\n[tool]\nradius = 0.01\nstiffness = 2e7\npath = [[0.0, 0.08, 0.01, 0.08], [0.01, 0.08, 0.01, 0.08]]");
+    let scene = scene_file(&d, "sagging.toml", &scene);
+    let (ok, out, err) = palpate(&[
+        "run",
+        &scene,
+        "--duration",
+        "0.02",
+        "--backend",
+        "cpu",
+        "--out",
+        d.to_str().unwrap(),
+    ]);
+    assert!(ok, "{out}{err}");
+    assert_eq!(summary(&d)["active_particles_max"].as_u64(), Some(0));
+    assert_particle_displacement_as_in_the_file(&d);
+}
+
+/// summary.json's `max_particle_displacement` is the largest in `particles_final.vtu`.
+fn assert_particle_displacement_as_in_the_file(d: &Path) {
     let u = common::vtu_point_vectors(
         &std::fs::read_to_string(d.join("particles_final.vtu")).unwrap(),
         "displacement",
@@ -389,7 +411,7 @@ fn frames_of_a_particle_scene_include_the_particles() {
         .chunks_exact(3)
         .map(|c| (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt())
         .fold(0.0f32, f32::max) as f64;
-    let reported = s["max_particle_displacement"].as_f64().unwrap();
+    let reported = summary(d)["max_particle_displacement"].as_f64().unwrap();
     assert!(
         largest > 0.0 && (reported - largest).abs() <= 1e-6 * largest,
         "summary {reported} against the file's {largest}"
