@@ -962,7 +962,11 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
     let servo_report: ServoReport = servo.join()?;
     outcome?;
     if let (RunStatus::Ok, Some((step, vertex, dt))) = (&status, unrecovered) {
+        // The state is the one rolled back to, for a retry at the halved dt.
         status = diverged_status(&sim, step, vertex, dt);
+        if let RunStatus::Diverged { rolled_back_to, .. } = &mut status {
+            *rolled_back_to = Some((sim.steps_done, sim.dt));
+        }
     }
     let wall = start.elapsed().as_secs_f64();
     stats.tool_stiffness = published_k.transpose().to_cols_array_2d();

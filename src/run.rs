@@ -652,6 +652,7 @@ pub(crate) fn diverged_status(sim: &Simulation, step: u64, vertex: u32, dt: f64)
         wave_speeds: crate::model::SPEED_LIMIT_WAVE_SPEEDS,
         dt,
         dt_bound: m.bounds.dt_bound,
+        rolled_back_to: None,
     }
 }
 

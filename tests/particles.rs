@@ -2250,6 +2250,7 @@ fn a_diverged_particle_is_reported_as_a_particle() {
             wave_speeds: 10.0,
             dt: 1e-5,
             dt_bound: 2e-5,
+            rolled_back_to: None,
         }
         .divergence()
         .unwrap()

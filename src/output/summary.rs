@@ -27,6 +27,9 @@ pub enum RunStatus {
         dt: f64,
         /// The stability bound, s.
         dt_bound: f64,
+        /// Where a haptic session ended while still recovering (dt being halved): the state
+        /// written is the one rolled back to, after this step, to be retried at this dt (s).
+        rolled_back_to: Option<(u64, f64)>,
     },
     /// Stopped by Ctrl-C or SIGTERM ([`crate::interrupt`]) after a batch; outputs written.
     Interrupted {
@@ -72,6 +75,7 @@ impl RunStatus {
                 wave_speeds,
                 dt,
                 dt_bound,
+                ..
             } => {
                 let at = flagged_point(*vertex, *n_vertices);
                 Some(format!(
@@ -87,6 +91,14 @@ impl fmt::Display for RunStatus {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             RunStatus::Ok => write!(f, "ok"),
+            RunStatus::Diverged {
+                rolled_back_to: Some((step, dt)),
+                ..
+            } => write!(
+                f,
+                "{}; the session ended while it recovered: rolled back to step {step}, to retry at dt = {dt:.3e} s; that state written",
+                self.divergence().unwrap_or_default()
+            ),
             RunStatus::Diverged { .. } => write!(
                 f,
                 "{}; last finite state written",
@@ -227,5 +239,41 @@ impl RunSummary {
         let json = serde_json::to_string_pretty(self)
             .map_err(|e| PalpateError::Usage(format!("summary.json: {e}")))?;
         write_atomic(&dir.join("summary.json"), json.as_bytes())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::RunStatus;
+
+    /// A haptic session that ends while it still halves dt says that the state written is
+    /// the one rolled back to (its step and the dt of the retry: summary.json's `steps` and
+    /// `dt`), not the step that diverged.
+    #[test]
+    fn a_session_ended_while_recovering_names_the_state_it_wrote() {
+        let diverged = |rolled_back_to| RunStatus::Diverged {
+            step: 463,
+            vertex: 12,
+            n_vertices: 100,
+            speed_limit: 3.2,
+            wave_speeds: 10.0,
+            dt: 1.441e-6,
+            dt_bound: 1.476e-3,
+            rolled_back_to,
+        };
+        let plain = diverged(None).to_string();
+        assert!(
+            plain.contains("at step 463, vertex 12 (dt = 1.441e-6 s")
+                && plain.ends_with("; last finite state written"),
+            "{plain}"
+        );
+        let ended = diverged(Some((246, 7.205e-7))).to_string();
+        assert!(
+            ended.contains("at step 463, vertex 12 (dt = 1.441e-6 s")
+                && ended.ends_with(
+                    "rolled back to step 246, to retry at dt = 7.205e-7 s; that state written"
+                ),
+            "{ended}"
+        );
     }
 }
