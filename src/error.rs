@@ -52,7 +52,9 @@ pub enum PalpateError {
     },
     /// A requested time step exceeds the stability bound.
     #[error(
-        "{given} = {dt:.3e} s is above the stability bound {bound:.3e} s ({detail}); {advice}"
+        "{given} = {} s is above the stability bound {} s ({detail}); {advice}",
+        distinct_pair(*.dt, *.bound).0,
+        distinct_pair(*.dt, *.bound).1
     )]
     UnstableTimeStep {
         /// Where the step was given: `--dt`, or the scene file and `solver.dt`.
@@ -112,3 +114,43 @@ pub enum PalpateError {
 
 /// Result alias used across the crate.
 pub type Result<T, E = PalpateError> = std::result::Result<T, E>;
+
+/// `a` and `b` in scientific notation with 4 significant digits, or as many more as it takes
+/// for the two to read differently where they differ (a step a hair above its bound).
+pub fn distinct_pair(a: f64, b: f64) -> (String, String) {
+    (3..17)
+        .map(|p| (format!("{a:.p$e}"), format!("{b:.p$e}")))
+        .find(|(x, y)| x != y || a == b)
+        .unwrap_or_else(|| (format!("{a:e}"), format!("{b:e}")))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{distinct_pair, PalpateError};
+
+    /// A step a hair above its bound reads differently from it; one well above keeps 4 digits.
+    #[test]
+    fn a_step_above_its_bound_reads_differently_from_it() {
+        let bound = 1.3944333775567906e-4;
+        let e = PalpateError::UnstableTimeStep {
+            given: "--dt".into(),
+            dt: bound * (1.0 + 1e-9),
+            bound,
+            detail: "Courant".into(),
+            advice: "lower it",
+        }
+        .to_string();
+        assert!(
+            e.starts_with("--dt = 1.394433379e-4 s is above the stability bound 1.394433378e-4 s"),
+            "{e}"
+        );
+        assert_eq!(
+            distinct_pair(2e-4, bound),
+            ("2.000e-4".to_string(), "1.394e-4".to_string())
+        );
+        assert_eq!(
+            distinct_pair(1.0, 1.0),
+            ("1.000e0".to_string(), "1.000e0".to_string())
+        );
+    }
+}

@@ -260,6 +260,27 @@ pub fn choose_dt(
     }
 }
 
+/// The lowest real stability limit `palpate bench stability` measured, as a fraction of the
+/// bound (the built-in beam's mesh: 0.8945 × `dt_bound`; the LV's 1.16–1.28).
+pub const MEASURED_LIMIT_FRACTION: f64 = 0.89;
+
+/// A warning for a dt above [`MEASURED_LIMIT_FRACTION`] × `bound` (accepted up to the bound,
+/// or above it with `--allow-unstable`): such a step diverged on the built-in beam.
+pub fn near_bound_warning(
+    scene: &Scene,
+    dt: f64,
+    bound: f64,
+    override_dt: Option<f64>,
+) -> Option<String> {
+    (dt > MEASURED_LIMIT_FRACTION * bound).then(|| {
+        format!(
+            "{} = {dt:.4e} s is {:.3} × the stability bound {bound:.4e} s; `palpate bench stability` measured the real limit as low as {MEASURED_LIMIT_FRACTION} × it (on the built-in beam), so the run may diverge (solver.safety = 0.5, the default, keeps a margin)",
+            dt_source(scene, override_dt),
+            dt / bound
+        )
+    })
+}
+
 /// Where a run's dt comes from, as the user wrote it: `--dt`, `solver.dt`, or the automatic
 /// step (`solver.safety` × the stable bound of the material and mesh).
 fn dt_source(scene: &Scene, override_dt: Option<f64>) -> &'static str {
@@ -328,6 +349,9 @@ impl Simulation {
                 scene.origin,
                 dt_source(scene, opts.dt)
             )));
+        }
+        if let Some(w) = near_bound_warning(scene, dt, model.bounds.dt_bound, opts.dt) {
+            crate::say_err!("warning: {}: {w}", scene.origin);
         }
         Simulation::from_model_of(
             model,

@@ -668,6 +668,48 @@ fn missing_files_and_unknown_scenes_are_clear_errors() {
     );
 }
 
+/// A dt within the stability bound but above the lowest real limit measured (0.89 × it, on
+/// the built-in beam) runs with a warning that says so; the automatic dt warns of nothing.
+#[test]
+fn a_dt_close_to_the_stability_bound_is_warned_of() {
+    let d = tmp("near_bound");
+    let out = d.to_str().unwrap();
+    let run = |extra: &[&str]| {
+        let (ok, _, err) = palpate(
+            &[
+                &[
+                    "run",
+                    "beam",
+                    "--steps",
+                    "1",
+                    "--backend",
+                    "cpu",
+                    "--out",
+                    out,
+                ][..],
+                extra,
+            ]
+            .concat(),
+        );
+        assert!(ok, "{err}");
+        (summary(&d)["dt_bound"].as_f64().unwrap(), err)
+    };
+    let (bound, quiet) = run(&[]);
+    assert!(!quiet.contains("stability bound"), "{quiet}");
+    for (fraction, warned) in [(0.95, true), (0.85, false)] {
+        let dt = format!("{:e}", fraction * bound);
+        let (_, err) = run(&["--dt", &dt]);
+        assert_eq!(
+            err.lines().any(|l| l.starts_with("warning:")
+                && l.contains("--dt = ")
+                && l.contains(&format!("{fraction:.3} × the stability bound"))
+                && l.contains("may diverge")),
+            warned,
+            "{fraction}: {err}"
+        );
+    }
+}
+
 #[test]
 fn dt_above_the_bound_is_refused_unless_allowed_and_divergence_is_caught() {
     let d = tmp("unstable");
