@@ -561,6 +561,22 @@ pub fn run_with_state(
         ));
     }
     keep(frames.finish());
+    if opts.announce && until_static && opts.frames >= 2 && frames.len() < opts.frames as usize {
+        crate::say_err!(
+            "warning: --frames {} wrote {}: under --until-static a frame goes at the end of the relaxation batch (up to {} steps) its time falls in, so frames closer than a batch share one{}",
+            opts.frames,
+            frames.len(),
+            opts.batch.max(1),
+            if sim.steps_done < max_steps {
+                format!(
+                    ", and the run ended after {} of its --max-steps {max_steps} steps",
+                    sim.steps_done
+                )
+            } else {
+                String::new()
+            }
+        );
+    }
     let mut summary = summarize(
         scene,
         &sim,

@@ -2860,6 +2860,60 @@ fn an_until_static_run_cut_off_before_its_loads_settle_says_so() {
     );
 }
 
+/// Under --until-static, frame times closer than a relaxation batch share one frame: the run
+/// says how many it wrote of the --frames asked for (a plain run writes them all).
+#[test]
+fn until_static_says_when_it_writes_fewer_frames_than_asked() {
+    let d = tmp("us_frames");
+    let out = d.to_str().unwrap();
+    let frame_files = || {
+        std::fs::read_dir(&d)
+            .unwrap()
+            .filter(|e| {
+                let name = e.as_ref().unwrap().file_name();
+                name.to_string_lossy().starts_with("frame_")
+            })
+            .count()
+    };
+    let (ok, _, err) = palpate(&[
+        "run",
+        "beam",
+        "--backend",
+        "cpu",
+        "--until-static",
+        "--max-steps",
+        "1000",
+        "--frames",
+        "7",
+        "--out",
+        out,
+    ]);
+    let written = frame_files();
+    assert!(written < 7, "{written} frames: {err}");
+    assert!(
+        err.contains(&format!(
+            "warning: --frames 7 wrote {written}: under --until-static"
+        )),
+        "ok {ok}: {err}"
+    );
+    let (ok, _, err) = palpate(&[
+        "run",
+        "beam",
+        "--backend",
+        "cpu",
+        "--steps",
+        "1000",
+        "--frames",
+        "7",
+        "--out",
+        out,
+    ]);
+    assert!(
+        ok && frame_files() == 7 && !err.contains("--frames 7 wrote"),
+        "{err}"
+    );
+}
+
 #[test]
 fn numbers_far_from_one_on_the_command_line_are_printed_in_exponent_form() {
     assert_one_line_error(

@@ -56,7 +56,8 @@ enum Command {
         #[arg(long, value_enum, default_value = "stop")]
         on_diverge: OnDiverge,
         /// Write K frames to series.pvd, evenly over the run's length and the final state last
-        /// (with --until-static the length is --max-steps: a run that settles sooner has fewer).
+        /// (with --until-static the length is --max-steps: a run that settles sooner has fewer,
+        /// and frames closer than a relaxation batch share one; the run says so).
         #[arg(long, default_value_t = 0)]
         frames: u32,
         /// Output directory.

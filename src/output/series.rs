@@ -106,6 +106,16 @@ impl FrameSeries {
         LiveIndex::update(&mut self.index, &self.dir.join("series.pvd"), &self.frames)
     }
 
+    /// Frames written.
+    pub fn len(&self) -> usize {
+        self.frames.len()
+    }
+
+    /// Whether no frame was written.
+    pub fn is_empty(&self) -> bool {
+        self.frames.is_empty()
+    }
+
     /// Time of the last frame written, if any.
     pub fn last_time(&self) -> Option<f64> {
         self.frames.last().map(|(t, _)| *t)
