@@ -470,6 +470,8 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
             ..Default::default()
         },
     )?;
+    // Built: a signal from now on stops after a batch and writes the outputs.
+    crate::interrupt::setup_done();
     let model = sim.model.clone();
     let home = model.tool.as_ref().map_or(DVec3::ZERO, |t| t.tool.home);
     let tool_damping = model.tool.as_ref().map_or(0.0, |t| t.tool.damping);

@@ -3,7 +3,10 @@
 //! `interrupted`, exit status 130); a second one ends the process at once, unless it came
 //! within [`REPEAT_WINDOW`] of the first: that is the same stop delivered twice (GNU
 //! `timeout` signals its command and then the command's process group, microseconds apart),
-//! not a user asking again. Nothing is
+//! not a user asking again. While the job is still being set up (the scene built: its
+//! particles sampled and their neighbour lists, for a large layer a minute or more) a signal
+//! ends the process at once: nothing has been written then, and earlier outputs are kept.
+//! The job calls [`setup_done`] once it is built. Nothing is
 //! installed unless [`install`] is called (the command line does; a library user keeps the
 //! default behaviour), and a signal the process inherited as ignored (a background job of a
 //! non-interactive shell) stays ignored. A stop asked for stays asked for until [`clear`].
@@ -26,9 +29,25 @@ pub fn request() {
     REQUESTED.store(true, Ordering::SeqCst);
 }
 
+/// Whether handlers are installed ([`install`]).
+static INSTALLED: AtomicBool = AtomicBool::new(false);
+
+/// Whether the job is still being set up: a signal then ends the process at once.
+static SETTING_UP: AtomicBool = AtomicBool::new(false);
+
+/// The job is built and about to write or step: from now on a first signal asks it to stop
+/// after its batch and write its outputs.
+pub fn setup_done() {
+    SETTING_UP.store(false, Ordering::SeqCst);
+}
+
+/// What a signal during the setup prints (on stderr) before ending the process.
+pub const SETUP_NOTE: &str = "\nerror: stopped while the scene was being built (Ctrl-C or SIGTERM): nothing was written, earlier outputs kept\n";
+
 /// Forget a stop asked for, and the signals counted (before starting another job in the
-/// same process).
+/// same process, which is set up again).
 pub fn clear() {
+    SETTING_UP.store(INSTALLED.load(Ordering::SeqCst), Ordering::SeqCst);
     REQUESTED.store(false, Ordering::SeqCst);
     SIGNALS.store(0, Ordering::SeqCst);
     FIRST_AT.store(0, Ordering::SeqCst);
@@ -85,7 +104,9 @@ extern "C" fn on_signal(_: libc::c_int) {
     }
     let n = SIGNALS.fetch_add(1, Ordering::SeqCst) + 1;
     REQUESTED.store(true, Ordering::SeqCst);
+    let setting_up = SETTING_UP.load(Ordering::SeqCst);
     let note = match n {
+        1 if setting_up => SETUP_NOTE,
         1 => FIRST_NOTE,
         2 => SECOND_NOTE,
         _ => "",
@@ -101,7 +122,7 @@ extern "C" fn on_signal(_: libc::c_int) {
     unsafe {
         *libc::__errno_location() = errno
     };
-    if n >= 2 {
+    if n >= 2 || setting_up {
         // SAFETY: _exit is async-signal-safe.
         unsafe { libc::_exit(EXIT_STATUS as libc::c_int) };
     }
@@ -131,7 +152,10 @@ pub fn install() -> bool {
             }
             true
         });
-        installed.iter().all(|&ok| ok)
+        let all = installed.iter().all(|&ok| ok);
+        INSTALLED.store(true, Ordering::SeqCst);
+        SETTING_UP.store(true, Ordering::SeqCst);
+        all
     }
     #[cfg(not(unix))]
     {

@@ -329,6 +329,8 @@ pub fn run_with_state(
             step_on_this_thread: false,
         },
     )?;
+    // Built: a signal from now on stops after a batch and writes the outputs.
+    crate::interrupt::setup_done();
     let model = sim.model.clone();
     let dt0 = sim.dt;
     // Every refusal before an earlier run's outputs are removed: a run refused keeps them.

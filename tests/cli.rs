@@ -3035,6 +3035,82 @@ fn a_killed_runs_frames_are_an_indexed_series_and_the_next_run_removes_them() {
     );
 }
 
+/// A signal while the scene is still being built (here hm1 with a million particles, seconds
+/// of sampling and neighbour lists) ends the process at once, status 130: nothing was
+/// written, and an earlier run's outputs stay. (It used to wait for the build, then write the
+/// initial state: 1 GB of particles for a layer of 14 million.)
+#[cfg(unix)]
+#[test]
+fn a_stop_while_the_scene_is_built_ends_at_once_and_keeps_earlier_outputs() {
+    use std::io::BufRead;
+    let d = tmp("stop_in_setup");
+    let out = d.join("out");
+    let (ok, _, err) = palpate(&[
+        "run",
+        "beam",
+        "--steps",
+        "1",
+        "--backend",
+        "cpu",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let earlier = std::fs::read(out.join("summary.json")).unwrap();
+    let text = palpate::scene::Scene::builtin_text("hm1")
+        .unwrap()
+        .replacen("spacing = 0.4", "spacing = 0.12", 1);
+    assert!(text.contains("spacing = 0.12"));
+    let scene = scene_file(&d, "hm1_fine.toml", &text);
+    let mut child = spawn_as_a_foreground_job(&[
+        "run",
+        &scene,
+        "--steps",
+        "5",
+        "--backend",
+        "cpu",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let mut lines = std::io::BufReader::new(child.stderr.take().unwrap()).lines();
+    let mut err = String::new();
+    for line in lines.by_ref() {
+        let line = line.unwrap();
+        err.push_str(&line);
+        err.push('\n');
+        if line.contains("building about") {
+            break;
+        }
+    }
+    assert!(err.contains("building about 1.0"), "{err}");
+    let pid = child.id() as libc::pid_t;
+    // SAFETY: kill(2) on the child's pid, not yet waited for (so not reused).
+    unsafe { libc::kill(pid, libc::SIGTERM) };
+    let start = std::time::Instant::now();
+    let status = loop {
+        if let Some(status) = child.try_wait().expect("wait") {
+            break status;
+        }
+        if start.elapsed().as_secs_f64() > 60.0 {
+            let _ = child.kill();
+            panic!("the run did not stop within 60 s of SIGTERM: {err}");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    };
+    let stopped_in = start.elapsed().as_secs_f64();
+    for line in lines {
+        err.push_str(&line.unwrap());
+        err.push('\n');
+    }
+    assert_eq!(status.code(), Some(130), "{err}");
+    assert!(
+        err.contains("error: stopped while the scene was being built") && stopped_in < 2.0,
+        "{stopped_in} s: {err}"
+    );
+    assert_eq!(std::fs::read(out.join("summary.json")).unwrap(), earlier);
+    assert!(out.join("final.vtu").is_file() && !out.join("particles_final.vtu").exists());
+}
+
 #[cfg(unix)]
 #[test]
 fn a_second_ctrl_c_stops_at_once_and_says_so() {
