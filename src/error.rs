@@ -102,6 +102,10 @@ pub enum PalpateError {
     /// Something the engine relies on did not hold (a bug; the message says what).
     #[error("internal error: {0}")]
     Internal(String),
+    /// A stop (Ctrl-C or SIGTERM) came before the job wrote or removed anything: it ends
+    /// with exit status 130 and the output folder as it was.
+    #[error("stopped (Ctrl-C or SIGTERM) before {0}: nothing was written, earlier outputs kept")]
+    StoppedBeforeStart(String),
     /// Writing an output file failed.
     #[error("{path}: cannot write: {source}")]
     OutputIo {

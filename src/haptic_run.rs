@@ -539,6 +539,11 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
         );
     }
 
+    if crate::interrupt::requested() {
+        return Err(PalpateError::StoppedBeforeStart(
+            "the session started".into(),
+        ));
+    }
     // Built before the servo starts: with hm1's 28,000 particles it takes milliseconds.
     let probe = InversionProbe::new(&model);
     let steps_per_batch = ((opts.batch_seconds / sim.dt).round() as u32).max(1);

@@ -335,6 +335,9 @@ pub fn run_with_state(
     let dt0 = sim.dt;
     // Every refusal before an earlier run's outputs are removed: a run refused keeps them.
     let max_steps = steps_for(opts.length, dt0, scene)?;
+    if crate::interrupt::requested() {
+        return Err(PalpateError::StoppedBeforeStart("the run started".into()));
+    }
     let removed = crate::output::remove_earlier_outputs(&opts.out)?;
     if opts.announce && removed > 0 {
         crate::say_err!(

@@ -208,6 +208,10 @@ fn main() -> ExitCode {
     match result {
         Ok(()) if stopped => ExitCode::from(palpate::interrupt::EXIT_STATUS),
         Ok(()) => ExitCode::SUCCESS,
+        Err(e @ PalpateError::StoppedBeforeStart(_)) => {
+            palpate::say_err!("error: {e}");
+            ExitCode::from(palpate::interrupt::EXIT_STATUS)
+        }
         Err(e) => {
             // One line of bounded length whatever input an error quotes.
             palpate::say_err!("error: {}", palpate::input::clip(&e.to_string(), 2000));
