@@ -1569,6 +1569,9 @@ fn a_new_run_removes_the_outputs_an_earlier_run_left_and_nothing_else() {
     std::fs::write(out.join("notes.txt"), "mine").unwrap();
     std::fs::write(out.join("frame_12.vtu.bak"), "mine").unwrap();
     std::fs::write(out.join("frame_1.vtu"), "mine: palpate writes four digits").unwrap();
+    // Named as outputs, but not palpate's: a trajectory and another tool's frame.
+    std::fs::write(out.join("haptic.csv"), "t,x,y,z\n0,0,0,0\n").unwrap();
+    std::fs::write(out.join("frame_0007.vtu"), "mine").unwrap();
     assert!(out.join("particles_series.pvd").exists() && out.join("frame_0002.vtu").exists());
     let (ok, _, err) = palpate(&["run", "beam", "--steps", "1", "--out", o]);
     assert!(ok, "{err}");
@@ -1587,8 +1590,10 @@ fn a_new_run_removes_the_outputs_an_earlier_run_left_and_nothing_else() {
         left,
         [
             "final.vtu",
+            "frame_0007.vtu",
             "frame_1.vtu",
             "frame_12.vtu.bak",
+            "haptic.csv",
             "notes.txt",
             "summary.json"
         ],
@@ -1639,6 +1644,37 @@ fn a_new_run_removes_the_outputs_an_earlier_run_left_and_nothing_else() {
     assert!(ok, "{err}");
     assert!(!err.contains("note: removed"), "{err}");
     assert!(mine.join("frame_0001.vtu").exists());
+
+    // A FIFO under an output's name is not read (a read would wait for a writer forever): the
+    // run ends, its summary.json renamed into the FIFO's place.
+    #[cfg(unix)]
+    {
+        let fifo = d.join("fifo");
+        std::fs::create_dir_all(&fifo).unwrap();
+        let name = std::ffi::CString::new(fifo.join("summary.json").to_str().unwrap()).unwrap();
+        // SAFETY: mkfifo(3) with a valid NUL-terminated path.
+        assert_eq!(unsafe { libc::mkfifo(name.as_ptr(), 0o644) }, 0);
+        let mut child = Command::new(env!("CARGO_BIN_EXE_palpate"))
+            .args(["run", "beam", "--steps", "1", "--backend", "cpu", "--out"])
+            .arg(&fifo)
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .unwrap();
+        let start = std::time::Instant::now();
+        let status = loop {
+            if let Some(status) = child.try_wait().unwrap() {
+                break status;
+            }
+            if start.elapsed().as_secs() > 60 {
+                let _ = child.kill();
+                panic!("the run hung on a FIFO named summary.json");
+            }
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        };
+        assert!(status.success());
+        assert_eq!(summary(&fifo)["scene"], "beam");
+    }
 }
 
 #[test]

@@ -59,21 +59,63 @@ pub fn is_run_output(name: &str) -> bool {
         || name.strip_prefix("particles_").is_some_and(own)
 }
 
+/// The first `max` bytes of `path` when it is a regular file (not a FIFO, a device or a
+/// folder, which a read could block on or not end), else None.
+fn head(path: &Path, max: u64) -> Option<Vec<u8>> {
+    use std::io::Read;
+    if !std::fs::metadata(path).ok()?.is_file() {
+        return None;
+    }
+    let mut bytes = Vec::new();
+    std::fs::File::open(path)
+        .ok()?
+        .take(max)
+        .read_to_end(&mut bytes)
+        .ok()?;
+    Some(bytes)
+}
+
+/// How palpate's VTU files begin ([`vtu`]).
+const VTU_PROLOGUE: &[u8] = b"<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"1.0\" byte_order=\"LittleEndian\" header_type=\"UInt64\">";
+
+/// How `haptic.csv` begins (its header's first columns).
+const HAPTIC_CSV_PROLOGUE: &[u8] = b"time_s,device_x,device_y,device_z,";
+
+/// Whether the file `name` at `path`, named as a run output, is one palpate wrote: a `.vtu`
+/// that begins as palpate's do, a `.pvd` marked [`PVD_MARK`], a `haptic.csv` with its
+/// header, or a `.partial` (a write a kill cut short). (`summary.json` is proved by its keys.)
+fn written_by_palpate(name: &str, path: &Path) -> bool {
+    if name.ends_with(".partial") {
+        return true;
+    }
+    let starts = |prologue: &[u8]| head(path, prologue.len() as u64).is_some_and(|h| h == prologue);
+    if name.ends_with(".vtu") {
+        starts(VTU_PROLOGUE)
+    } else if name.ends_with(".pvd") {
+        head(path, 4096).is_some_and(|h| String::from_utf8_lossy(&h).contains(PVD_MARK))
+    } else if name == "haptic.csv" {
+        starts(HAPTIC_CSV_PROLOGUE)
+    } else {
+        false
+    }
+}
+
 /// Remove what an earlier run left in `dir`, so that its frames or particle files are not
 /// mixed with the new run's in ParaView: only when `dir` holds an earlier run's
 /// `summary.json` (a JSON object with `scene`, `backend` and `status`) or a `series.pvd` /
 /// `particles_series.pvd` marked [`PVD_MARK`] (a run killed before its summary), and only
-/// files [`is_run_output`] names, nothing else: its `final.vtu` and `summary.json` too, so
-/// that a run that fails half-way leaves none of the earlier run's results beside its own.
-/// Returns how many files were removed.
+/// regular files [`is_run_output`] names whose contents are palpate's (a user's
+/// `haptic.csv` trajectory or a `frame_0007.vtu` of another tool stays), nothing else: its
+/// `final.vtu` and `summary.json` too, so that a run that fails half-way leaves none of the
+/// earlier run's results beside its own. A FIFO or device under an output's name is not
+/// read (it could block). Returns how many files were removed.
 pub fn remove_earlier_outputs(dir: &Path) -> Result<usize> {
     let err = |source| PalpateError::OutputIo {
         path: dir.to_path_buf(),
         source,
     };
-    let earlier_run = std::fs::read_to_string(dir.join("summary.json"))
-        .ok()
-        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+    let earlier_run = head(&dir.join("summary.json"), 64 << 20)
+        .and_then(|t| serde_json::from_slice::<serde_json::Value>(&t).ok())
         .is_some_and(|v| {
             ["scene", "backend", "status"]
                 .iter()
@@ -81,7 +123,7 @@ pub fn remove_earlier_outputs(dir: &Path) -> Result<usize> {
         });
     let killed_run = ["series.pvd", "particles_series.pvd"]
         .iter()
-        .any(|name| std::fs::read_to_string(dir.join(name)).is_ok_and(|t| t.contains(PVD_MARK)));
+        .any(|name| written_by_palpate(name, &dir.join(name)));
     if !(earlier_run || killed_run) {
         return Ok(0);
     }
@@ -90,15 +132,16 @@ pub fn remove_earlier_outputs(dir: &Path) -> Result<usize> {
         let entry = entry.map_err(err)?;
         let name = entry.file_name();
         let is_file = entry.file_type().map_err(err)?.is_file();
-        // Marked only by a killed run's series: a summary.json that is not palpate's (and a
-        // haptic.csv, which a run does not write) stay.
-        let unproven = !earlier_run
-            && name
-                .to_str()
-                .is_some_and(|n| n.starts_with("summary.json") || n.starts_with("haptic.csv"));
-        let stale = !unproven && name.to_str().is_some_and(is_run_output);
-        if is_file && stale {
-            let path = entry.path();
+        let Some(name) = name.to_str().filter(|n| is_file && is_run_output(n)) else {
+            continue;
+        };
+        let path = entry.path();
+        // summary.json only when it is the earlier run's, proved above.
+        let stale = match name {
+            "summary.json" => earlier_run,
+            _ => written_by_palpate(name, &path),
+        };
+        if stale {
             std::fs::remove_file(&path)
                 .map_err(|source| PalpateError::OutputIo { path, source })?;
             removed += 1;
