@@ -88,9 +88,44 @@ pub fn clip(text: &str, max_chars: usize) -> String {
     out
 }
 
+/// [`clip`], keeping the end too: a text longer than `max_chars` keeps its first three
+/// quarters and its last quarter, what is between counted (a long path in an error must not
+/// cut off the reason that follows it).
+pub fn clip_middle(text: &str, max_chars: usize) -> String {
+    let n = text.chars().count();
+    if n <= max_chars {
+        return clip(text, max_chars);
+    }
+    let tail = max_chars / 4;
+    let head = max_chars - tail;
+    let first: String = text.chars().take(head).collect();
+    let last: String = text.chars().skip(n - tail).collect();
+    format!(
+        "{}… ({} characters) …{}",
+        clip(&first, head),
+        n - head - tail,
+        clip(&last, tail)
+    )
+}
+
 #[cfg(test)]
 mod excerpt_tests {
     use super::*;
+
+    #[test]
+    fn a_long_text_clipped_in_the_middle_keeps_its_end() {
+        let text = format!("{}: cannot write: File name too long", "e/".repeat(2000));
+        let c = clip_middle(&text, 200);
+        assert!(
+            c.starts_with("e/e/") && c.ends_with(": cannot write: File name too long"),
+            "{c}"
+        );
+        assert!(
+            c.contains("… (3834 characters) …") && c.chars().count() < 240,
+            "{c}"
+        );
+        assert_eq!(clip_middle("short", 200), "short");
+    }
 
     #[test]
     fn excerpts_escape_control_characters_and_cut_long_text() {

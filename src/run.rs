@@ -427,8 +427,11 @@ pub fn run_with_state(
         );
     }
     let mut frames = FrameSeries::new(&opts.out);
+    let mut output_errors = crate::output::OutputErrors::default();
     if opts.frames >= 2 {
-        frames.write(&model, &sim.state()?, sim.particle_state()?.as_ref(), 0.0)?;
+        // The first frame too: one that cannot be written ends the series, not the run.
+        let particles = sim.particle_state()?;
+        output_errors.keep(frames.write(&model, &sim.state()?, particles.as_ref(), 0.0));
     }
     let show = opts.progress && std::io::stdout().is_terminal();
     let mut progress = Progress::new(show, (!until_static).then_some(target_steps));
@@ -456,7 +459,6 @@ pub fn run_with_state(
     let start = Instant::now();
     let mut next_frame_time = frame_dt;
     let mut long_run_noted = false;
-    let mut output_errors = crate::output::OutputErrors::default();
     if until_static && target_steps > 0 {
         // Residual of the initial state: a body already in equilibrium stops at once.
         if let Guarded::Done(s) = sim.advance_with(1, DivergencePolicy::Stop)? {

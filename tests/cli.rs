@@ -1681,10 +1681,11 @@ fn a_new_run_removes_the_outputs_an_earlier_run_left_and_nothing_else() {
 fn an_output_that_cannot_be_written_loses_nothing_else() {
     // A folder where final.vtu or frame_0001.vtu should go makes that write fail: the run
     // still writes the rest (summary.json above all), leaves no .partial file, and fails
-    // naming the file.
+    // naming the file. The first frame too (it used to end the run with no summary.json).
     let d = tmp("writefail");
     for (blocked, frames) in [
         ("final.vtu", "0"),
+        ("frame_0000.vtu", "3"),
         ("frame_0001.vtu", "3"),
         ("frame_0001.vtu+final.vtu", "3"),
     ] {

@@ -214,7 +214,10 @@ fn main() -> ExitCode {
         }
         Err(e) => {
             // One line of bounded length whatever input an error quotes.
-            palpate::say_err!("error: {}", palpate::input::clip(&e.to_string(), 2000));
+            palpate::say_err!(
+                "error: {}",
+                palpate::input::clip_middle(&e.to_string(), 2000)
+            );
             ExitCode::FAILURE
         }
     }

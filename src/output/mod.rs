@@ -36,7 +36,12 @@ pub fn prepare_out_dir(dir: &Path) -> Result<()> {
         )));
     }
     std::fs::create_dir_all(dir).map_err(err)?;
-    let probe = dir.join(format!(".palpate-write-probe-{}", std::process::id()));
+    // As long as the longest name a run writes (`particles_frame_NNNN.vtu.partial`, and
+    // more), so that a folder path near the system's length limit fails here.
+    let probe = dir.join(format!(
+        "{:_<40}",
+        format!(".palpate-write-probe-{}", std::process::id())
+    ));
     std::fs::write(&probe, b"").map_err(err)?;
     std::fs::remove_file(&probe).map_err(err)
 }
