@@ -544,6 +544,8 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
             "the session started".into(),
         ));
     }
+    // Held until the outputs are written: a second job into this folder is refused.
+    let _lock = crate::output::lock::OutLock::acquire(&opts.out)?;
     // Built before the servo starts: with hm1's 28,000 particles it takes milliseconds.
     let probe = InversionProbe::new(&model);
     let steps_per_batch = ((opts.batch_seconds / sim.dt).round() as u32).max(1);

@@ -338,6 +338,8 @@ pub fn run_with_state(
     if crate::interrupt::requested() {
         return Err(PalpateError::StoppedBeforeStart("the run started".into()));
     }
+    // Held until the outputs are written: a second job into this folder is refused.
+    let _lock = crate::output::lock::OutLock::acquire(&opts.out)?;
     let removed = crate::output::remove_earlier_outputs(&opts.out)?;
     if opts.announce && removed > 0 {
         crate::say_err!(

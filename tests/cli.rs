@@ -3072,6 +3072,60 @@ fn a_killed_runs_frames_are_an_indexed_series_and_the_next_run_removes_them() {
     );
 }
 
+/// A second job into an output folder that a running job writes is refused (it used to
+/// delete the first one's frames while it ran, and mix its files with them); once that job
+/// is gone, even killed with its lock left behind, the folder is free again.
+#[cfg(unix)]
+#[test]
+fn a_second_job_into_a_folder_in_use_is_refused() {
+    let d = tmp("locked");
+    let out = d.join("out");
+    let scene = slow_to_stop_scene(&d);
+    let mut first = start_slow_run(&scene, &out, &["--frames", "100"]);
+    let pid = first.id();
+    assert!(out.join(".palpate.lock").is_file());
+    let frame = std::fs::read(out.join("frame_0000.vtu")).unwrap();
+    for args in [
+        vec!["run", "beam", "--steps", "1", "--backend", "cpu"],
+        vec![
+            "haptic",
+            "--device",
+            "null",
+            "--seconds",
+            "0.1",
+            "--backend",
+            "cpu",
+        ],
+    ] {
+        let mut args = args.clone();
+        args.extend(["--out", out.to_str().unwrap()]);
+        assert_one_line_error(
+            &args,
+            &[
+                &format!("another palpate job (process {pid}) is writing its outputs here"),
+                "--out",
+            ],
+        );
+    }
+    assert_eq!(std::fs::read(out.join("frame_0000.vtu")).unwrap(), frame);
+    // Killed, its lock stays, stale: the next run takes the folder.
+    first.kill().unwrap();
+    first.wait().unwrap();
+    assert!(out.join(".palpate.lock").is_file());
+    let (ok, _, err) = palpate(&[
+        "run",
+        "beam",
+        "--steps",
+        "1",
+        "--backend",
+        "cpu",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    assert!(!out.join(".palpate.lock").exists() && !out.join("frame_0000.vtu").exists());
+}
+
 /// A signal while the scene is still being built (here hm1 with a million particles, seconds
 /// of sampling and neighbour lists) ends the process at once, status 130: nothing was
 /// written, and an earlier run's outputs stay. (It used to wait for the build, then write the

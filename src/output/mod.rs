@@ -1,9 +1,10 @@
 //! Output files: VTU meshes with point and cell data (`state`), the particles as a VTU point
 //! cloud (`particles`), PVD series (`series`), the summary JSON (`summary`) and the
-//! studies' PNG plots (`png`).
+//! studies' PNG plots (`png`); one job at a time in an output folder (`lock`).
 //! Every file is written to a temporary name and renamed into place, so a failed run never
 //! leaves a half-written file under the final name.
 
+pub mod lock;
 pub mod particles;
 pub mod png;
 pub mod series;
