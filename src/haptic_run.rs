@@ -453,6 +453,17 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
         )));
     }
     crate::output::prepare_out_dir(&opts.out)?;
+    let trajectory = match haptics::DeviceArg::parse(&opts.device)? {
+        haptics::DeviceArg::Scripted(path) => Some(path),
+        _ => None,
+    };
+    let mut inputs: Vec<(&str, &std::path::Path)> = scene
+        .input_files
+        .iter()
+        .map(|p| ("file the scene reads", p.as_path()))
+        .collect();
+    inputs.extend(trajectory.as_deref().map(|p| ("scripted trajectory", p)));
+    crate::output::check_inputs_are_not_outputs(&opts.out, &inputs)?;
     let threads = opts.threads.or_else(|| {
         (opts.backend != Backend::Gpu).then(|| {
             crate::cpu::stepper::available_cores()

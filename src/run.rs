@@ -11,7 +11,7 @@ use crate::scene::{Num, Scene};
 use crate::sim::{Backend, DivergencePolicy, Guarded, SimOptions, Simulation};
 use crate::stepper::BatchStats;
 use std::io::IsTerminal;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// What to do when the state diverges (`--on-diverge`): non-finite, or faster than 10× the
@@ -309,6 +309,12 @@ pub fn run_with_state(
     opts: &RunOptions,
 ) -> Result<(RunSummary, crate::stepper::State)> {
     crate::output::prepare_out_dir(&opts.out)?;
+    let inputs: Vec<(&str, &Path)> = scene
+        .input_files
+        .iter()
+        .map(|p| ("file the scene reads", p.as_path()))
+        .collect();
+    crate::output::check_inputs_are_not_outputs(&opts.out, &inputs)?;
     let until_static = matches!(opts.length, RunLength::UntilStatic { .. });
     let relaxed;
     let scene = if until_static {

@@ -1677,6 +1677,75 @@ fn a_new_run_removes_the_outputs_an_earlier_run_left_and_nothing_else() {
     }
 }
 
+/// A job's input under the name of one of its outputs in --out (a mesh read from
+/// `out/final.vtu`, a trajectory `out/haptic.csv`) is refused before anything is written: it
+/// used to be replaced by the output (the mesh then lost its vertex tags, and the next run
+/// failed on them).
+#[test]
+fn an_input_in_the_output_folder_under_an_outputs_name_is_refused() {
+    let d = tmp("input_is_output");
+    let (ok, _, err) = palpate(&[
+        "mesh",
+        "beam",
+        "--out",
+        d.join("final.vtu").to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let mesh = std::fs::read(d.join("final.vtu")).unwrap();
+    let scene = scene_file(
+        &d,
+        "scene.toml",
+        "[mesh]\nfile = \"final.vtu\"\n[material]\nyoungs_modulus = 3.0e5\npoisson_ratio = 0.4\ndensity = 1000.0\n",
+    );
+    assert_one_line_error(
+        &[
+            "run",
+            &scene,
+            "--steps",
+            "1",
+            "--backend",
+            "cpu",
+            "--out",
+            d.to_str().unwrap(),
+        ],
+        &[
+            "final.vtu: the file the scene reads is in --out",
+            "(final.vtu)",
+        ],
+    );
+    assert_eq!(std::fs::read(d.join("final.vtu")).unwrap(), mesh);
+    // Elsewhere it runs.
+    let (ok, _, err) = palpate(&[
+        "run",
+        &scene,
+        "--steps",
+        "1",
+        "--backend",
+        "cpu",
+        "--out",
+        d.join("out").to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let trajectory = d.join("haptic.csv");
+    std::fs::write(&trajectory, "t,x,y,z\n0,0,0,0\n0.1,0,0,0\n").unwrap();
+    assert_one_line_error(
+        &[
+            "haptic",
+            "--device",
+            &format!("scripted:{}", trajectory.display()),
+            "--backend",
+            "cpu",
+            "--out",
+            d.to_str().unwrap(),
+        ],
+        &["haptic.csv: the scripted trajectory is in --out"],
+    );
+    assert_eq!(
+        std::fs::read_to_string(&trajectory).unwrap(),
+        "t,x,y,z\n0,0,0,0\n0.1,0,0,0\n"
+    );
+}
+
 #[test]
 fn an_output_that_cannot_be_written_loses_nothing_else() {
     // A folder where final.vtu or frame_0001.vtu should go makes that write fail: the run

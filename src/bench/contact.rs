@@ -190,6 +190,7 @@ impl HertzCase {
             gravity: [0.0; 3],
             external_forces: vec![DVec3::ZERO; n],
             load_warnings: Vec::new(),
+            input_files: Vec::new(),
             solver: SolverSettings {
                 dt: None,
                 safety: 0.5,

@@ -47,6 +47,31 @@ pub fn prepare_out_dir(dir: &Path) -> Result<()> {
     std::fs::remove_file(&probe).map_err(err)
 }
 
+/// Refuse an output folder `dir` (which exists) holding one of the job's `inputs` (what it
+/// is, its path) under a name the job writes or removes ([`is_run_output`]): a mesh read from
+/// `out/final.vtu`, or a trajectory `haptic.csv`, would be replaced.
+pub fn check_inputs_are_not_outputs(dir: &Path, inputs: &[(&str, &Path)]) -> Result<()> {
+    let Ok(out) = dir.canonicalize() else {
+        return Ok(());
+    };
+    for (what, path) in inputs {
+        let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("");
+        let here = path
+            .canonicalize()
+            .ok()
+            .and_then(|p| p.parent().map(Path::to_path_buf))
+            .is_some_and(|parent| parent == out);
+        if here && is_run_output(name) {
+            return Err(PalpateError::Usage(format!(
+                "{}: the {what} is in --out {} under the name of an output the job writes there ({name}), which would replace it; copy it elsewhere or give another --out",
+                path.display(),
+                dir.display()
+            )));
+        }
+    }
+    Ok(())
+}
+
 /// Whether `name` is a file `palpate run` or `palpate haptic` writes: `final.vtu`,
 /// `summary.json`, `haptic.csv`, `series.pvd`, `frame_NNNN.vtu` (four digits or more), and
 /// the particles' `particles_final.vtu`, `particles_series.pvd`, `particles_frame_NNNN.vtu`,

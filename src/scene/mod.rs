@@ -29,7 +29,7 @@ use crate::material::{HyperelasticParams, MaterialParams};
 use crate::mesh::{TetMesh, ValidationReport};
 use glam::DVec3;
 use serde::Deserialize;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// The built-in scenes: (name, TOML text).
 pub const BUILTIN: &[(&str, &str)] = &[
@@ -110,6 +110,9 @@ pub struct Scene {
     /// Warnings, each naming the scene and its key, for loads far beyond what the material
     /// bears ([`loads::overload_warnings`]); `run` and `haptic` print them.
     pub load_warnings: Vec<String>,
+    /// The files the scene was read from (the scene file, its mesh file): a job refuses an
+    /// output folder where it would replace or remove one of them.
+    pub input_files: Vec<PathBuf>,
 }
 
 /// One line per built-in scene: its name and description.
@@ -163,7 +166,9 @@ impl Scene {
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_else(|| "scene".into());
-        Scene::from_toml(&text, &path.display().to_string(), &stem, path.parent())
+        let mut scene = Scene::from_toml(&text, &path.display().to_string(), &stem, path.parent())?;
+        scene.input_files.insert(0, path.to_path_buf());
+        Ok(scene)
     }
 
     /// Parse and validate scene TOML. `origin` names it in errors; `dir` resolves mesh files.
@@ -227,6 +232,15 @@ impl Scene {
             ));
         }
         let (mesh, mesh_report) = mesh::build_mesh(&file.mesh, origin, dir, &bad)?;
+        let input_files = file
+            .mesh
+            .file
+            .iter()
+            .map(|f| match dir {
+                Some(d) if f.is_relative() => d.join(f),
+                _ => f.clone(),
+            })
+            .collect();
         if let (Some(h), None) = (&resolved.hyperelastic, resolved.fibre) {
             let fibres: Vec<f32> = mesh
                 .fibres
@@ -325,6 +339,7 @@ impl Scene {
             tool,
             particles,
             load_warnings,
+            input_files,
         })
     }
 }
