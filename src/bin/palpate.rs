@@ -223,6 +223,22 @@ fn main() -> ExitCode {
     }
 }
 
+/// A warning when the servo loop fell short of its rate (below 95 % of it, or over 1 % of its
+/// deadlines skipped after overruns) over a session of at least 100 ticks: the device's
+/// force then came late or not at all, and the passivity control's stiffness bound assumes
+/// the target period.
+fn servo_rate_warning(servo: &palpate::haptics::servo::ServoStats) -> Option<String> {
+    let deadlines = servo.ticks + servo.missed_deadlines;
+    let short =
+        servo.rate_hz < 0.95 * servo.target_rate_hz || servo.missed_deadlines * 100 > deadlines;
+    (servo.ticks >= 100 && short).then(|| {
+        format!(
+            "warning: the servo loop ran at {:.1} Hz against its {:.0} Hz, {} of its {deadlines} deadlines skipped after overruns (lateness p99 {:.0} us): the device's force came late or was held, which a stiff contact can feel as buzz or give; leave the cores to palpate (the servo shares them with the physics thread)",
+            servo.rate_hz, servo.target_rate_hz, servo.missed_deadlines, servo.lateness_us.p99
+        )
+    })
+}
+
 /// Help and version go out as clap writes them; a command-line error becomes one line,
 /// `error: …` with clap's details and usage folded in, and exit status 1 like every other
 /// error of user input.
@@ -573,6 +589,9 @@ fn execute(cli: Cli) -> Result<()> {
                     if fast.batches == 1 { "" } else { "es" },
                     fast.from_seconds
                 );
+            }
+            if let Some(w) = servo_rate_warning(&h.servo) {
+                palpate::say_err!("{w}");
             }
             // After a divergence the physics stopped: its rate says nothing about the machine.
             if h.physics.realtime_capacity < 0.95 && s.run.status.divergence().is_none() {
@@ -1006,5 +1025,36 @@ fn adapter_name(backend: Backend) -> String {
         Backend::Gpu => palpate::gpu::GpuContext::new()
             .map(|c| c.describe())
             .unwrap_or_else(|e| e.to_string()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::servo_rate_warning;
+    use palpate::haptics::servo::ServoStats;
+
+    /// The servo's shortfall is warned of: a rate under 95 % of the target, or over 1 % of
+    /// the deadlines skipped; a session on time, or too short to tell, is not.
+    #[test]
+    fn a_servo_loop_short_of_its_rate_is_warned_of() {
+        let stats = |ticks, rate_hz, missed_deadlines| ServoStats {
+            ticks,
+            rate_hz,
+            target_rate_hz: 1000.0,
+            missed_deadlines,
+            ..Default::default()
+        };
+        assert_eq!(servo_rate_warning(&stats(5000, 999.8, 3)), None);
+        assert_eq!(servo_rate_warning(&stats(50, 600.0, 40)), None);
+        let slow = servo_rate_warning(&stats(821, 607.0, 2)).unwrap();
+        assert!(
+            slow.starts_with("warning: the servo loop ran at 607.0 Hz against its 1000 Hz"),
+            "{slow}"
+        );
+        let skipping = servo_rate_warning(&stats(5000, 990.0, 60)).unwrap();
+        assert!(
+            skipping.contains("60 of its 5060 deadlines skipped"),
+            "{skipping}"
+        );
     }
 }
