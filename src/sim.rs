@@ -139,10 +139,14 @@ pub enum Advance {
 pub enum DivergencePolicy {
     /// Stop, keeping the last finite state.
     Stop,
-    /// Roll back to the start of the batch and retry at half the step, at most
-    /// [`MAX_HALVINGS`] times over a run (`Simulation::max_halvings`).
+    /// Roll back to the start of the batch and retry at half the step, at most 10 times over
+    /// a run
+    // (MAX_HALVINGS, Simulation::max_halvings: the line above is `run --help`'s, plain text.)
     HalveDt,
 }
+
+// `run --help` says 10 (DivergencePolicy::HalveDt's doc).
+const _: () = assert!(MAX_HALVINGS == 10);
 
 /// The most times `halve-dt` halves the step over one run.
 pub const MAX_HALVINGS: u32 = 10;

@@ -147,6 +147,12 @@ fn scripted_trajectory_errors_name_the_file_and_line() {
         ),
         ("nan.csv", "0,0,0,0\n1,0,0,nan\n", "line 2", "not finite"),
         (
+            "old_mac.csv",
+            "t,x,y,z\r0,0,0,0\r1,0,0,0\r",
+            "line 1",
+            "found 10 (its lines end in a carriage return alone",
+        ),
+        (
             "order.csv",
             "0,0,0,0\n# c\n0.5,0,0,0\n0.5,0,0,1\n",
             "line 4",

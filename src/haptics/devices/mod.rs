@@ -89,6 +89,19 @@ fn parse_udp_addr(addr: &str) -> std::result::Result<SocketAddr, String> {
     if let Ok(sa) = addr.parse::<SocketAddr>() {
         return Ok(sa);
     }
+    if let Some(rest) = addr.strip_prefix('[') {
+        // [IPv6]:PORT, brackets once around the address.
+        let Some((ip, after)) = rest.split_once(']') else {
+            return Err("'[' without its ']': expected [IPv6]:PORT".into());
+        };
+        let Ok(v6) = ip.parse::<std::net::Ipv6Addr>() else {
+            return Err(format!("'[{ip}]' is not an IPv6 address in brackets"));
+        };
+        let Some(p) = after.strip_prefix(':').filter(|p| !p.is_empty()) else {
+            return Err(format!("missing port after [{ip}]: expected [IPv6]:PORT"));
+        };
+        return Ok(SocketAddr::new(IpAddr::V6(v6), port(p)?));
+    }
     let Some((host, p)) = addr.rsplit_once(':') else {
         return Err("expected PORT or HOST:PORT".into());
     };
@@ -96,7 +109,7 @@ fn parse_udp_addr(addr: &str) -> std::result::Result<SocketAddr, String> {
     if host.eq_ignore_ascii_case("localhost") {
         return Ok(SocketAddr::new(IpAddr::V4(Ipv4Addr::LOCALHOST), port));
     }
-    match host.trim_matches(['[', ']']).parse::<IpAddr>() {
+    match host.parse::<IpAddr>() {
         Ok(ip) => Ok(SocketAddr::new(ip, port)),
         Err(_) => Err(format!(
             "host '{host}' is not an IP address (give an IP literal or localhost)"
@@ -136,6 +149,17 @@ mod tests {
         ] {
             let e = DeviceArg::parse(bad).unwrap_err().to_string();
             assert!(!e.contains('\n') && e.contains(bad), "{e}");
+        }
+        // IPv6 in brackets: each malformed form says what is wrong with it.
+        for (bad, says) in [
+            ("udp:[::1]", "missing port after [::1]"),
+            ("udp:[::1", "'[' without its ']'"),
+            ("udp:[[::1]]:4242", "is not an IPv6 address in brackets"),
+            ("udp:]::1[:4243", "host ']::1[' is not an IP address"),
+            ("udp:[127.0.0.1]:5", "is not an IPv6 address in brackets"),
+        ] {
+            let e = DeviceArg::parse(bad).unwrap_err().to_string();
+            assert!(e.contains(says), "{bad}: {e}");
         }
     }
 }

@@ -80,18 +80,24 @@ impl Trajectory {
             if line.is_empty() {
                 continue;
             }
-            let fields: Vec<&str> = line.split(',').map(str::trim).collect();
+            // Counted before anything is collected: a line of 60 million commas took 1 GB.
+            let count = line.split(',').count();
             let first_content = !seen_content;
             seen_content = true;
-            if fields.len() != 4 {
+            if count != 4 {
                 return Err(err(
                     line_no,
                     format!(
-                        "expected 4 comma-separated fields t,x,y,z, found {}",
-                        fields.len()
+                        "expected 4 comma-separated fields t,x,y,z, found {count}{}",
+                        if line.contains('\r') {
+                            " (its lines end in a carriage return alone: save the file with LF or CRLF line endings)"
+                        } else {
+                            ""
+                        }
                     ),
                 ));
             }
+            let fields: Vec<&str> = line.split(',').map(str::trim).collect();
             let parsed: Vec<Option<f64>> = fields.iter().map(|f| f.parse().ok()).collect();
             if first_content && parsed.iter().all(Option::is_none) {
                 // A header: it must name the columns in the order they are read.
