@@ -3058,3 +3058,35 @@ fn the_particle_step_bound_counts_the_hourglass_penalty() {
     sim.advance(300)
         .expect("α = 100 stays finite for 300 steps");
 }
+
+/// The paper particle model computes StVK's stress whatever the material: a scene that pairs
+/// it with another law is warned (run and haptic print the scene's warnings), one with StVK
+/// or the tlsph model is not.
+#[test]
+fn the_paper_model_with_a_material_other_than_stvk_is_warned_of() {
+    let with = |material: &str, model: &str| {
+        let text = PRESSED_BLOCK
+            .replace(
+                "[material]\n",
+                &format!("[material]\nmodel = \"{material}\"\n"),
+            )
+            .replace(
+                "spacing = 0.001\n",
+                &format!("spacing = 0.001\nmodel = \"{model}\"\n"),
+            );
+        Scene::from_toml(&text, "block", "block", None)
+            .unwrap()
+            .load_warnings
+            .into_iter()
+            .filter(|w| w.contains("particles.model = \"paper\""))
+            .collect::<Vec<_>>()
+    };
+    let warned = with("stable_neohookean", "paper");
+    assert!(
+        warned.len() == 1
+            && warned[0].contains("whatever [material] model says, here \"stable_neohookean\""),
+        "{warned:?}"
+    );
+    assert!(with("stvk", "paper").is_empty());
+    assert!(with("stable_neohookean", "tlsph").is_empty());
+}

@@ -317,11 +317,21 @@ impl Scene {
             }
             _ => material.youngs_modulus(),
         };
-        let load_warnings =
+        let mut load_warnings: Vec<String> =
             loads::overload_warnings(&file.loads, youngs_modulus, material.density, &mesh)
                 .into_iter()
                 .map(|w| format!("{origin}: {w}"))
                 .collect();
+        if particles
+            .as_ref()
+            .is_some_and(|p| p.model == ParticleModel::Paper)
+            && material.model != crate::material::MaterialModel::Stvk
+        {
+            load_warnings.push(format!(
+                "{origin}: particles.model = \"paper\" gives the particles StVK's stress (paper eq. 1-2, 8) whatever [material] model says, here \"{}\": the core and the particle layer follow different laws (use particles.model = \"tlsph\", which uses the material's)",
+                material.model.name()
+            ));
+        }
         Ok(Scene {
             name: file.name.unwrap_or_else(|| default_name.to_string()),
             origin: origin.to_string(),
