@@ -576,7 +576,13 @@ pub fn run_with_state(
         ));
     }
     keep(frames.finish());
-    if opts.announce && until_static && opts.frames >= 2 && frames.len() < opts.frames as usize {
+    // (A frame that could not be written ended the series: that error says so.)
+    if opts.announce
+        && until_static
+        && series_ok
+        && opts.frames >= 2
+        && frames.len() < opts.frames as usize
+    {
         crate::say_err!(
             "warning: --frames {} wrote {}: under --until-static a frame goes at the end of the relaxation batch (up to {} steps) its time falls in, so frames closer than a batch share one{}",
             opts.frames,

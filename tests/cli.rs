@@ -1714,6 +1714,35 @@ fn an_input_in_the_output_folder_under_an_outputs_name_is_refused() {
         ],
     );
     assert_eq!(std::fs::read(d.join("final.vtu")).unwrap(), mesh);
+    // Through a symbolic link elsewhere to it, too.
+    #[cfg(unix)]
+    {
+        let elsewhere = d.join("elsewhere");
+        std::fs::create_dir_all(&elsewhere).unwrap();
+        std::os::unix::fs::symlink(d.join("final.vtu"), elsewhere.join("liver.vtu")).unwrap();
+        let linked = scene_file(
+            &elsewhere,
+            "linked.toml",
+            "[mesh]\nfile = \"liver.vtu\"\n[material]\nyoungs_modulus = 3.0e5\npoisson_ratio = 0.4\ndensity = 1000.0\n",
+        );
+        assert_one_line_error(
+            &[
+                "run",
+                &linked,
+                "--steps",
+                "1",
+                "--backend",
+                "cpu",
+                "--out",
+                d.to_str().unwrap(),
+            ],
+            &[
+                "liver.vtu: the file the scene reads is in --out",
+                "(final.vtu)",
+            ],
+        );
+        assert_eq!(std::fs::read(d.join("final.vtu")).unwrap(), mesh);
+    }
     // Elsewhere it runs.
     let (ok, _, err) = palpate(&[
         "run",
@@ -3148,7 +3177,7 @@ fn a_killed_runs_frames_are_an_indexed_series_and_the_next_run_removes_them() {
 
 /// A second job into an output folder that a running job writes is refused (it used to
 /// delete the first one's frames while it ran, and mix its files with them); once that job
-/// is gone, even killed with its lock left behind, the folder is free again.
+/// is gone, even killed with its lock file left behind, the folder is free again.
 #[cfg(unix)]
 #[test]
 fn a_second_job_into_a_folder_in_use_is_refused() {
@@ -3182,7 +3211,8 @@ fn a_second_job_into_a_folder_in_use_is_refused() {
         );
     }
     assert_eq!(std::fs::read(out.join("frame_0000.vtu")).unwrap(), frame);
-    // Killed, its lock stays, stale: the next run takes the folder.
+    // Killed, its lock file stays, no longer locked (the system released it with the
+    // process): the next run takes the folder.
     first.kill().unwrap();
     first.wait().unwrap();
     assert!(out.join(".palpate.lock").is_file());

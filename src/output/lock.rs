@@ -1,9 +1,11 @@
-//! One job at a time in an output folder: `palpate run` and `palpate haptic` hold
-//! `.palpate.lock` (the holder's process id) in `--out` from before they remove an earlier
-//! run's files until they have written their own, so that a second job into the same folder
-//! is refused instead of deleting the first one's frames while it runs and mixing its files
-//! with them. A lock whose process is gone (killed, or ended at once by a second Ctrl-C) is
-//! stale and taken over. Unix only: elsewhere nothing is locked.
+//! One job at a time in an output folder: `palpate run` and `palpate haptic` hold an
+//! exclusive `flock(2)` on `.palpate.lock` in `--out` (the file holds the holder's process
+//! id, for the message) from before they remove an earlier run's files until they have
+//! written their own, so that a second job into the same folder is refused instead of
+//! deleting the first one's frames while it runs and mixing its files with them. The kernel
+//! releases the lock when its holder ends however it ends (killed, or ended at once by a
+//! second Ctrl-C), so a lock is never stale; the holder removes the file when it is done.
+//! Unix only: elsewhere nothing is locked.
 
 use crate::error::{PalpateError, Result};
 use std::path::{Path, PathBuf};
@@ -14,7 +16,8 @@ pub const LOCK_NAME: &str = ".palpate.lock";
 /// A held lock on an output folder, released (its file removed) when dropped.
 #[derive(Debug)]
 pub struct OutLock {
-    path: Option<PathBuf>,
+    #[cfg(unix)]
+    held: Option<(PathBuf, std::fs::File)>,
 }
 
 impl OutLock {
@@ -22,90 +25,80 @@ impl OutLock {
     pub fn acquire(dir: &Path) -> Result<OutLock> {
         #[cfg(unix)]
         {
+            use std::io::{Seek, Write};
+            use std::os::unix::fs::MetadataExt;
+            use std::os::unix::io::AsRawFd;
             let path = dir.join(LOCK_NAME);
-            let me = std::process::id();
-            // Twice at most: a stale lock is removed and the folder tried again (another job
-            // may take it in between: then that one holds it).
-            for _ in 0..2 {
-                match create_new(&path, me) {
-                    Ok(()) => return Ok(OutLock { path: Some(path) }),
-                    Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
-                        match holder(&path) {
-                            Some(pid) if pid != me && is_palpate(pid) => {
-                                return Err(PalpateError::Usage(format!(
-                                    "{}: another palpate job (process {pid}) is writing its outputs here; wait for it to end or give another --out (a lock left by a job that is gone is taken over: {} names that process)",
-                                    dir.display(),
-                                    LOCK_NAME
-                                )))
-                            }
-                            _ => {
-                                let _ = std::fs::remove_file(&path);
-                            }
-                        }
+            let io = |source| PalpateError::OutputIo {
+                path: path.clone(),
+                source,
+            };
+            // A holder removes the file as it ends: a lock taken on a file that the path no
+            // longer names is tried again on the new one.
+            for _ in 0..8 {
+                let mut file = std::fs::OpenOptions::new()
+                    .read(true)
+                    .write(true)
+                    .create(true)
+                    .truncate(false)
+                    .open(&path)
+                    .map_err(io)?;
+                // SAFETY: flock(2) on a descriptor this File owns.
+                if unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) } != 0 {
+                    let e = std::io::Error::last_os_error();
+                    if e.raw_os_error() != Some(libc::EWOULDBLOCK) {
+                        return Err(io(e));
                     }
-                    Err(source) => return Err(PalpateError::OutputIo { path, source }),
+                    let who = std::fs::read_to_string(&path)
+                        .ok()
+                        .and_then(|t| t.trim().parse::<u32>().ok())
+                        .map_or(String::new(), |pid| format!(" (process {pid})"));
+                    return Err(PalpateError::Usage(format!(
+                        "{}: another palpate job{who} is writing its outputs here; wait for it to end or give another --out",
+                        dir.display()
+                    )));
                 }
+                let same = match (std::fs::metadata(&path), file.metadata()) {
+                    (Ok(a), Ok(b)) => a.dev() == b.dev() && a.ino() == b.ino(),
+                    _ => false,
+                };
+                if !same {
+                    continue;
+                }
+                let written = file
+                    .set_len(0)
+                    .and_then(|()| file.rewind())
+                    .and_then(|()| writeln!(file, "{}", std::process::id()));
+                if let Err(e) = written {
+                    let _ = std::fs::remove_file(&path);
+                    return Err(io(e));
+                }
+                return Ok(OutLock {
+                    held: Some((path, file)),
+                });
             }
             Err(PalpateError::Usage(format!(
-                "{}: another palpate job took the output folder's lock ({LOCK_NAME}) as this one started; give another --out",
+                "{}: the output folder's lock ({LOCK_NAME}) kept changing hands as this job started (other jobs starting into it); give another --out",
                 dir.display()
             )))
         }
         #[cfg(not(unix))]
         {
             let _ = dir;
-            Ok(OutLock { path: None })
+            Ok(OutLock {})
         }
     }
 }
 
 impl Drop for OutLock {
     fn drop(&mut self) {
-        // Only a lock that is still ours (a stale-lock takeover by another job replaced it
-        // only if this process was gone, which it is not while it drops).
-        if let Some(path) = &self.path {
-            if holder(path) == Some(std::process::id()) {
-                let _ = std::fs::remove_file(path);
-            }
+        // Removed while still held, then released: a job that opened the old file meanwhile
+        // finds the path no longer names it, and tries again.
+        #[cfg(unix)]
+        if let Some((path, file)) = self.held.take() {
+            let _ = std::fs::remove_file(&path);
+            drop(file);
         }
-    }
-}
-
-/// Create `path` only if it does not exist, holding `pid`.
-#[cfg(unix)]
-fn create_new(path: &Path, pid: u32) -> std::io::Result<()> {
-    use std::io::Write;
-    let mut f = std::fs::OpenOptions::new()
-        .write(true)
-        .create_new(true)
-        .open(path)?;
-    writeln!(f, "{pid}")
-}
-
-/// The process id a lock file holds (None: unreadable, not a regular file, or not a number).
-fn holder(path: &Path) -> Option<u32> {
-    if !std::fs::symlink_metadata(path).ok()?.is_file() {
-        return None;
-    }
-    std::fs::read_to_string(path).ok()?.trim().parse().ok()
-}
-
-/// Whether process `pid` is alive and, where /proc tells, a palpate (not another program
-/// that was given the id of a palpate long gone).
-#[cfg(unix)]
-fn is_palpate(pid: u32) -> bool {
-    let Ok(id) = libc::pid_t::try_from(pid) else {
-        return false;
-    };
-    // SAFETY: kill(2) with signal 0 only checks that the process exists.
-    let alive = unsafe { libc::kill(id, 0) } == 0
-        || std::io::Error::last_os_error().raw_os_error() == Some(libc::EPERM);
-    if !alive {
-        return false;
-    }
-    match std::fs::read_to_string(format!("/proc/{pid}/comm")) {
-        Ok(comm) => comm.trim().starts_with("palpate"),
-        Err(_) => true,
     }
 }
 
@@ -113,25 +106,31 @@ fn is_palpate(pid: u32) -> bool {
 mod tests {
     use super::{OutLock, LOCK_NAME};
 
+    /// A folder is locked once: a second lock on it, from this process too, is refused
+    /// while the first is held; once it is dropped the file is gone and the folder free. A
+    /// lock file that no one holds (left by a job that was killed: the kernel released its
+    /// lock) does not stand in the way.
     #[test]
-    fn a_folder_is_locked_once_and_a_stale_lock_is_taken_over() {
+    fn a_folder_is_locked_once_and_a_left_lock_file_is_free() {
         let dir = std::env::temp_dir().join(format!("palpate-lock-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).unwrap();
         let lock = OutLock::acquire(&dir).unwrap();
         let held = std::fs::read_to_string(dir.join(LOCK_NAME)).unwrap();
         assert_eq!(held.trim(), std::process::id().to_string());
-        // This process again (the lock is its own): taken over, not refused.
-        drop(OutLock::acquire(&dir).unwrap());
+        let e = OutLock::acquire(&dir).unwrap_err().to_string();
+        assert!(
+            e.contains(&format!(
+                "another palpate job (process {})",
+                std::process::id()
+            )),
+            "{e}"
+        );
         drop(lock);
         assert!(!dir.join(LOCK_NAME).exists());
-        // A lock of a process that is gone (pid 2^22 + 1 is above Linux's largest), or of
-        // one that is not palpate (pid 1, init), is stale.
-        for stale in ["4194305\n", "1\n", "not a pid\n"] {
-            std::fs::write(dir.join(LOCK_NAME), stale).unwrap();
-            let lock = OutLock::acquire(&dir).unwrap();
-            drop(lock);
-            assert!(!dir.join(LOCK_NAME).exists(), "{stale}");
-        }
+        std::fs::write(dir.join(LOCK_NAME), "4194305\n").unwrap();
+        let lock = OutLock::acquire(&dir).unwrap();
+        drop(lock);
+        assert!(!dir.join(LOCK_NAME).exists());
     }
 }

@@ -55,12 +55,13 @@ pub fn check_inputs_are_not_outputs(dir: &Path, inputs: &[(&str, &Path)]) -> Res
         return Ok(());
     };
     for (what, path) in inputs {
-        let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("");
-        let here = path
-            .canonicalize()
-            .ok()
-            .and_then(|p| p.parent().map(Path::to_path_buf))
-            .is_some_and(|parent| parent == out);
+        // The file itself, through any symbolic link to it (a mesh.vtu linking to
+        // out/final.vtu is replaced as that is).
+        let Ok(real) = path.canonicalize() else {
+            continue;
+        };
+        let name = real.file_name().and_then(|n| n.to_str()).unwrap_or("");
+        let here = real.parent().is_some_and(|parent| parent == out);
         if here && is_run_output(name) {
             return Err(PalpateError::Usage(format!(
                 "{}: the {what} is in --out {} under the name of an output the job writes there ({name}), which would replace it; copy it elsewhere or give another --out",
