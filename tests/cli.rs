@@ -117,6 +117,40 @@ fn beam_with(sections: &str) -> String {
     BEAM.replacen("[solver]", &format!("{sections}\n\n[solver]"), 1)
 }
 
+/// Wait for `child` at most `seconds`; past that, kill it and fail with `what` (a regression
+/// must not hang the suite).
+fn wait_at_most(
+    child: &mut std::process::Child,
+    seconds: f64,
+    what: &str,
+) -> std::process::ExitStatus {
+    let start = std::time::Instant::now();
+    loop {
+        if let Some(status) = child.try_wait().expect("wait") {
+            return status;
+        }
+        if start.elapsed().as_secs_f64() > seconds {
+            let _ = child.kill();
+            panic!("{what}");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+}
+
+/// `palpate run beam --steps 1 --backend cpu --out OUT`: a quick run that leaves outputs.
+fn beam_one_step(out: &Path) -> (bool, String, String) {
+    palpate(&[
+        "run",
+        "beam",
+        "--steps",
+        "1",
+        "--backend",
+        "cpu",
+        "--out",
+        out.to_str().unwrap(),
+    ])
+}
+
 fn scene_file(dir: &Path, name: &str, text: &str) -> String {
     let p = dir.join(name);
     std::fs::write(&p, text).unwrap();
@@ -1661,17 +1695,11 @@ fn a_new_run_removes_the_outputs_an_earlier_run_left_and_nothing_else() {
             .stderr(std::process::Stdio::null())
             .spawn()
             .unwrap();
-        let start = std::time::Instant::now();
-        let status = loop {
-            if let Some(status) = child.try_wait().unwrap() {
-                break status;
-            }
-            if start.elapsed().as_secs() > 60 {
-                let _ = child.kill();
-                panic!("the run hung on a FIFO named summary.json");
-            }
-            std::thread::sleep(std::time::Duration::from_millis(20));
-        };
+        let status = wait_at_most(
+            &mut child,
+            60.0,
+            "the run hung on a FIFO named summary.json",
+        );
         assert!(status.success());
         assert_eq!(summary(&fifo)["scene"], "beam");
     }
@@ -1692,56 +1720,42 @@ fn an_input_in_the_output_folder_under_an_outputs_name_is_refused() {
     ]);
     assert!(ok, "{err}");
     let mesh = std::fs::read(d.join("final.vtu")).unwrap();
-    let scene = scene_file(
-        &d,
-        "scene.toml",
-        "[mesh]\nfile = \"final.vtu\"\n[material]\nyoungs_modulus = 3.0e5\npoisson_ratio = 0.4\ndensity = 1000.0\n",
-    );
-    assert_one_line_error(
-        &[
-            "run",
-            &scene,
-            "--steps",
-            "1",
-            "--backend",
-            "cpu",
-            "--out",
-            d.to_str().unwrap(),
-        ],
-        &[
-            "final.vtu: the file the scene reads is in --out",
-            "(final.vtu)",
-        ],
-    );
-    assert_eq!(std::fs::read(d.join("final.vtu")).unwrap(), mesh);
+    let mesh_scene = |dir: &Path, file: &str| {
+        scene_file(
+            dir,
+            "scene.toml",
+            &format!("[mesh]\nfile = \"{file}\"\n[material]\nyoungs_modulus = 3.0e5\npoisson_ratio = 0.4\ndensity = 1000.0\n"),
+        )
+    };
+    let refused = |scene: &str, file: &str| {
+        let out = d.to_str().unwrap();
+        assert_one_line_error(
+            &[
+                "run",
+                scene,
+                "--steps",
+                "1",
+                "--backend",
+                "cpu",
+                "--out",
+                out,
+            ],
+            &[
+                &format!("{file}: the file the scene reads is in --out"),
+                "(final.vtu)",
+            ],
+        );
+        assert_eq!(std::fs::read(d.join("final.vtu")).unwrap(), mesh);
+    };
+    let scene = mesh_scene(&d, "final.vtu");
+    refused(&scene, "final.vtu");
     // Through a symbolic link elsewhere to it, too.
     #[cfg(unix)]
     {
         let elsewhere = d.join("elsewhere");
         std::fs::create_dir_all(&elsewhere).unwrap();
         std::os::unix::fs::symlink(d.join("final.vtu"), elsewhere.join("liver.vtu")).unwrap();
-        let linked = scene_file(
-            &elsewhere,
-            "linked.toml",
-            "[mesh]\nfile = \"liver.vtu\"\n[material]\nyoungs_modulus = 3.0e5\npoisson_ratio = 0.4\ndensity = 1000.0\n",
-        );
-        assert_one_line_error(
-            &[
-                "run",
-                &linked,
-                "--steps",
-                "1",
-                "--backend",
-                "cpu",
-                "--out",
-                d.to_str().unwrap(),
-            ],
-            &[
-                "liver.vtu: the file the scene reads is in --out",
-                "(final.vtu)",
-            ],
-        );
-        assert_eq!(std::fs::read(d.join("final.vtu")).unwrap(), mesh);
+        refused(&mesh_scene(&elsewhere, "liver.vtu"), "liver.vtu");
     }
     // Elsewhere it runs.
     let (ok, _, err) = palpate(&[
@@ -3216,16 +3230,7 @@ fn a_second_job_into_a_folder_in_use_is_refused() {
     first.kill().unwrap();
     first.wait().unwrap();
     assert!(out.join(".palpate.lock").is_file());
-    let (ok, _, err) = palpate(&[
-        "run",
-        "beam",
-        "--steps",
-        "1",
-        "--backend",
-        "cpu",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    let (ok, _, err) = beam_one_step(&out);
     assert!(ok, "{err}");
     assert!(!out.join(".palpate.lock").exists() && !out.join("frame_0000.vtu").exists());
 }
@@ -3240,16 +3245,7 @@ fn a_stop_while_the_scene_is_built_ends_at_once_and_keeps_earlier_outputs() {
     use std::io::BufRead;
     let d = tmp("stop_in_setup");
     let out = d.join("out");
-    let (ok, _, err) = palpate(&[
-        "run",
-        "beam",
-        "--steps",
-        "1",
-        "--backend",
-        "cpu",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    let (ok, _, err) = beam_one_step(&out);
     assert!(ok, "{err}");
     let earlier = std::fs::read(out.join("summary.json")).unwrap();
     let text = palpate::scene::Scene::builtin_text("hm1")
@@ -3282,16 +3278,11 @@ fn a_stop_while_the_scene_is_built_ends_at_once_and_keeps_earlier_outputs() {
     // SAFETY: kill(2) on the child's pid, not yet waited for (so not reused).
     unsafe { libc::kill(pid, libc::SIGTERM) };
     let start = std::time::Instant::now();
-    let status = loop {
-        if let Some(status) = child.try_wait().expect("wait") {
-            break status;
-        }
-        if start.elapsed().as_secs_f64() > 60.0 {
-            let _ = child.kill();
-            panic!("the run did not stop within 60 s of SIGTERM: {err}");
-        }
-        std::thread::sleep(std::time::Duration::from_millis(10));
-    };
+    let status = wait_at_most(
+        &mut child,
+        60.0,
+        "the run did not stop within 60 s of SIGTERM",
+    );
     let stopped_in = start.elapsed().as_secs_f64();
     for line in lines {
         err.push_str(&line.unwrap());
@@ -3435,17 +3426,11 @@ fn a_stop_delivered_twice_at_once_is_one_stop() {
     std::thread::sleep(std::time::Duration::from_millis(5));
     // SAFETY: as above.
     unsafe { libc::kill(pid, libc::SIGTERM) };
-    let start = std::time::Instant::now();
-    let status = loop {
-        if let Some(status) = child.try_wait().expect("wait") {
-            break status;
-        }
-        if start.elapsed().as_secs_f64() > 60.0 {
-            let _ = child.kill();
-            panic!("the run did not stop within 60 s of two SIGTERMs");
-        }
-        std::thread::sleep(std::time::Duration::from_millis(20));
-    };
+    let status = wait_at_most(
+        &mut child,
+        60.0,
+        "the run did not stop within 60 s of two SIGTERMs",
+    );
     let err = errors.join().unwrap().unwrap();
     assert_eq!(status.code(), Some(130), "{err}");
     assert!(!err.contains("interrupted twice"), "{err}");
