@@ -1791,9 +1791,10 @@ fn an_input_in_the_output_folder_under_an_outputs_name_is_refused() {
 
 #[test]
 fn an_output_that_cannot_be_written_loses_nothing_else() {
-    // A folder where final.vtu or frame_0001.vtu should go makes that write fail: the run
-    // still writes the rest (summary.json above all), leaves no .partial file, and fails
-    // naming the file. The first frame too (it used to end the run with no summary.json).
+    // A folder where final.vtu's or frame_0001.vtu's temporary file should go makes that
+    // write fail (as a full disk would): the run still writes the rest (summary.json above
+    // all), leaves no .partial file, and fails naming the file. The first frame too (it used
+    // to end the run with no summary.json).
     let d = tmp("writefail");
     for (blocked, frames) in [
         ("final.vtu", "0"),
@@ -1803,7 +1804,7 @@ fn an_output_that_cannot_be_written_loses_nothing_else() {
     ] {
         let out = d.join(blocked.replace(['.', '+'], "_"));
         for b in blocked.split('+') {
-            std::fs::create_dir_all(out.join(b)).unwrap();
+            std::fs::create_dir_all(out.join(format!("{b}.partial"))).unwrap();
         }
         let (ok, _, err) = palpate(&[
             "run",
@@ -1832,15 +1833,34 @@ fn an_output_that_cannot_be_written_loses_nothing_else() {
                 "{b}: {listed:?}"
             );
         }
-        let names: Vec<String> = std::fs::read_dir(&out)
+        let files: Vec<String> = std::fs::read_dir(&out)
             .unwrap()
-            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .map(|e| e.unwrap())
+            .filter(|e| e.file_type().unwrap().is_file())
+            .map(|e| e.file_name().to_string_lossy().into_owned())
             .collect();
-        assert!(!names.iter().any(|n| n.ends_with(".partial")), "{names:?}");
+        assert!(!files.iter().any(|n| n.ends_with(".partial")), "{files:?}");
         if !blocked.contains("final.vtu") {
-            assert!(names.contains(&"final.vtu".to_string()), "{names:?}");
+            assert!(files.contains(&"final.vtu".to_string()), "{files:?}");
         }
     }
+    // A folder under an output's own name is found before the run, not after it.
+    let out = d.join("final_is_a_folder");
+    std::fs::create_dir_all(out.join("final.vtu")).unwrap();
+    assert_one_line_error(
+        &[
+            "run",
+            "beam",
+            "--backend",
+            "cpu",
+            "--steps",
+            "20",
+            "--out",
+            out.to_str().unwrap(),
+        ],
+        &["final.vtu is a folder"],
+    );
+    assert!(!out.join("summary.json").exists());
 }
 
 #[test]

@@ -37,6 +37,16 @@ pub fn prepare_out_dir(dir: &Path) -> Result<()> {
         )));
     }
     std::fs::create_dir_all(dir).map_err(err)?;
+    // A folder under the name of an output the job writes would fail that write at the end.
+    for name in FIXED_OUTPUTS {
+        let path = dir.join(name);
+        if std::fs::symlink_metadata(&path).is_ok_and(|m| m.is_dir()) {
+            return Err(PalpateError::Usage(format!(
+                "{}: {name} is a folder, where the job writes its {name}; move it or give another --out",
+                dir.display()
+            )));
+        }
+    }
     // As long as the longest name a run writes (`particles_frame_NNNN.vtu.partial`, and
     // more), so that a folder path near the system's length limit fails here.
     let probe = dir.join(format!(
@@ -72,6 +82,16 @@ pub fn check_inputs_are_not_outputs(dir: &Path, inputs: &[(&str, &Path)]) -> Res
     }
     Ok(())
 }
+
+/// The outputs a job writes under fixed names (frames are numbered).
+const FIXED_OUTPUTS: [&str; 6] = [
+    "final.vtu",
+    "summary.json",
+    "series.pvd",
+    "particles_final.vtu",
+    "particles_series.pvd",
+    "haptic.csv",
+];
 
 /// Whether `name` is a file `palpate run` or `palpate haptic` writes: `final.vtu`,
 /// `summary.json`, `haptic.csv`, `series.pvd`, `frame_NNNN.vtu` (four digits or more), and
