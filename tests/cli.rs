@@ -942,13 +942,13 @@ fn a_mesh_too_big_for_the_memory_is_refused_before_it_is_built() {
     let (ok, err) = palpate_with_memory("3e7", &["mesh", &path]);
     assert!(ok, "{err}");
     // A value that is no number of bytes is an error naming the variable, for any command.
-    for bad in ["8G", "-1", "0", "nan"] {
+    for bad in ["8G", "-1", "0", "nan", "0.5"] {
         let (ok, err) = palpate_with_memory(bad, &["mesh", "beam"]);
         let lines = error_lines(&err);
         assert!(!ok && lines.len() == 1, "{bad}: {err}");
         assert!(
             lines[0].contains("PALPATE_MEMORY_BYTES")
-                && lines[0].contains("not a number of bytes > 0"),
+                && lines[0].contains("not a number of bytes ≥ 1"),
             "{err}"
         );
     }

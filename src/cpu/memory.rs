@@ -62,7 +62,7 @@ pub fn particle_bytes(n: f64, settings: &ParticleSettings) -> f64 {
 pub const MEMORY_ENV: &str = "PALPATE_MEMORY_BYTES";
 
 /// The memory [`MEMORY_ENV`] plans for, bytes: None where it is unset or empty; a one-line
-/// error naming it where it is not a finite number > 0 (read by every command at its start).
+/// error naming it where it is not a finite number ≥ 1 (read by every command at its start).
 pub fn memory_from_env() -> Result<Option<f64>> {
     let Ok(text) = std::env::var(MEMORY_ENV) else {
         return Ok(None);
@@ -72,9 +72,9 @@ pub fn memory_from_env() -> Result<Option<f64>> {
         return Ok(None);
     }
     match text.parse::<f64>() {
-        Ok(v) if v.is_finite() && v > 0.0 => Ok(Some(v)),
+        Ok(v) if v.is_finite() && v >= 1.0 => Ok(Some(v)),
         _ => Err(PalpateError::Usage(format!(
-            "{MEMORY_ENV} = {:?} is not a number of bytes > 0 (e.g. 8e9)",
+            "{MEMORY_ENV} = {:?} is not a number of bytes ≥ 1 (e.g. 8e9)",
             crate::input::excerpt(text)
         ))),
     }
@@ -111,7 +111,8 @@ pub fn bytes_text(bytes: f64) -> String {
     } else if bytes >= 1e3 {
         format!("{:.1} kB", bytes / 1e3)
     } else {
-        format!("{bytes:.0} bytes")
+        // Whole bytes, rounded down (PALPATE_MEMORY_BYTES = 1.5 plans for 1, not "2 bytes").
+        format!("{:.0} bytes", bytes.floor())
     }
 }
 
