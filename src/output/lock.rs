@@ -5,7 +5,7 @@
 //! deleting the first one's frames while it runs and mixing its files with them. The kernel
 //! releases the lock when its holder ends however it ends (killed, or ended at once by a
 //! second Ctrl-C), so a lock is never stale; the holder removes the file when it is done.
-//! Unix only: elsewhere nothing is locked.
+//! Unix only: elsewhere, and on a file system that has no locks, nothing is locked.
 
 use crate::error::{PalpateError, Result};
 use std::path::{Path, PathBuf};
@@ -47,7 +47,11 @@ impl OutLock {
                 if unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) } != 0 {
                     let e = std::io::Error::last_os_error();
                     if e.raw_os_error() != Some(libc::EWOULDBLOCK) {
-                        return Err(io(e));
+                        // A file system without locks (some network and FUSE mounts): the
+                        // job runs unlocked there, as before locks, rather than not at all.
+                        drop(file);
+                        let _ = std::fs::remove_file(&path);
+                        return Ok(OutLock { held: None });
                     }
                     let who = std::fs::read_to_string(&path)
                         .ok()
