@@ -51,11 +51,7 @@ pub enum PalpateError {
         message: String,
     },
     /// A requested time step exceeds the stability bound.
-    #[error(
-        "{given} = {} s is above the stability bound {} s ({detail}); {advice}",
-        distinct_pair(*.dt, *.bound).0,
-        distinct_pair(*.dt, *.bound).1
-    )]
+    #[error("{given} = {} ({detail}); {advice}", above_bound(*.dt, *.bound))]
     UnstableTimeStep {
         /// Where the step was given: `--dt`, or the scene file and `solver.dt`.
         given: String,
@@ -118,6 +114,13 @@ pub enum PalpateError {
 
 /// Result alias used across the crate.
 pub type Result<T, E = PalpateError> = std::result::Result<T, E>;
+
+/// "`dt` s is above the stability bound `bound` s", each with as many digits as
+/// [`distinct_pair`] needs.
+fn above_bound(dt: f64, bound: f64) -> String {
+    let (dt, bound) = distinct_pair(dt, bound);
+    format!("{dt} s is above the stability bound {bound} s")
+}
 
 /// `a` and `b` in scientific notation with 4 significant digits, or as many more as it takes
 /// for the two to read differently where they differ (a step a hair above its bound).

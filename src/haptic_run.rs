@@ -325,11 +325,24 @@ pub fn limit_withdrawal_remainder(
     reach: f64,
     margin: f64,
 ) -> Option<DVec3> {
-    let length = remainder.length();
+    cut_to_clearance(remainder, survey, reach, margin, |_| true)
+}
+
+/// `stride` cut to the `survey`'s clearance at its start or `reach`, whichever is longer;
+/// None where that is the whole stride, where the swept tool stays clear by more than
+/// `margin`, or where it gets no closer than it starts and `moves_away(length)` agrees.
+fn cut_to_clearance(
+    stride: DVec3,
+    survey: crate::rest::StrideSurvey,
+    reach: f64,
+    margin: f64,
+    moves_away: impl Fn(f64) -> bool,
+) -> Option<DVec3> {
+    let length = stride.length();
     let clear_path = survey.swept_clear > margin;
-    let receding = survey.swept_clear >= survey.clear - 1e-9 * length;
+    let away = survey.swept_clear >= survey.clear - 1e-9 * length && moves_away(length);
     let free = survey.clear.max(reach);
-    (!clear_path && !receding && length > free).then(|| remainder * (free / length))
+    (!clear_path && !away && length > free).then(|| stride * (free / length))
 }
 
 /// A tool move `stride` out of contact, limited to where the tool meets the tissue (the
@@ -349,12 +362,27 @@ pub fn limit_approaching_stride(
     reach: f64,
     margin: f64,
 ) -> Option<DVec3> {
-    let length = stride.length();
-    let clear_path = survey.swept_clear > margin;
-    let away = survey.clear_after >= survey.clear + 0.9 * length
-        && survey.swept_clear >= survey.clear - 1e-9 * length;
-    let free = survey.clear.max(reach);
-    (!clear_path && !away && length > free).then(|| stride * (free / length))
+    cut_to_clearance(stride, survey, reach, margin, |length| {
+        survey.clear_after >= survey.clear + 0.9 * length
+    })
+}
+
+/// A survey of the surface by `survey` (given the awake body's state, None asleep: the
+/// sleeping surface is kept), its time added to the physics thread's `busy` seconds.
+fn survey_timed(
+    sim: &mut Simulation,
+    rest: &RestWatch,
+    busy: &mut f64,
+    survey: impl FnOnce(Option<&crate::stepper::State>) -> crate::rest::StrideSurvey,
+) -> Result<crate::rest::StrideSurvey> {
+    let t = Instant::now();
+    let state = match rest.is_asleep() {
+        true => None,
+        false => Some(sim.state()?),
+    };
+    let surveyed = survey(state.as_ref());
+    *busy += t.elapsed().as_secs_f64();
+    Ok(surveyed)
 }
 
 /// The `haptic` section of `summary.json`.
@@ -457,11 +485,7 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
         haptics::DeviceArg::Scripted(path) => Some(path),
         _ => None,
     };
-    let mut inputs: Vec<(&str, &std::path::Path)> = scene
-        .input_files
-        .iter()
-        .map(|p| ("file the scene reads", p.as_path()))
-        .collect();
+    let mut inputs: Vec<_> = scene.inputs().collect();
     inputs.extend(trajectory.as_deref().map(|p| ("scripted trajectory", p)));
     crate::output::check_inputs_are_not_outputs(&opts.out, &inputs)?;
     let threads = opts.threads.or_else(|| {
@@ -550,13 +574,8 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
         );
     }
 
-    if crate::interrupt::requested() {
-        return Err(PalpateError::StoppedBeforeStart(
-            "the session started".into(),
-        ));
-    }
     // Held until the outputs are written: a second job into this folder is refused.
-    let _lock = crate::output::lock::OutLock::acquire(&opts.out)?;
+    let _lock = crate::output::lock::OutLock::claim(&opts.out, "the session started")?;
     // Built before the servo starts: with hm1's 28,000 particles it takes milliseconds.
     let probe = InversionProbe::new(&model);
     let steps_per_batch = ((opts.batch_seconds / sim.dt).round() as u32).max(1);
@@ -674,6 +693,11 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
             // hand's speed and no farther.
             let mut target = home + offset;
             let reach = stats.max_tool_speed * steps as f64 * sim.dt;
+            // What the surface may move while the batch runs (nothing asleep).
+            let margin = match rest.is_asleep() {
+                true => 0.0,
+                false => 2.0 * surface_speed * steps as f64 * sim.dt,
+            };
             let stride = target - sim.tool_position;
             let limited = match contact_normal {
                 Some(normal) => {
@@ -687,20 +711,11 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                             // touched surface (after a stall, or a hand faster than the
                             // limit): what the tool sweeps past that may be more tissue.
                             stats.withdrawal_scans += 1;
-                            let t = Instant::now();
-                            let state = match rest.is_asleep() {
-                                true => None,
-                                false => Some(sim.state()?),
-                            };
                             let tool = sim.tool_position;
-                            let survey = rest.survey_withdrawal(
-                                state.as_ref(),
-                                tool,
-                                tool + head,
-                                tool + kept,
-                            );
-                            busy_seconds += t.elapsed().as_secs_f64();
-                            let margin = 2.0 * surface_speed * steps as f64 * sim.dt;
+                            let survey =
+                                survey_timed(&mut sim, &rest, &mut busy_seconds, |state| {
+                                    rest.survey_withdrawal(state, tool, tool + head, tool + kept)
+                                })?;
                             match limit_withdrawal_remainder(kept - head, survey, reach, margin) {
                                 Some(rest_of_it) => Some(head + rest_of_it),
                                 None => pressed,
@@ -713,19 +728,11 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                 None if stride.length() > reach => {
                     // Physics-thread work (a state read, the surface's distance): busy time.
                     stats.approach_scans += 1;
-                    let t = Instant::now();
-                    let state = match rest.is_asleep() {
-                        true => None,
-                        false => Some(sim.state()?),
-                    };
-                    let survey = rest.survey_stride(state.as_ref(), sim.tool_position, target);
+                    let tool = sim.tool_position;
+                    let survey = survey_timed(&mut sim, &rest, &mut busy_seconds, |state| {
+                        rest.survey_stride(state, tool, target)
+                    })?;
                     clearance_floor = Some(survey.clear);
-                    busy_seconds += t.elapsed().as_secs_f64();
-                    // What the surface may move while the batch runs (nothing asleep).
-                    let margin = match rest.is_asleep() {
-                        true => 0.0,
-                        false => 2.0 * surface_speed * steps as f64 * sim.dt,
-                    };
                     limit_approaching_stride(stride, survey, reach, margin)
                 }
                 None => None,

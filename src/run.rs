@@ -11,7 +11,7 @@ use crate::scene::{Num, Scene};
 use crate::sim::{Backend, DivergencePolicy, Guarded, SimOptions, Simulation};
 use crate::stepper::BatchStats;
 use std::io::IsTerminal;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Instant;
 
 /// What to do when the state diverges (`--on-diverge`): non-finite, or faster than 10× the
@@ -309,12 +309,7 @@ pub fn run_with_state(
     opts: &RunOptions,
 ) -> Result<(RunSummary, crate::stepper::State)> {
     crate::output::prepare_out_dir(&opts.out)?;
-    let inputs: Vec<(&str, &Path)> = scene
-        .input_files
-        .iter()
-        .map(|p| ("file the scene reads", p.as_path()))
-        .collect();
-    crate::output::check_inputs_are_not_outputs(&opts.out, &inputs)?;
+    crate::output::check_inputs_are_not_outputs(&opts.out, &scene.inputs().collect::<Vec<_>>())?;
     let until_static = matches!(opts.length, RunLength::UntilStatic { .. });
     let relaxed;
     let scene = if until_static {
@@ -341,11 +336,8 @@ pub fn run_with_state(
     let dt0 = sim.dt;
     // Every refusal before an earlier run's outputs are removed: a run refused keeps them.
     let max_steps = steps_for(opts.length, dt0, scene)?;
-    if crate::interrupt::requested() {
-        return Err(PalpateError::StoppedBeforeStart("the run started".into()));
-    }
     // Held until the outputs are written: a second job into this folder is refused.
-    let _lock = crate::output::lock::OutLock::acquire(&opts.out)?;
+    let _lock = crate::output::lock::OutLock::claim(&opts.out, "the run started")?;
     let removed = crate::output::remove_earlier_outputs(&opts.out)?;
     if opts.announce && removed > 0 {
         crate::say_err!(

@@ -21,6 +21,16 @@ pub struct OutLock {
 }
 
 impl OutLock {
+    /// The lock on `dir` for a job about to write or remove anything there, unless a stop was
+    /// asked for while it was being built: then [`PalpateError::StoppedBeforeStart`] (before
+    /// `starting`), the folder untouched.
+    pub fn claim(dir: &Path, starting: &str) -> Result<OutLock> {
+        if crate::interrupt::requested() {
+            return Err(PalpateError::StoppedBeforeStart(starting.into()));
+        }
+        OutLock::acquire(dir)
+    }
+
     /// Take the lock on `dir` (which exists), or fail naming the job that holds it.
     pub fn acquire(dir: &Path) -> Result<OutLock> {
         #[cfg(unix)]

@@ -127,26 +127,33 @@ fn head(path: &Path, max: u64) -> Option<Vec<u8>> {
     Some(bytes)
 }
 
-/// How palpate's VTU files begin ([`vtu`]).
-const VTU_PROLOGUE: &[u8] = b"<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"1.0\" byte_order=\"LittleEndian\" header_type=\"UInt64\">";
-
-/// How `haptic.csv` begins (its header's first columns).
-const HAPTIC_CSV_PROLOGUE: &[u8] = b"time_s,device_x,device_y,device_z,";
+/// How `haptic.csv` begins: its header's first four columns (time and the device's pose,
+/// which earlier versions of the header shared).
+fn haptic_csv_prologue() -> &'static str {
+    let header = crate::haptics::log::CSV_HEADER;
+    let end = header
+        .match_indices(',')
+        .nth(3)
+        .map_or(header.len(), |(i, _)| i + 1);
+    &header[..end]
+}
 
 /// Whether the file `name` at `path`, named as a run output, is one palpate wrote: a `.vtu`
-/// that begins as palpate's do, a `.pvd` marked [`PVD_MARK`], a `haptic.csv` with its
+/// that begins as palpate's do ([`vtu::PROLOGUE`]), a `.pvd` marked [`PVD_MARK`], a `haptic.csv` with its
 /// header, or a `.partial` (a write a kill cut short). (`summary.json` is proved by its keys.)
 fn written_by_palpate(name: &str, path: &Path) -> bool {
     if name.ends_with(".partial") {
         return true;
     }
-    let starts = |prologue: &[u8]| head(path, prologue.len() as u64).is_some_and(|h| h == prologue);
+    let starts = |prologue: &str| {
+        head(path, prologue.len() as u64).is_some_and(|h| h == prologue.as_bytes())
+    };
     if name.ends_with(".vtu") {
-        starts(VTU_PROLOGUE)
+        starts(vtu::PROLOGUE)
     } else if name.ends_with(".pvd") {
         head(path, 4096).is_some_and(|h| String::from_utf8_lossy(&h).contains(PVD_MARK))
     } else if name == "haptic.csv" {
-        starts(HAPTIC_CSV_PROLOGUE)
+        starts(haptic_csv_prologue())
     } else {
         false
     }

@@ -9,6 +9,10 @@ pub enum DataArray<'a> {
     I32(&'a str, &'a [i32]),
 }
 
+/// How every file this module writes begins (its first two lines, less the second's
+/// newline): what [`super::remove_earlier_outputs`] knows palpate's `.vtu` files by.
+pub const PROLOGUE: &str = "<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"1.0\" byte_order=\"LittleEndian\" header_type=\"UInt64\">";
+
 const B64: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
 
 /// Standard base64 with padding.
@@ -82,7 +86,8 @@ fn document(
     let n = points.len() / 3;
     let cells = offsets.len();
     let mut s = String::new();
-    s.push_str("<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"1.0\" byte_order=\"LittleEndian\" header_type=\"UInt64\">\n  <UnstructuredGrid>\n");
+    s.push_str(PROLOGUE);
+    s.push_str("\n  <UnstructuredGrid>\n");
     s.push_str(&format!(
         "    <Piece NumberOfPoints=\"{n}\" NumberOfCells=\"{cells}\">\n"
     ));

@@ -115,6 +115,16 @@ pub struct Scene {
     pub input_files: Vec<PathBuf>,
 }
 
+impl Scene {
+    /// The files the scene was read from, each named as such for an error
+    /// ([`crate::output::check_inputs_are_not_outputs`]).
+    pub fn inputs(&self) -> impl Iterator<Item = (&'static str, &Path)> {
+        self.input_files
+            .iter()
+            .map(|p| ("file the scene reads", p.as_path()))
+    }
+}
+
 /// One line per built-in scene: its name and description.
 pub fn builtin_list() -> Vec<(String, String)> {
     BUILTIN
