@@ -31,6 +31,7 @@ pub mod run;
 pub mod scene;
 pub mod sim;
 pub mod stepper;
+pub mod substeps;
 pub mod timestep;
 
 pub use error::{PalpateError, Result};

@@ -21,6 +21,10 @@ pub const SPEED_LIMIT_WAVE_SPEEDS: f64 = 10.0;
 /// tool; the same press at 7 mm/s went 7 mm deep). Half leaves a margin below that edge.
 pub const TOOL_SPEED_SHEAR_WAVES: f64 = 0.5;
 
+/// The most particle sub-steps per core step: the scene's ([`Model::particle_substeps`])
+/// and the ones a compressed layer asks for ([`crate::substeps`]).
+pub const MAX_PARTICLE_SUBSTEPS: u32 = 64;
+
 /// Everything the kernels read that does not change during a run.
 #[derive(Clone, Debug)]
 pub struct Model {
@@ -556,6 +560,14 @@ impl Model {
     /// scene's safety factor (1 without particles or with the exact coupling, whose core
     /// step is the particles'; at most 64).
     pub fn particle_substeps(&self, dt: f64) -> u32 {
+        self.particle_substeps_stiffened(dt, 1.0)
+    }
+
+    /// [`Self::particle_substeps`] for particles whose stiffness has grown `stiffening`
+    /// times (κ, [`crate::substeps::stiffening`]): ⌈dt / (safety·bound(κ))⌉, the bound of
+    /// [`crate::particles::Particles::dt_bound_stiffened`] (at most
+    /// [`MAX_PARTICLE_SUBSTEPS`]).
+    pub fn particle_substeps_stiffened(&self, dt: f64, stiffening: f64) -> u32 {
         match &self.particles {
             None => 1,
             Some(_) if self.slaving.is_some() => 1,
@@ -564,8 +576,10 @@ impl Model {
                     .tool
                     .as_ref()
                     .map(|t| (t.tool.stiffness, t.tool.damping));
-                let bound = p.dt_bound(&self.material, contact);
-                (dt / (self.safety * bound)).ceil().clamp(1.0, 64.0) as u32
+                let bound = p.dt_bound_stiffened(&self.material, contact, stiffening);
+                (dt / (self.safety * bound))
+                    .ceil()
+                    .clamp(1.0, MAX_PARTICLE_SUBSTEPS as f64) as u32
             }
         }
     }

@@ -658,6 +658,27 @@ impl PlannedStage {
     }
 }
 
+/// The particle stages of one core step, every step: `substeps` times Follow, SphStress,
+/// SphForces (the first time; then SphForcesAccumulate), IntegrateParticles.
+fn particle_substep_block(substeps: u32) -> impl Iterator<Item = PlannedStage> {
+    (0..substeps.max(1)).flat_map(|k| {
+        [
+            Stage::Follow,
+            Stage::SphStress,
+            if k == 0 {
+                Stage::SphForces
+            } else {
+                Stage::SphForcesAccumulate
+            },
+            Stage::IntegrateParticles,
+        ]
+        .map(|stage| PlannedStage {
+            stage,
+            when: When::EveryStep,
+        })
+    })
+}
+
 /// The ordered list of stages of one step.
 #[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]
 pub struct StepPlan {
@@ -707,16 +728,7 @@ impl StepPlan {
                 stages.push(every(Stage::ExactStress));
                 stages.push(every(Stage::ExactForces));
             } else {
-                for k in 0..substeps.max(1) {
-                    stages.push(every(Stage::Follow));
-                    stages.push(every(Stage::SphStress));
-                    stages.push(every(if k == 0 {
-                        Stage::SphForces
-                    } else {
-                        Stage::SphForcesAccumulate
-                    }));
-                    stages.push(every(Stage::IntegrateParticles));
-                }
+                stages.extend(particle_substep_block(substeps));
             }
         }
         if model.follower.is_some() {
@@ -806,6 +818,38 @@ impl StepPlan {
                 })
             })
             .collect()
+    }
+
+    /// This plan with its particle sub-step block (`Follow`, `SphStress`, `SphForces` or
+    /// `SphForcesAccumulate`, `IntegrateParticles`, repeated) run `substeps` times: what
+    /// [`StepPlan::for_model_at`] gives for that count. Unchanged without the block (no
+    /// particle stages, or design 8's, whose particles step at the core's rate).
+    pub fn with_particle_substeps(&self, substeps: u32) -> StepPlan {
+        let in_block = |s: Stage| {
+            matches!(
+                s,
+                Stage::Follow
+                    | Stage::SphStress
+                    | Stage::SphForces
+                    | Stage::SphForcesAccumulate
+                    | Stage::IntegrateParticles
+            )
+        };
+        if self.contains(Stage::ActivateExact) {
+            return self.clone();
+        }
+        let Some(first) = self.stages.iter().position(|p| in_block(p.stage)) else {
+            return self.clone();
+        };
+        let end = first
+            + self.stages[first..]
+                .iter()
+                .take_while(|p| in_block(p.stage))
+                .count();
+        let mut stages = self.stages[..first].to_vec();
+        stages.extend(particle_substep_block(substeps));
+        stages.extend_from_slice(&self.stages[end..]);
+        StepPlan { stages }
     }
 
     /// True when the plan contains `stage`.

@@ -485,6 +485,12 @@ pub fn run_with_state(
                 .max(1.0);
             batch = batch.min(to_frame as u64);
         }
+        // And at the next check of the particle sub-steps, while particles are dynamic
+        // (not under --until-static, whose relaxation acts per batch: its count is checked
+        // at each batch's end).
+        if let Some(check) = sim.steps_to_substep_check().filter(|_| !until_static) {
+            batch = batch.min(check as u64);
+        }
         match sim.advance_with(batch as u32, opts.on_diverge)? {
             Guarded::Done(s) => {
                 if until_static {
@@ -635,6 +641,8 @@ pub fn summarize(
             .particles
             .as_ref()
             .map(|_| model.particle_substeps(sim.dt)),
+        particle_substeps_max: sim.particle_substeps().map(|(_, most)| most),
+        max_particle_stiffening: sim.max_particle_stiffening(),
         mass_scaling: scene.solver.mass_scaling,
         sim_seconds: sim.time,
         wall_seconds: wall,

@@ -214,6 +214,9 @@ pub struct Simulation {
     /// The start of the batch that diverged in the last [`Simulation::advance`] (the
     /// stepper's checkpoint holds its state).
     checkpoint: Option<BatchStart>,
+    /// The particle sub-step count, adapted to the layer's stiffening (None where the
+    /// particles carry no stress of their own).
+    substeps: Option<crate::substeps::SubstepControl>,
 }
 
 /// What [`Simulation`] tracks beside the stepper's state, as it was at a batch start.
@@ -469,6 +472,7 @@ impl Simulation {
             last_particles: None,
             active_particles_max: 0,
             checkpoint: None,
+            substeps: crate::substeps::SubstepControl::new(&model, model.particle_substeps(dt)),
         })
     }
 
@@ -641,6 +645,7 @@ impl Simulation {
             self.steps_done += steps as u64;
             self.time += steps as f64 * self.dt;
             self.last = stats;
+            self.adapt_particle_substeps(steps)?;
             return Ok(Advance::Done(stats));
         }
         // Step k of the batch alone: the batch's own tool input, from its step k.
@@ -714,6 +719,73 @@ impl Simulation {
                 }
             }
         }
+    }
+
+    /// Whether the last batch ended with any particle dynamic (before the first batch:
+    /// perhaps, as a tool may start in the activation radius).
+    fn any_dynamic(&self) -> bool {
+        self.last_particles.is_none_or(|p| p.dynamic > 0)
+    }
+
+    /// After `steps` finite steps: when a check is due ([`crate::substeps`]), measure the
+    /// stressed particles' stiffening κ and set the particle sub-steps the stiffened bound
+    /// asks for (at once when more; after a calm spell when fewer).
+    fn adapt_particle_substeps(&mut self, steps: u32) -> Result<()> {
+        let base = self.model.particle_substeps(self.dt);
+        let dynamic = self.any_dynamic();
+        let Some(c) = &mut self.substeps else {
+            return Ok(());
+        };
+        if !c.step(steps, dynamic, base) {
+            return Ok(());
+        }
+        let stiffening = match dynamic {
+            true => self.stepper.max_particle_stiffening()?,
+            false => 1.0,
+        };
+        let needed = self
+            .model
+            .particle_substeps_stiffened(self.dt, stiffening as f64);
+        if let Some(n) = c.decide(needed, stiffening) {
+            self.stepper.set_particle_substeps(n)?;
+        }
+        Ok(())
+    }
+
+    /// Steps until the particle sub-step count is next checked, while it is watched
+    /// ([`crate::substeps::SubstepControl::watching`]): a driver that runs long batches
+    /// ends one there, so that the count follows the layer's stiffening (a check runs at
+    /// the end of a batch, however long).
+    pub fn steps_to_substep_check(&self) -> Option<u32> {
+        let c = self.substeps.as_ref()?;
+        c.watching(self.any_dynamic(), self.model.particle_substeps(self.dt))
+            .then(|| c.steps_to_check())
+    }
+
+    /// Run the particle stages `substeps` times per core step from now on (at least 1, at
+    /// most [`crate::model::MAX_PARTICLE_SUBSTEPS`]) and stop adapting the count to the
+    /// layer's stiffening: for comparisons and tests (what a fixed count does).
+    pub fn fix_particle_substeps(&mut self, substeps: u32) -> Result<()> {
+        self.substeps = None;
+        self.stepper.set_particle_substeps(substeps)
+    }
+
+    /// The largest stiffening κ of the particles that carried stress in the last step
+    /// ([`crate::stepper::Stepper::max_particle_stiffening`]; 1 without particles).
+    pub fn particle_stiffening(&mut self) -> Result<f32> {
+        self.stepper.max_particle_stiffening()
+    }
+
+    /// The particle sub-steps per core step now, and the most the run has used (None
+    /// without a particle layer that carries stress).
+    pub fn particle_substeps(&self) -> Option<(u32, u32)> {
+        self.substeps.as_ref().map(|c| (c.current, c.most))
+    }
+
+    /// The largest stiffening κ of the stressed particles measured so far (1 at rest;
+    /// None without a particle layer that carries stress).
+    pub fn max_particle_stiffening(&self) -> Option<f32> {
+        self.substeps.as_ref().map(|c| c.max_stiffening)
     }
 
     /// Go back to the start of the batch that diverged in the last [`Simulation::advance`]

@@ -277,6 +277,20 @@ pub trait Stepper: Send {
         Ok(None)
     }
 
+    /// Run the particle stages `substeps` times per core step from the next batch on, each
+    /// a sub-step of dt/substeps ([`crate::substeps`]); nothing to do without particles.
+    /// Waits for the batches in flight.
+    fn set_particle_substeps(&mut self, _substeps: u32) -> Result<()> {
+        Ok(())
+    }
+
+    /// The largest stiffening κ ([`crate::substeps::stiffening`]) of the particles that
+    /// carried SPH stress in the last sub-step, from the deformation gradients `sph_stress`
+    /// stored; 1 without particles. Waits for the batches in flight.
+    fn max_particle_stiffening(&mut self) -> Result<f32> {
+        Ok(1.0)
+    }
+
     /// Run `steps` steps with no per-batch input and wait for the stats.
     fn run(&mut self, steps: u32) -> Result<BatchStats> {
         self.submit(steps, &BatchInput::default())?;

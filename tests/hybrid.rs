@@ -1114,3 +1114,61 @@ fn a_pressed_and_released_tlsph_block_shows_no_hourglass_mode() {
         "hourglass control barely changes the non-affine remainder: {ratio:.2} vs {ratio0:.2} without"
     );
 }
+
+/// The built-in haptic scene pressed 20 mm (far past its 3.1 mm wall) at 47.6 mm/s, just
+/// under its haptic speed limit, for 0.42 s of its path. The particles under the tool
+/// stiffen (their largest ‖cof F‖²/3 passes 16) and one particle sub-step per core step
+/// diverges on the way (before the end of the path: the step it diverged at is printed);
+/// with the count adapted to the measured stiffening (`palpate::substeps`) the same press
+/// stays finite to the end, at more sub-steps than the scene's at the most.
+#[test]
+fn a_deep_press_stays_stable_with_particle_substeps_adapted_to_the_layers_stiffening() {
+    let text = Scene::builtin_text("lv_touch").unwrap();
+    let path = "path = [[0.0, 0.0147, 0.0, -0.005], [0.42, -0.0053, 0.0, -0.005]]";
+    let (start, end) = (
+        text.find("\npath = ").unwrap() + 1,
+        text.find("\n[solver]").unwrap(),
+    );
+    let text = format!("{}{path}\n{}", &text[..start], &text[end..]);
+    let scene = Scene::from_toml(&text, "deep press", "lv_touch", None).unwrap();
+    let press = |adapt: bool| -> (Result<f64, u64>, Option<(u32, u32)>, f32) {
+        let mut sim = palpate::sim::Simulation::new(
+            &scene,
+            palpate::sim::Backend::Cpu,
+            palpate::sim::SimOptions::default(),
+        )
+        .unwrap();
+        let base = sim.model.particle_substeps(sim.dt);
+        assert_eq!(base, 1, "lv_touch steps its particles at the core's rate");
+        if !adapt {
+            sim.fix_particle_substeps(base).unwrap();
+        }
+        let steps = (0.42 / sim.dt).ceil() as u64;
+        while sim.steps_done < steps {
+            let batch = sim.steps_to_substep_check().unwrap_or(50) as u64;
+            match sim
+                .advance(batch.min(steps - sim.steps_done) as u32)
+                .unwrap()
+            {
+                palpate::sim::Advance::Done(_) => {}
+                palpate::sim::Advance::Diverged { step, .. } => {
+                    return (Err(step), sim.particle_substeps(), 0.0)
+                }
+            }
+        }
+        let depth = 0.0147 - sim.tool_position.x;
+        let most = sim.max_particle_stiffening().unwrap_or(1.0);
+        (Ok(depth), sim.particle_substeps(), most)
+    };
+    let (fixed, fixed_counts, _) = press(false);
+    eprintln!("one sub-step: {fixed:?}");
+    assert!(fixed.is_err(), "the press did not diverge at one sub-step");
+    assert_eq!(fixed_counts, None, "a fixed count is not adapted");
+    let (adapted, counts, stiffening) = press(true);
+    let (now, most) = counts.unwrap();
+    eprintln!("adapted: {adapted:?}; sub-steps now {now}, at most {most}; largest κ {stiffening}");
+    let depth = adapted.expect("the adapted press diverged");
+    assert!((depth - 0.020).abs() < 1e-4, "the tool reached {depth} m");
+    assert!(stiffening > 16.0, "the layer stiffened only {stiffening}x");
+    assert!(most >= 3, "at most {most} sub-steps");
+}

@@ -1444,6 +1444,15 @@ fn multi_rate_steps_are_bit_identical_on_one_and_two_threads() {
     assert!(one == two, "the state differs between 1 and 2 threads");
 }
 
+/// How many times `stage` ran over a batch's stage counts (every plan position of it).
+fn stage_runs(counts: &[(Stage, u32)], stage: Stage) -> u32 {
+    counts
+        .iter()
+        .filter(|&&(y, _)| y == stage)
+        .map(|&(_, n)| n)
+        .sum()
+}
+
 /// Multi-rate stepping: on a scene whose automatic core step needs 3 particle sub-steps
 /// (`soft_pressed_block`), (a) the plan repeats Follow / SphStress / SphForces (then
 /// SphForcesAccumulate) / IntegrateParticles once per sub-step, between Activate and the core
@@ -1515,13 +1524,7 @@ fn particle_substeps_are_planned_run_and_match_between_backends() {
     for (name, counts) in [("CPU", &c_counts), ("GPU", &g_counts)] {
         let planned: Vec<Stage> = counts.iter().map(|&(x, _)| x).collect();
         assert_eq!(planned, stages, "{name}: not the plan for {s} sub-steps");
-        let total = |x: Stage| -> u32 {
-            counts
-                .iter()
-                .filter(|&&(y, _)| y == x)
-                .map(|&(_, n)| n)
-                .sum()
-        };
+        let total = |x: Stage| stage_runs(counts, x);
         for (x, n) in [
             (Stage::Follow, 100 * s),
             (Stage::SphStress, 100 * s),
@@ -2149,6 +2152,10 @@ fn a_divergence_in_a_particle_scene_is_located_and_rolled_back_whole() {
             assert!(matches!(sim.advance(batch).unwrap(), Advance::Done(_)));
         }
         let dt = sim.dt;
+        // The particle sub-steps held (not adapted at the ends of batches, which the batch and
+        // the one-step batches have at different steps).
+        sim.fix_particle_substeps(sim.model.particle_substeps(dt))
+            .unwrap();
         sim.set_dt(4.0 * dt).unwrap();
         // Held where it is: a batch and one-step batches give the tool the same inputs.
         sim.tool_target = Some(sim.tool_position);
@@ -3089,4 +3096,68 @@ fn the_paper_model_with_a_material_other_than_stvk_is_warned_of() {
     );
     assert!(with("stvk", "paper").is_empty());
     assert!(with("stable_neohookean", "tlsph").is_empty());
+}
+
+/// The particle sub-step count changed during a run (as [`palpate::substeps`] changes it when
+/// the layer stiffens): on the soft pressed block (3 sub-steps at its core step), 100 steps
+/// at 3, 100 at 5 and 100 at 4 sub-steps. Both backends then run the plan for 4 (stage
+/// counts over the last batch), agree within 1e-4 relative after each batch, and measure
+/// the same largest stiffening κ of the stressed particles (1e-4 relative; above 1: the
+/// tool has squeezed the layer).
+#[test]
+fn particle_substeps_changed_during_a_run_match_between_backends() {
+    let scene = soft_pressed_block(10);
+    let m = Model::from_scene(&scene);
+    let dt = palpate::sim::choose_dt(&scene, &m, None, false, false).unwrap();
+    assert_eq!(m.particle_substeps(dt), 3);
+    let run = |backend: palpate::sim::Backend| {
+        let mut sim = palpate::sim::Simulation::new(
+            &scene,
+            backend,
+            palpate::sim::SimOptions {
+                gpu: (backend == palpate::sim::Backend::Gpu).then(gpu),
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        let mut out = Vec::new();
+        let mut stiffening = Vec::new();
+        for s in [3, 5, 4] {
+            sim.fix_particle_substeps(s).unwrap();
+            assert!(matches!(
+                sim.advance(100).unwrap(),
+                palpate::sim::Advance::Done(_)
+            ));
+            let (u, p) = (
+                sim.state().unwrap().displacements,
+                sim.particle_state().unwrap().unwrap().displacements,
+            );
+            stiffening.push(sim.particle_stiffening().unwrap());
+            out.push((
+                u,
+                p,
+                sim.last_tool.unwrap().force,
+                sim.last_particles.unwrap().dynamic,
+            ));
+        }
+        (out, sim.stage_counts(), stiffening)
+    };
+    let (c, c_counts, c_k) = run(palpate::sim::Backend::Cpu);
+    let (g, g_counts, g_k) = run(palpate::sim::Backend::Gpu);
+    let plan = palpate::plan::StepPlan::for_model_at(&m, 4);
+    let stages: Vec<Stage> = plan.stages.iter().map(|p| p.stage).collect();
+    for (name, counts) in [("CPU", &c_counts), ("GPU", &g_counts)] {
+        let planned: Vec<Stage> = counts.iter().map(|&(x, _)| x).collect();
+        assert_eq!(planned, stages, "{name}: not the plan for 4 sub-steps");
+        let total = |x: Stage| stage_runs(counts, x);
+        assert_eq!(total(Stage::SphStress), 400, "{name}");
+        assert_eq!(total(Stage::SphForcesAccumulate), 300, "{name}");
+        assert_eq!(total(Stage::FemForces), 100, "{name}");
+    }
+    backends_agree("3, 5, 4 sub-steps, ", &c, &g);
+    eprintln!("largest stiffening: CPU {c_k:?}, GPU {g_k:?}");
+    for (a, b) in c_k.iter().zip(&g_k) {
+        assert!((a / b - 1.0).abs() < 1e-4, "CPU {a} GPU {b}");
+    }
+    assert!(c_k[2] > 1.0, "the layer never stiffened: {c_k:?}");
 }

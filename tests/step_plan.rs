@@ -589,3 +589,28 @@ fn the_gpu_fuses_only_passes_whose_order_the_plan_leaves_free() {
     let lv_touch = StepPlan::for_model_at(&scene_model("lv_touch"), 1);
     assert_eq!(lv_touch.gpu_fusions().len(), 3);
 }
+
+/// A plan's particle sub-step block re-run another number of times
+/// (`StepPlan::with_particle_substeps`, what a stepper does when the count changes during a
+/// run) is the plan built for that count, from any count; plans without the block (no
+/// particles, design 8) are left as they are.
+#[test]
+fn a_plan_changed_to_other_substeps_is_the_plan_built_for_them() {
+    for name in ["hm1", "lv_touch"] {
+        let m = scene_model(name);
+        for from in 1..=4 {
+            let plan = StepPlan::for_model_at(&m, from);
+            for to in 1..=6 {
+                assert_eq!(
+                    plan.with_particle_substeps(to),
+                    StepPlan::for_model_at(&m, to),
+                    "{name}: {from} -> {to} sub-steps"
+                );
+            }
+        }
+    }
+    for name in ["hm1_exact", "lv", "beam"] {
+        let plan = StepPlan::for_model(&scene_model(name));
+        assert_eq!(plan.with_particle_substeps(3), plan, "{name}");
+    }
+}

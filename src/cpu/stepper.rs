@@ -1998,6 +1998,32 @@ impl Stepper for CpuStepper {
         Ok(())
     }
 
+    fn max_particle_stiffening(&mut self) -> Result<f32> {
+        Ok(self.particles.as_ref().map_or(1.0, |pa| {
+            let stressed = pa.act.stress_list.iter().map(|&p| p as usize);
+            crate::substeps::max_stiffening(&pa.gradient, stressed)
+        }))
+    }
+
+    fn set_particle_substeps(&mut self, substeps: u32) -> Result<()> {
+        let substeps = substeps.clamp(1, crate::model::MAX_PARTICLE_SUBSTEPS);
+        let (Some(pa), Some(pd)) = (&mut self.particles, self.model.particles.as_ref()) else {
+            return Ok(());
+        };
+        if self.model.slaving.is_some() || pa.params.substeps == substeps {
+            return Ok(());
+        }
+        // Batches are run at submit: nothing in flight runs with the new plan.
+        pa.params.substeps = substeps;
+        pa.params = pa
+            .params
+            .at_core_dt(self.params.dt, pd.settings.activation_interval);
+        self.plan = StepPlan::for_model_at(&self.model, substeps);
+        self.chain = chain_before_core_forces(&self.plan);
+        self.counts = self.plan.stages.iter().map(|p| (p.stage, 0)).collect();
+        Ok(())
+    }
+
     fn set_load_factor(&mut self, load_factor: f32) -> Result<()> {
         if self.model.follower.is_some() {
             self.cardiac.follower_load.load_factor = load_factor;

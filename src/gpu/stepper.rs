@@ -168,6 +168,35 @@ impl StagePipelines {
     }
 }
 
+/// For each position of `plan`, its index in `stages` (the stage's own passes) and what a
+/// batch records there with the fused dispatches in `stages`: the fused one at a fusion's
+/// `at`, None at its `skipped`.
+fn map_plan(plan: &StepPlan, stages: &[BoundStage]) -> Result<(Vec<usize>, Vec<Option<usize>>)> {
+    let plan_stage = plan
+        .stages
+        .iter()
+        .map(|p| {
+            stages
+                .iter()
+                .position(|b| b.pipelines.stage == p.stage && b.carries.is_none())
+                .ok_or_else(|| {
+                    PalpateError::Gpu(format!("stage '{}' has no pipelines", p.stage.name()))
+                })
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let mut fused_stage: Vec<Option<usize>> = plan_stage.iter().map(|&k| Some(k)).collect();
+    for f in plan.gpu_fusions() {
+        let built = stages
+            .iter()
+            .position(|b| b.pipelines.stage == f.host && b.carries == Some(f.rider));
+        if let Some(b) = built {
+            fused_stage[f.at] = Some(b);
+            fused_stage[f.skipped] = None;
+        }
+    }
+    Ok((plan_stage, fused_stage))
+}
+
 /// A stage's pipelines with their bind groups on one simulation's buffers.
 struct BoundStage {
     pipelines: StagePipelines,
@@ -424,30 +453,35 @@ impl GpuStepper {
             )?;
         }
         let plan = StepPlan::for_model_at(model, model.particle_substeps(params.dt as f64));
+        // Bound for the plan and for the plan at another sub-step count (SphForcesAccumulate
+        // runs only from two sub-steps; [`crate::substeps`] changes the count during a run).
+        let other = plan.with_particle_substeps(if plan.contains(Stage::SphForcesAccumulate) {
+            1
+        } else {
+            2
+        });
         let mut stages: Vec<BoundStage> = Vec::new();
-        let mut plan_stage = Vec::new();
-        for p in &plan.stages {
-            if let Some(k) = stages.iter().position(|b| b.pipelines.stage == p.stage) {
-                plan_stage.push(k);
-                continue;
+        for p in plan.stages.iter().chain(&other.stages) {
+            if !stages.iter().any(|b| b.pipelines.stage == p.stage) {
+                let pipelines = StagePipelines::new(&ctx, p.stage, model)?;
+                stages.push(BoundStage::bind(&ctx, &buffers, pipelines, None)?);
             }
-            let pipelines = StagePipelines::new(&ctx, p.stage, model)?;
-            plan_stage.push(stages.len());
-            stages.push(BoundStage::bind(&ctx, &buffers, pipelines, None)?);
         }
         // The fused dispatches `fusions` asks for. A fused kernel binds both stages' arrays:
         // where the adapter cannot build it (fewer storage buffers per stage than it binds, a
         // driver that refuses it), the two keep their own passes.
-        let mut fused_stage: Vec<Option<usize>> = plan_stage.iter().map(|&k| Some(k)).collect();
-        for f in plan.gpu_fusions().into_iter().filter(|f| fusions.builds(f)) {
-            let built = StagePipelines::fused(&ctx, &f, model)
+        for f in plan.gpu_fusions().into_iter().chain(other.gpu_fusions()) {
+            let built = |b: &BoundStage| b.pipelines.stage == f.host && b.carries == Some(f.rider);
+            if !fusions.builds(&f) || stages.iter().any(built) {
+                continue;
+            }
+            let bound = StagePipelines::fused(&ctx, &f, model)
                 .and_then(|p| BoundStage::bind(&ctx, &buffers, p, Some(f.rider)));
-            if let Ok(bound) = built {
-                fused_stage[f.at] = Some(stages.len());
-                fused_stage[f.skipped] = None;
+            if let Ok(bound) = bound {
                 stages.push(bound);
             }
         }
+        let (plan_stage, fused_stage) = map_plan(&plan, &stages)?;
         let mut report_layout = Vec::new();
         let mut offset = 0;
         for (name, buf) in buffers.with_usage(Usage::Report) {
@@ -1358,6 +1392,55 @@ impl Stepper for GpuStepper {
                 bytemuck::bytes_of(&t.params),
             );
         }
+        Ok(())
+    }
+
+    fn max_particle_stiffening(&mut self) -> Result<f32> {
+        if self.n_particles == 0 {
+            return Ok(1.0);
+        }
+        self.drain()?;
+        let n = self.n_particles as usize;
+        let modes = self.read_f32("particle_mode")?;
+        let gradient = self.read_f32("particle_gradient")?;
+        let stressed = (0..n).filter(|&p| {
+            modes.get(p).is_some_and(|m| {
+                m.to_bits()
+                    & (crate::particles::params::mode::DYNAMIC
+                        | crate::particles::params::mode::IN_S)
+                    != 0
+            })
+        });
+        Ok(crate::substeps::max_stiffening(&gradient, stressed))
+    }
+
+    fn set_particle_substeps(&mut self, substeps: u32) -> Result<()> {
+        let substeps = substeps.clamp(1, crate::model::MAX_PARTICLE_SUBSTEPS);
+        let Some(t) = &mut self.model_particles else {
+            return Ok(());
+        };
+        if self.exact_twin.is_some() || t.params.substeps == substeps {
+            return Ok(());
+        }
+        let plan = self.plan.with_particle_substeps(substeps);
+        if plan == self.plan {
+            return Ok(());
+        }
+        let (plan_stage, fused_stage) = map_plan(&plan, &self.stages)?;
+        t.params.substeps = substeps;
+        t.params = t.params.at_core_dt(self.params.dt, t.activation_interval);
+        // Ordered after the batches already submitted, before the next.
+        self.ctx.queue.write_buffer(
+            self.buffers.require("particle_params")?,
+            0,
+            bytemuck::bytes_of(&t.params),
+        );
+        self.counts = plan.stages.iter().map(|p| (p.stage, 0)).collect();
+        self.plan = plan;
+        self.plan_stage = plan_stage;
+        self.fused_stage = fused_stage;
+        // Recorded with the old plan.
+        self.ahead = None;
         Ok(())
     }
 

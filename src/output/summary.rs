@@ -181,6 +181,15 @@ pub struct RunSummary {
     /// (scenes with particles).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub particle_substeps: Option<u32>,
+    /// The most particle sub-steps per core step the run used: above `particle_substeps`
+    /// where the layer stiffened under the tool and the count was raised
+    /// ([`crate::substeps`]; scenes whose particles carry stress).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub particle_substeps_max: Option<u32>,
+    /// The largest stiffening κ = max(‖F‖², ‖cof F‖²)/3 of a stressed particle the run
+    /// measured (1 at rest; [`crate::substeps::stiffening`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_particle_stiffening: Option<f32>,
     /// Mass scaling of the scene's `[solver]` (1: none).
     pub mass_scaling: f64,
     /// Simulated time, s.

@@ -130,13 +130,26 @@ impl Particles {
         material: &crate::material::MaterialParams,
         contact: Option<(f64, f64)>,
     ) -> f64 {
+        self.dt_bound_stiffened(material, contact, 1.0)
+    }
+
+    /// [`Self::dt_bound`] where the material's stiffness is `stiffening` (κ ≥ 1) times its
+    /// rest value: the elastic frequency scales by √κ (ω² ∝ stiffness), the contact springs
+    /// and the hourglass penalty stay as they are. κ is what a deformed particle's tangent
+    /// stiffness has grown to ([`crate::substeps::stiffening`]).
+    pub fn dt_bound_stiffened(
+        &self,
+        material: &crate::material::MaterialParams,
+        contact: Option<(f64, f64)>,
+        stiffening: f64,
+    ) -> f64 {
         let dx = self.settings.spacing;
         let c = material.p_wave_speed();
         let m = material;
         let zeta = (m.phi + 2.0 * m.psi) * (2.0 * c / dx) / (2.0 * (m.lambda + 2.0 * m.mu));
         let elastic = dx / c * crate::timestep::damped_step_factor(zeta);
         // 1/dt² summed over the springs, each dt = 2/ω (quadrature, as the vertices').
-        let mut inv2 = 1.0 / (elastic * elastic);
+        let mut inv2 = stiffening.max(1.0) / (elastic * elastic);
         if let Some((k, b)) = contact {
             let (area, m) = (dx * dx, self.mass as f64);
             let omega = (k * area / m).sqrt();

@@ -1,0 +1,190 @@
+//! Adaptive particle sub-steps: a particle layer pressed hard stiffens, and the sub-step the
+//! scene was set up with ([`Model::particle_substeps`], from the rest wave speed) stops
+//! being stable. Under lv_touch's tool pressed 8–10 mm into the wall at its speed limit the
+//! layer's ‖cof F‖²/3 reaches 16–23 and one sub-step per core step diverged (two at about
+//! 46, 13 mm in); with the count raised from the measured stiffening the same press runs on
+//! until the tool has gone through the wall (BENCHMARKS.md). [`SubstepControl`] measures the stiffening of the particles
+//! that carry stress every [`CHECK_STEPS`] steps while any is dynamic, raises the count at
+//! once when the stiffened bound asks for more, and lowers it after [`CALM_CHECKS`] checks
+//! in a row asked for fewer. The core step is not changed: its tets under the tool stayed
+//! stable at the scene's dt in every such press.
+
+use crate::model::Model;
+use glam::Mat3;
+
+/// Steps between two measurements of the stiffening while particles are dynamic (`run`
+/// caps its batches at this then; a haptic batch of fewer steps measures at the first batch
+/// end after it).
+pub const CHECK_STEPS: u32 = 8;
+
+/// Checks in a row that must ask for fewer sub-steps before the count is lowered (a
+/// release, not a flicker between two counts).
+pub const CALM_CHECKS: u32 = 8;
+
+/// How much a deformation F has stiffened a hyperelastic particle, relative to its rest
+/// stiffness: κ = max(1, ‖F‖²/3, ‖cof F‖²/3). The volumetric term's tangent is
+/// λ (∂J/∂F)⊗(∂J/∂F) with ∂J/∂F = cof F, and the stretch terms grow like F⊗F; both norms
+/// are 3 at rest. A layer squeezed flat under a tool bulges sideways, and the product of
+/// its two lateral stretches (a cofactor entry) is what grows.
+pub fn stiffening(f: Mat3) -> f32 {
+    let c = f.transpose() * f;
+    let i1 = c.x_axis.x + c.y_axis.y + c.z_axis.z;
+    let c2 = c * c;
+    let i2 = 0.5 * (i1 * i1 - (c2.x_axis.x + c2.y_axis.y + c2.z_axis.z));
+    let k = (i1.max(i2) / 3.0).max(1.0);
+    if k.is_finite() {
+        k
+    } else {
+        f32::MAX
+    }
+}
+
+/// The largest [`stiffening`] of `particles`, each F = I + H_p from `gradient` (H_p at
+/// `9p..9p + 9`, column-major, as `sph_stress` stores it); 1 for none.
+pub fn max_stiffening(gradient: &[f32], particles: impl Iterator<Item = usize>) -> f32 {
+    particles
+        .filter_map(|p| gradient.get(9 * p..9 * p + 9))
+        .map(|h| stiffening(Mat3::IDENTITY + Mat3::from_cols_slice(h)))
+        .fold(1.0, f32::max)
+}
+
+/// The particle sub-step count of a run, adapted to how stiff its particles have become.
+pub struct SubstepControl {
+    /// Sub-steps per core step now.
+    pub current: u32,
+    /// The most sub-steps the run has used.
+    pub most: u32,
+    /// Times the count was raised.
+    pub raises: u32,
+    /// The largest stiffening κ measured.
+    pub max_stiffening: f32,
+    steps_since_check: u32,
+    calm_checks: u32,
+}
+
+impl SubstepControl {
+    /// The control of `model` starting at `substeps` (None where its particles never
+    /// carry stress of their own: no particles, the exact coupling, or no tool and no
+    /// `activation = "all"`).
+    pub fn new(model: &Model, substeps: u32) -> Option<SubstepControl> {
+        let p = model.particles.as_ref()?;
+        if model.slaving.is_some() || (model.tool.is_none() && !p.settings.all_active) {
+            return None;
+        }
+        Some(SubstepControl {
+            current: substeps,
+            most: substeps,
+            raises: 0,
+            max_stiffening: 1.0,
+            steps_since_check: 0,
+            calm_checks: 0,
+        })
+    }
+
+    /// Whether the count is watched now: while any particle is `dynamic`, or the count is
+    /// not the scene's `base` one (to lower it once they are all gone).
+    pub fn watching(&self, dynamic: bool, base: u32) -> bool {
+        dynamic || self.current != base
+    }
+
+    /// Steps until the next check is due (at least 1).
+    pub fn steps_to_check(&self) -> u32 {
+        CHECK_STEPS.saturating_sub(self.steps_since_check).max(1)
+    }
+
+    /// Count `steps` more steps; true when a check is due: [`CHECK_STEPS`] since the last
+    /// one, and [`Self::watching`].
+    pub fn step(&mut self, steps: u32, dynamic: bool, base: u32) -> bool {
+        self.steps_since_check = self.steps_since_check.saturating_add(steps);
+        self.steps_since_check >= CHECK_STEPS && self.watching(dynamic, base)
+    }
+
+    /// The count after a check that needs `needed` sub-steps: raised at once, lowered to
+    /// `needed` after [`CALM_CHECKS`] checks in a row that needed fewer. Some(count) when it
+    /// changes.
+    pub fn decide(&mut self, needed: u32, stiffening: f32) -> Option<u32> {
+        self.steps_since_check = 0;
+        self.max_stiffening = self.max_stiffening.max(stiffening);
+        if needed > self.current {
+            self.calm_checks = 0;
+            self.raises += 1;
+            self.current = needed;
+            self.most = self.most.max(needed);
+            return Some(needed);
+        }
+        if needed == self.current {
+            self.calm_checks = 0;
+            return None;
+        }
+        self.calm_checks += 1;
+        if self.calm_checks < CALM_CHECKS {
+            return None;
+        }
+        self.calm_checks = 0;
+        self.current = needed;
+        Some(needed)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::Vec3;
+
+    #[test]
+    fn stiffening_is_one_at_rest_and_under_a_rotation_and_grows_with_a_lateral_bulge() {
+        assert_eq!(stiffening(Mat3::IDENTITY), 1.0);
+        let r = Mat3::from_axis_angle(Vec3::new(1.0, 2.0, 3.0).normalize(), 0.7);
+        assert!((stiffening(r) - 1.0).abs() < 1e-5);
+        // Squeezed to a third along z, bulged 1.6x sideways (J = 0.85).
+        let f = Mat3::from_diagonal(Vec3::new(1.6, 1.6, 1.0 / 3.0));
+        let k = stiffening(f);
+        let i2 = (1.6f32.powi(4) + 2.0 * (1.6f32 / 3.0).powi(2)) / 3.0;
+        assert!((k - i2).abs() < 1e-5, "{k} vs {i2}");
+        // A uniform stretch of 2: ‖cof F‖² = 3·16.
+        assert!((stiffening(Mat3::from_diagonal(Vec3::splat(2.0))) - 16.0).abs() < 1e-4);
+        // Compression alone does not stiffen below rest.
+        assert_eq!(stiffening(Mat3::from_diagonal(Vec3::splat(0.5))), 1.0);
+        assert_eq!(stiffening(Mat3::from_diagonal(Vec3::splat(f32::NAN))), 1.0);
+    }
+
+    fn control(current: u32) -> SubstepControl {
+        let scene = crate::scene::Scene::load("lv_touch").unwrap();
+        let model = Model::from_scene(&scene);
+        let mut c = SubstepControl::new(&model, 1).unwrap();
+        c.current = current;
+        c.most = current;
+        c
+    }
+
+    #[test]
+    fn the_count_rises_at_once_and_falls_after_calm_checks() {
+        let mut c = control(1);
+        assert_eq!(c.decide(1, 1.0), None);
+        assert_eq!(c.decide(3, 20.0), Some(3));
+        assert_eq!((c.current, c.most, c.raises), (3, 3, 1));
+        for _ in 0..CALM_CHECKS - 1 {
+            assert_eq!(c.decide(1, 1.0), None);
+        }
+        // A check that needs the count again starts the calm over.
+        assert_eq!(c.decide(3, 20.0), None);
+        for _ in 0..CALM_CHECKS - 1 {
+            assert_eq!(c.decide(2, 5.0), None);
+        }
+        assert_eq!(c.decide(1, 1.0), Some(1));
+        assert_eq!((c.current, c.most, c.raises), (1, 3, 1));
+        assert_eq!(c.max_stiffening, 20.0);
+    }
+
+    #[test]
+    fn a_check_is_due_every_check_steps_while_particles_are_dynamic() {
+        let mut c = control(1);
+        assert!(!c.step(CHECK_STEPS - 1, true, 1));
+        assert!(c.step(1, true, 1));
+        c.decide(1, 1.0);
+        // Nothing dynamic at the scene's count: nothing to measure.
+        assert!(!c.step(10 * CHECK_STEPS, false, 1));
+        c.current = 2;
+        assert!(c.step(0, false, 1));
+    }
+}
