@@ -488,7 +488,7 @@ pub fn run_with_state(
         // And at the next check of the particle sub-steps, while particles are dynamic
         // (not under --until-static, whose relaxation acts per batch: its count is checked
         // at each batch's end).
-        if let Some(check) = sim.steps_to_substep_check().filter(|_| !until_static) {
+        if let Some(check) = sim.substep_batch_limit().filter(|_| !until_static) {
             batch = batch.min(check as u64);
         }
         match sim.advance_with(batch as u32, opts.on_diverge)? {

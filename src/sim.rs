@@ -472,7 +472,15 @@ impl Simulation {
             last_particles: None,
             active_particles_max: 0,
             checkpoint: None,
-            substeps: crate::substeps::SubstepControl::new(&model, model.particle_substeps(dt)),
+            // On the CPU a check is a pass over the stress set's H: after every batch.
+            substeps: crate::substeps::SubstepControl::new(
+                &model,
+                model.particle_substeps(dt),
+                match backend {
+                    Backend::Cpu => 1,
+                    _ => crate::substeps::CHECK_STEPS,
+                },
+            ),
         })
     }
 
@@ -752,14 +760,14 @@ impl Simulation {
         Ok(())
     }
 
-    /// Steps until the particle sub-step count is next checked, while it is watched
-    /// ([`crate::substeps::SubstepControl::watching`]): a driver that runs long batches
-    /// ends one there, so that the count follows the layer's stiffening (a check runs at
-    /// the end of a batch, however long).
-    pub fn steps_to_substep_check(&self) -> Option<u32> {
+    /// The longest batch to take while the particle sub-step count is watched
+    /// ([`crate::substeps::SubstepControl::batch_limit`]; None while it is not): a driver
+    /// that runs long batches ends one there, so that the count follows the layer's
+    /// stiffening (a check runs at the end of a batch, however long).
+    pub fn substep_batch_limit(&self) -> Option<u32> {
         let c = self.substeps.as_ref()?;
         c.watching(self.any_dynamic(), self.model.particle_substeps(self.dt))
-            .then(|| c.steps_to_check())
+            .then(|| c.batch_limit())
     }
 
     /// Run the particle stages `substeps` times per core step from now on (at least 1, at

@@ -3,18 +3,21 @@
 //! being stable. Under lv_touch's tool pressed 8–10 mm into the wall at its speed limit the
 //! layer's ‖cof F‖²/3 reaches 16–23 and one sub-step per core step diverged (two at about
 //! 46, 13 mm in); with the count raised from the measured stiffening the same press runs on
-//! until the tool has gone through the wall (BENCHMARKS.md). [`SubstepControl`] measures the stiffening of the particles
-//! that carry stress every [`CHECK_STEPS`] steps while any is dynamic, raises the count at
-//! once when the stiffened bound asks for more, and lowers it after [`CALM_CHECKS`] checks
-//! in a row asked for fewer. The core step is not changed: its tets under the tool stayed
-//! stable at the scene's dt in every such press.
+//! until the tool has gone through the wall (BENCHMARKS.md). [`SubstepControl`] measures the
+//! stiffening of the particles that carry stress while any is dynamic — after every batch on
+//! the CPU, where it is a pass over the stress set's stored H, and every [`CHECK_STEPS`]
+//! steps on the GPU, where it is a read back — raises the count at once when the stiffened
+//! bound asks for more, and lowers it after [`CALM_CHECKS`] checks in a row asked for fewer.
+//! The core step is not changed: its tets under the tool stayed stable at the scene's dt in
+//! every such press.
 
 use crate::model::Model;
 use glam::Mat3;
 
-/// Steps between two measurements of the stiffening while particles are dynamic (`run`
-/// caps its batches at this then; a haptic batch of fewer steps measures at the first batch
-/// end after it).
+/// The most steps between two measurements of the stiffening while particles are dynamic,
+/// on the GPU (a haptic batch of fewer steps measures at the first batch end after it), and
+/// the longest batch `run` takes then on either backend (a batch end costs a checkpoint and
+/// the last step's reductions: `run lv_touch` took 2.4 times as long in one-step batches).
 pub const CHECK_STEPS: u32 = 8;
 
 /// Checks in a row that must ask for fewer sub-steps before the count is lowered (a
@@ -58,15 +61,17 @@ pub struct SubstepControl {
     pub raises: u32,
     /// The largest stiffening κ measured.
     pub max_stiffening: f32,
+    /// The fewest steps between two checks: 1 (every batch end) or [`CHECK_STEPS`].
+    every: u32,
     steps_since_check: u32,
     calm_checks: u32,
 }
 
 impl SubstepControl {
-    /// The control of `model` starting at `substeps` (None where its particles never
-    /// carry stress of their own: no particles, the exact coupling, or no tool and no
-    /// `activation = "all"`).
-    pub fn new(model: &Model, substeps: u32) -> Option<SubstepControl> {
+    /// The control of `model` starting at `substeps`, checking at batch ends at least
+    /// `every` steps apart (None where its particles never carry stress of their own: no
+    /// particles, the exact coupling, or no tool and no `activation = "all"`).
+    pub fn new(model: &Model, substeps: u32, every: u32) -> Option<SubstepControl> {
         let p = model.particles.as_ref()?;
         if model.slaving.is_some() || (model.tool.is_none() && !p.settings.all_active) {
             return None;
@@ -76,6 +81,7 @@ impl SubstepControl {
             most: substeps,
             raises: 0,
             max_stiffening: 1.0,
+            every: every.max(1),
             steps_since_check: 0,
             calm_checks: 0,
         })
@@ -87,16 +93,20 @@ impl SubstepControl {
         dynamic || self.current != base
     }
 
-    /// Steps until the next check is due (at least 1).
-    pub fn steps_to_check(&self) -> u32 {
-        CHECK_STEPS.saturating_sub(self.steps_since_check).max(1)
+    /// The longest batch a driver that picks its own lengths (`run`) should take while the
+    /// count is watched: to the next check, at most [`CHECK_STEPS`].
+    pub fn batch_limit(&self) -> u32 {
+        match self.every {
+            1 => CHECK_STEPS,
+            n => n.saturating_sub(self.steps_since_check).max(1),
+        }
     }
 
-    /// Count `steps` more steps; true when a check is due: [`CHECK_STEPS`] since the last
-    /// one, and [`Self::watching`].
+    /// Count `steps` more steps; true when a check is due: `every` since the last one, and
+    /// [`Self::watching`].
     pub fn step(&mut self, steps: u32, dynamic: bool, base: u32) -> bool {
         self.steps_since_check = self.steps_since_check.saturating_add(steps);
-        self.steps_since_check >= CHECK_STEPS && self.watching(dynamic, base)
+        self.steps_since_check >= self.every && self.watching(dynamic, base)
     }
 
     /// The count after a check that needs `needed` sub-steps: raised at once, lowered to
@@ -151,7 +161,7 @@ mod tests {
     fn control(current: u32) -> SubstepControl {
         let scene = crate::scene::Scene::load("lv_touch").unwrap();
         let model = Model::from_scene(&scene);
-        let mut c = SubstepControl::new(&model, 1).unwrap();
+        let mut c = SubstepControl::new(&model, 1, CHECK_STEPS).unwrap();
         c.current = current;
         c.most = current;
         c
@@ -179,12 +189,23 @@ mod tests {
     #[test]
     fn a_check_is_due_every_check_steps_while_particles_are_dynamic() {
         let mut c = control(1);
-        assert!(!c.step(CHECK_STEPS - 1, true, 1));
+        assert_eq!(c.batch_limit(), CHECK_STEPS);
+        assert!(!c.step(CHECK_STEPS - 3, true, 1));
+        assert_eq!(c.batch_limit(), 3);
+        assert!(!c.step(2, true, 1));
         assert!(c.step(1, true, 1));
         c.decide(1, 1.0);
         // Nothing dynamic at the scene's count: nothing to measure.
         assert!(!c.step(10 * CHECK_STEPS, false, 1));
         c.current = 2;
         assert!(c.step(0, false, 1));
+        // Checking at every batch end (the CPU): any batch, and `run` still ends its
+        // batches CHECK_STEPS apart.
+        let model = Model::from_scene(&crate::scene::Scene::load("lv_touch").unwrap());
+        let mut every = SubstepControl::new(&model, 1, 1).unwrap();
+        assert!(every.step(1, true, 1));
+        every.decide(1, 1.0);
+        assert!(every.step(1, true, 1));
+        assert_eq!(every.batch_limit(), CHECK_STEPS);
     }
 }

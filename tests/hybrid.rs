@@ -1115,60 +1115,103 @@ fn a_pressed_and_released_tlsph_block_shows_no_hourglass_mode() {
     );
 }
 
-/// The built-in haptic scene pressed 20 mm (far past its 3.1 mm wall) at 47.6 mm/s, just
-/// under its haptic speed limit, for 0.42 s of its path. The particles under the tool
-/// stiffen (their largest ‖cof F‖²/3 passes 16) and one particle sub-step per core step
-/// diverges on the way (before the end of the path: the step it diverged at is printed);
-/// with the count adapted to the measured stiffening (`palpate::substeps`) the same press
-/// stays finite to the end, at more sub-steps than the scene's at the most.
-#[test]
-fn a_deep_press_stays_stable_with_particle_substeps_adapted_to_the_layers_stiffening() {
+/// The built-in haptic scene with the tool's path `path` (a TOML array of [t, x, y, z]).
+fn lv_touch_along(path: &str) -> Scene {
     let text = Scene::builtin_text("lv_touch").unwrap();
-    let path = "path = [[0.0, 0.0147, 0.0, -0.005], [0.42, -0.0053, 0.0, -0.005]]";
     let (start, end) = (
         text.find("\npath = ").unwrap() + 1,
         text.find("\n[solver]").unwrap(),
     );
-    let text = format!("{}{path}\n{}", &text[..start], &text[end..]);
-    let scene = Scene::from_toml(&text, "deep press", "lv_touch", None).unwrap();
-    let press = |adapt: bool| -> (Result<f64, u64>, Option<(u32, u32)>, f32) {
-        let mut sim = palpate::sim::Simulation::new(
-            &scene,
-            palpate::sim::Backend::Cpu,
-            palpate::sim::SimOptions::default(),
-        )
-        .unwrap();
-        let base = sim.model.particle_substeps(sim.dt);
-        assert_eq!(base, 1, "lv_touch steps its particles at the core's rate");
-        if !adapt {
-            sim.fix_particle_substeps(base).unwrap();
-        }
-        let steps = (0.42 / sim.dt).ceil() as u64;
-        while sim.steps_done < steps {
-            let batch = sim.steps_to_substep_check().unwrap_or(50) as u64;
-            match sim
-                .advance(batch.min(steps - sim.steps_done) as u32)
-                .unwrap()
-            {
-                palpate::sim::Advance::Done(_) => {}
-                palpate::sim::Advance::Diverged { step, .. } => {
-                    return (Err(step), sim.particle_substeps(), 0.0)
-                }
+    let text = format!("{}path = {path}\n{}", &text[..start], &text[end..]);
+    Scene::from_toml(&text, "lv_touch along a path", "lv_touch", None).unwrap()
+}
+
+/// What pressing `scene` on the CPU for `seconds` did: the tool's travel from home (or the
+/// step it diverged at), the sub-steps (now, most; None with the count fixed) and the
+/// largest stiffening measured. Batches of `batch` steps, ended early where the run ends
+/// them for the sub-step checks; `adapt` false holds the scene's sub-step count.
+fn press(
+    scene: &Scene,
+    seconds: f64,
+    batch: u32,
+    adapt: bool,
+) -> (Result<f64, u64>, Option<(u32, u32)>, f32) {
+    let mut sim = palpate::sim::Simulation::new(
+        scene,
+        palpate::sim::Backend::Cpu,
+        palpate::sim::SimOptions::default(),
+    )
+    .unwrap();
+    let base = sim.model.particle_substeps(sim.dt);
+    assert_eq!(base, 1, "lv_touch steps its particles at the core's rate");
+    if !adapt {
+        sim.fix_particle_substeps(base).unwrap();
+    }
+    let steps = (seconds / sim.dt).ceil() as u64;
+    while sim.steps_done < steps {
+        let n = sim.substep_batch_limit().unwrap_or(batch).min(batch) as u64;
+        match sim.advance(n.min(steps - sim.steps_done) as u32).unwrap() {
+            palpate::sim::Advance::Done(_) => {}
+            palpate::sim::Advance::Diverged { step, .. } => {
+                return (Err(step), sim.particle_substeps(), 0.0)
             }
         }
-        let depth = 0.0147 - sim.tool_position.x;
-        let most = sim.max_particle_stiffening().unwrap_or(1.0);
-        (Ok(depth), sim.particle_substeps(), most)
-    };
-    let (fixed, fixed_counts, _) = press(false);
+    }
+    let most = sim.max_particle_stiffening().unwrap_or(1.0);
+    (
+        Ok(0.0147 - sim.tool_position.x),
+        sim.particle_substeps(),
+        most,
+    )
+}
+
+/// The built-in haptic scene pressed 20 mm (far past its 3.1 mm wall) at 47.6 mm/s, just
+/// under its haptic speed limit, for 0.42 s of its path, as `palpate run` steps it. The
+/// particles under the tool stiffen (their largest ‖cof F‖²/3 passes 16) and one particle
+/// sub-step per core step diverges on the way (before the end of the path: the step it
+/// diverged at is printed); with the count adapted to the measured stiffening
+/// (`palpate::substeps`) the same press stays finite to the end, at more sub-steps than
+/// the scene's at the most.
+#[test]
+fn a_deep_press_stays_stable_with_particle_substeps_adapted_to_the_layers_stiffening() {
+    let scene = lv_touch_along("[[0.0, 0.0147, 0.0, -0.005], [0.42, -0.0053, 0.0, -0.005]]");
+    let (fixed, fixed_counts, _) = press(&scene, 0.42, 200, false);
     eprintln!("one sub-step: {fixed:?}");
     assert!(fixed.is_err(), "the press did not diverge at one sub-step");
     assert_eq!(fixed_counts, None, "a fixed count is not adapted");
-    let (adapted, counts, stiffening) = press(true);
+    let (adapted, counts, stiffening) = press(&scene, 0.42, 200, true);
     let (now, most) = counts.unwrap();
     eprintln!("adapted: {adapted:?}; sub-steps now {now}, at most {most}; largest κ {stiffening}");
     let depth = adapted.expect("the adapted press diverged");
     assert!((depth - 0.020).abs() < 1e-4, "the tool reached {depth} m");
     assert!(stiffening > 16.0, "the layer stiffened only {stiffening}x");
     assert!(most >= 3, "at most {most} sub-steps");
+}
+
+/// The same scene pressed 6 mm (5 mm into the wall) in 12 ms, ten times its haptic speed
+/// limit, and held, in one-step batches as a haptic session steps it: on the CPU the
+/// sub-step count is checked after every batch, and follows a layer crushed that fast
+/// (it diverges at one sub-step, and in `run`'s 8-step batches, whose checks come too late).
+#[test]
+fn a_press_at_ten_times_the_speed_limit_in_one_step_batches_stays_stable() {
+    let scene = lv_touch_along(
+        "[[0.0, 0.0147, 0.0, -0.005], [0.012, 0.0087, 0.0, -0.005], [0.2, 0.0087, 0.0, -0.005]]",
+    );
+    let (fixed, _, _) = press(&scene, 0.2, 1, false);
+    let (eight, _, _) = press(&scene, 0.2, 8, true);
+    eprintln!("one sub-step: {fixed:?}; checked every 8 steps: {eight:?}");
+    assert!(
+        fixed.is_err(),
+        "the fast press did not diverge at one sub-step"
+    );
+    assert!(
+        eight.is_err(),
+        "8-step batches no longer diverge: the case tells nothing"
+    );
+    let (adapted, counts, stiffening) = press(&scene, 0.2, 1, true);
+    let (now, most) = counts.unwrap();
+    eprintln!("adapted: {adapted:?}; sub-steps now {now}, at most {most}; largest κ {stiffening}");
+    let travel = adapted.expect("the fast press diverged in one-step batches");
+    assert!((travel - 0.006).abs() < 1e-6, "the tool reached {travel} m");
+    assert!(most >= 4, "at most {most} sub-steps");
 }
