@@ -472,15 +472,7 @@ impl Simulation {
             last_particles: None,
             active_particles_max: 0,
             checkpoint: None,
-            // On the CPU a check is a pass over the stress set's H: after every batch.
-            substeps: crate::substeps::SubstepControl::new(
-                &model,
-                model.particle_substeps(dt),
-                match backend {
-                    Backend::Cpu => 1,
-                    _ => crate::substeps::CHECK_STEPS,
-                },
-            ),
+            substeps: crate::substeps::SubstepControl::new(&model, model.particle_substeps(dt)),
         })
     }
 
@@ -741,16 +733,16 @@ impl Simulation {
     fn adapt_particle_substeps(&mut self, steps: u32) -> Result<()> {
         let base = self.model.particle_substeps(self.dt);
         let dynamic = self.any_dynamic();
+        let stiffening = match dynamic {
+            true => self.particle_stiffening() as f32,
+            false => 1.0,
+        };
         let Some(c) = &mut self.substeps else {
             return Ok(());
         };
         if !c.step(steps, dynamic, base) {
             return Ok(());
         }
-        let stiffening = match dynamic {
-            true => self.stepper.max_particle_stiffening()?,
-            false => 1.0,
-        };
         let needed = self
             .model
             .particle_substeps_stiffened(self.dt, stiffening as f64);
@@ -760,14 +752,29 @@ impl Simulation {
         Ok(())
     }
 
-    /// The longest batch to take while the particle sub-step count is watched
-    /// ([`crate::substeps::SubstepControl::batch_limit`]; None while it is not): a driver
-    /// that runs long batches ends one there, so that the count follows the layer's
-    /// stiffening (a check runs at the end of a batch, however long).
+    /// The longest batch to take so that the particle sub-step count follows the layer's
+    /// stiffening (a check runs at the end of a batch, however long): while the count is
+    /// watched, [`crate::substeps::CHECK_STEPS`]; before, what keeps the
+    /// scene's tool path from carrying the tool far past the particles it wakes; None
+    /// without a limit. A driver that runs long batches ends one there.
     pub fn substep_batch_limit(&self) -> Option<u32> {
         let c = self.substeps.as_ref()?;
-        c.watching(self.any_dynamic(), self.model.particle_substeps(self.dt))
-            .then(|| c.batch_limit())
+        if c.watching(self.any_dynamic(), self.model.particle_substeps(self.dt)) {
+            return Some(crate::substeps::CHECK_STEPS);
+        }
+        // Not watched: while no particle is dynamic, a batch on the scene's path moves the
+        // tool at most half the activation radius, so that the first particles it wakes are
+        // still that far from it at the batch's end, where the watch begins (a 200-step
+        // batch pressed up to 19 mm past them at 95 mm/s on lv_touch, and diverged).
+        let p = self.model.particles.as_ref()?;
+        let t = self
+            .model
+            .tool
+            .as_ref()
+            .filter(|_| self.tool_target.is_none())?;
+        let (speed, ..) = t.tool.fastest_leg()?;
+        let steps = 0.5 * p.settings.activation_radius / (speed * self.dt);
+        (speed > 0.0).then(|| steps.floor().clamp(1.0, u32::MAX as f64) as u32)
     }
 
     /// Run the particle stages `substeps` times per core step from now on (at least 1, at
@@ -778,10 +785,10 @@ impl Simulation {
         self.stepper.set_particle_substeps(substeps)
     }
 
-    /// The largest stiffening κ of the particles that carried stress in the last step
-    /// ([`crate::stepper::Stepper::max_particle_stiffening`]; 1 without particles).
-    pub fn particle_stiffening(&mut self) -> Result<f32> {
-        self.stepper.max_particle_stiffening()
+    /// The largest stiffening κ of the particles that carried stress at the end of the last
+    /// batch (its [`crate::stepper::ParticleReport::max_stiffening`]; 1 without particles).
+    pub fn particle_stiffening(&self) -> f64 {
+        self.last_particles.map_or(1.0, |p| p.max_stiffening)
     }
 
     /// The particle sub-steps per core step now, and the most the run has used (None

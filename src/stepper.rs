@@ -206,10 +206,13 @@ pub struct ParticleReport {
     pub residual_norm: f64,
     /// Σ m|u|² over dynamic particles, kg·m².
     pub mass_displacement_sq: f64,
+    /// The largest stiffening κ of a particle carrying stress
+    /// ([`crate::substeps::stiffening`]; 1 where none does).
+    pub max_stiffening: f64,
 }
 
 impl ParticleReport {
-    /// From `particle_counts` (4 u32) and `particle_stats` (5 f32 used).
+    /// From `particle_counts` (4 u32) and `particle_stats` (6 f32 used).
     pub fn from_parts(counts: &[u32], stats: &[f32]) -> ParticleReport {
         ParticleReport {
             dynamic: counts[0],
@@ -220,6 +223,7 @@ impl ParticleReport {
             max_speed: stats[2] as f64,
             residual_norm: (stats[3] as f64).sqrt(),
             mass_displacement_sq: stats[4] as f64,
+            max_stiffening: (stats[5] as f64).max(1.0),
         }
     }
 }
@@ -282,13 +286,6 @@ pub trait Stepper: Send {
     /// Waits for the batches in flight.
     fn set_particle_substeps(&mut self, _substeps: u32) -> Result<()> {
         Ok(())
-    }
-
-    /// The largest stiffening κ ([`crate::substeps::stiffening`]) of the particles that
-    /// carried SPH stress in the last sub-step, from the deformation gradients `sph_stress`
-    /// stored; 1 without particles. Waits for the batches in flight.
-    fn max_particle_stiffening(&mut self) -> Result<f32> {
-        Ok(1.0)
     }
 
     /// Run `steps` steps with no per-batch input and wait for the stats.

@@ -3,26 +3,26 @@
 //! being stable. Under lv_touch's tool pressed 8–10 mm into the wall at its speed limit the
 //! layer's ‖cof F‖²/3 reaches 16–23 and one sub-step per core step diverged (two at about
 //! 46, 13 mm in); with the count raised from the measured stiffening the same press runs on
-//! until the tool has gone through the wall (BENCHMARKS.md). [`SubstepControl`] measures the
-//! stiffening of the particles that carry stress while any is dynamic — after every batch on
-//! the CPU, where it is a pass over the stress set's stored H, and every [`CHECK_STEPS`]
-//! steps on the GPU, where it is a read back — raises the count at once when the stiffened
-//! bound asks for more, and lowers it after [`CALM_CHECKS`] checks in a row asked for fewer.
-//! The core step is not changed: its tets under the tool stayed stable at the scene's dt in
-//! every such press.
+//! until the tool has gone through the wall (BENCHMARKS.md). Every batch's particle report
+//! carries the largest stiffening of the particles that carry stress (`particle_reduce`, on
+//! either backend, from the H the last sub-step's `sph_stress` stored); while any particle is
+//! dynamic, [`SubstepControl`] raises the count at once when the stiffened bound asks for
+//! more, and lowers it once every batch over [`CALM_STEPS`] steps asked for fewer. The core
+//! step is not changed: its tets under the tool stayed stable at the scene's dt in every
+//! such press.
 
 use crate::model::Model;
 use glam::Mat3;
 
-/// The most steps between two measurements of the stiffening while particles are dynamic,
-/// on the GPU (a haptic batch of fewer steps measures at the first batch end after it), and
-/// the longest batch `run` takes then on either backend (a batch end costs a checkpoint and
-/// the last step's reductions: `run lv_touch` took 2.4 times as long in one-step batches).
+/// The longest batch `run` takes while particles are dynamic, so that the count follows
+/// the layer (a haptic session's batches are shorter): a batch end costs a checkpoint and
+/// the last step's reductions (`run lv_touch` took 2.4 times as long in one-step batches,
+/// 4 % longer in batches of 8 than of 200).
 pub const CHECK_STEPS: u32 = 8;
 
-/// Checks in a row that must ask for fewer sub-steps before the count is lowered (a
+/// Steps over which every check must ask for fewer sub-steps before the count is lowered (a
 /// release, not a flicker between two counts).
-pub const CALM_CHECKS: u32 = 8;
+pub const CALM_STEPS: u32 = 64;
 
 /// How much a deformation F has stiffened a hyperelastic particle, relative to its rest
 /// stiffness: κ = max(1, ‖F‖²/3, ‖cof F‖²/3). The volumetric term's tangent is
@@ -42,15 +42,6 @@ pub fn stiffening(f: Mat3) -> f32 {
     }
 }
 
-/// The largest [`stiffening`] of `particles`, each F = I + H_p from `gradient` (H_p at
-/// `9p..9p + 9`, column-major, as `sph_stress` stores it); 1 for none.
-pub fn max_stiffening(gradient: &[f32], particles: impl Iterator<Item = usize>) -> f32 {
-    particles
-        .filter_map(|p| gradient.get(9 * p..9 * p + 9))
-        .map(|h| stiffening(Mat3::IDENTITY + Mat3::from_cols_slice(h)))
-        .fold(1.0, f32::max)
-}
-
 /// The particle sub-step count of a run, adapted to how stiff its particles have become.
 pub struct SubstepControl {
     /// Sub-steps per core step now.
@@ -61,17 +52,15 @@ pub struct SubstepControl {
     pub raises: u32,
     /// The largest stiffening κ measured.
     pub max_stiffening: f32,
-    /// The fewest steps between two checks: 1 (every batch end) or [`CHECK_STEPS`].
-    every: u32,
     steps_since_check: u32,
-    calm_checks: u32,
+    calm_steps: u32,
 }
 
 impl SubstepControl {
-    /// The control of `model` starting at `substeps`, checking at batch ends at least
-    /// `every` steps apart (None where its particles never carry stress of their own: no
-    /// particles, the exact coupling, or no tool and no `activation = "all"`).
-    pub fn new(model: &Model, substeps: u32, every: u32) -> Option<SubstepControl> {
+    /// The control of `model` starting at `substeps` (None where its particles never carry
+    /// stress of their own: no particles, the exact coupling, or no tool and no
+    /// `activation = "all"`).
+    pub fn new(model: &Model, substeps: u32) -> Option<SubstepControl> {
         let p = model.particles.as_ref()?;
         if model.slaving.is_some() || (model.tool.is_none() && !p.settings.all_active) {
             return None;
@@ -81,9 +70,8 @@ impl SubstepControl {
             most: substeps,
             raises: 0,
             max_stiffening: 1.0,
-            every: every.max(1),
             steps_since_check: 0,
-            calm_checks: 0,
+            calm_steps: 0,
         })
     }
 
@@ -93,44 +81,35 @@ impl SubstepControl {
         dynamic || self.current != base
     }
 
-    /// The longest batch a driver that picks its own lengths (`run`) should take while the
-    /// count is watched: to the next check, at most [`CHECK_STEPS`].
-    pub fn batch_limit(&self) -> u32 {
-        match self.every {
-            1 => CHECK_STEPS,
-            n => n.saturating_sub(self.steps_since_check).max(1),
-        }
-    }
-
-    /// Count `steps` more steps; true when a check is due: `every` since the last one, and
-    /// [`Self::watching`].
+    /// Count a batch of `steps` steps; true when the count is to be checked after it
+    /// ([`Self::watching`]).
     pub fn step(&mut self, steps: u32, dynamic: bool, base: u32) -> bool {
         self.steps_since_check = self.steps_since_check.saturating_add(steps);
-        self.steps_since_check >= self.every && self.watching(dynamic, base)
+        self.watching(dynamic, base)
     }
 
     /// The count after a check that needs `needed` sub-steps: raised at once, lowered to
-    /// `needed` after [`CALM_CHECKS`] checks in a row that needed fewer. Some(count) when it
-    /// changes.
+    /// `needed` once the checks over [`CALM_STEPS`] steps in a row needed fewer. Some(count)
+    /// when it changes.
     pub fn decide(&mut self, needed: u32, stiffening: f32) -> Option<u32> {
-        self.steps_since_check = 0;
+        let elapsed = std::mem::take(&mut self.steps_since_check);
         self.max_stiffening = self.max_stiffening.max(stiffening);
         if needed > self.current {
-            self.calm_checks = 0;
+            self.calm_steps = 0;
             self.raises += 1;
             self.current = needed;
             self.most = self.most.max(needed);
             return Some(needed);
         }
         if needed == self.current {
-            self.calm_checks = 0;
+            self.calm_steps = 0;
             return None;
         }
-        self.calm_checks += 1;
-        if self.calm_checks < CALM_CHECKS {
+        self.calm_steps = self.calm_steps.saturating_add(elapsed);
+        if self.calm_steps < CALM_STEPS {
             return None;
         }
-        self.calm_checks = 0;
+        self.calm_steps = 0;
         self.current = needed;
         Some(needed)
     }
@@ -161,51 +140,54 @@ mod tests {
     fn control(current: u32) -> SubstepControl {
         let scene = crate::scene::Scene::load("lv_touch").unwrap();
         let model = Model::from_scene(&scene);
-        let mut c = SubstepControl::new(&model, 1, CHECK_STEPS).unwrap();
+        let mut c = SubstepControl::new(&model, 1).unwrap();
         c.current = current;
         c.most = current;
         c
     }
 
+    /// A check CHECK_STEPS steps after the last that needs `needed`.
+    fn check(c: &mut SubstepControl, needed: u32, stiffening: f32) -> Option<u32> {
+        assert!(c.step(CHECK_STEPS, true, 1));
+        c.decide(needed, stiffening)
+    }
+
     #[test]
-    fn the_count_rises_at_once_and_falls_after_calm_checks() {
+    fn the_count_rises_at_once_and_falls_after_a_calm_spell() {
         let mut c = control(1);
-        assert_eq!(c.decide(1, 1.0), None);
-        assert_eq!(c.decide(3, 20.0), Some(3));
+        let calm = CALM_STEPS / CHECK_STEPS;
+        assert_eq!(check(&mut c, 1, 1.0), None);
+        assert_eq!(check(&mut c, 3, 20.0), Some(3));
         assert_eq!((c.current, c.most, c.raises), (3, 3, 1));
-        for _ in 0..CALM_CHECKS - 1 {
-            assert_eq!(c.decide(1, 1.0), None);
+        for _ in 0..calm - 1 {
+            assert_eq!(check(&mut c, 1, 1.0), None);
         }
         // A check that needs the count again starts the calm over.
-        assert_eq!(c.decide(3, 20.0), None);
-        for _ in 0..CALM_CHECKS - 1 {
-            assert_eq!(c.decide(2, 5.0), None);
+        assert_eq!(check(&mut c, 3, 20.0), None);
+        for _ in 0..calm - 1 {
+            assert_eq!(check(&mut c, 2, 5.0), None);
         }
-        assert_eq!(c.decide(1, 1.0), Some(1));
+        assert_eq!(check(&mut c, 1, 1.0), Some(1));
         assert_eq!((c.current, c.most, c.raises), (1, 3, 1));
         assert_eq!(c.max_stiffening, 20.0);
     }
 
     #[test]
-    fn a_check_is_due_every_check_steps_while_particles_are_dynamic() {
+    fn the_count_is_watched_while_particles_are_dynamic_or_it_is_not_the_scenes() {
         let mut c = control(1);
-        assert_eq!(c.batch_limit(), CHECK_STEPS);
-        assert!(!c.step(CHECK_STEPS - 3, true, 1));
-        assert_eq!(c.batch_limit(), 3);
-        assert!(!c.step(2, true, 1));
         assert!(c.step(1, true, 1));
         c.decide(1, 1.0);
         // Nothing dynamic at the scene's count: nothing to measure.
-        assert!(!c.step(10 * CHECK_STEPS, false, 1));
+        assert!(!c.step(10, false, 1));
         c.current = 2;
-        assert!(c.step(0, false, 1));
-        // Checking at every batch end (the CPU): any batch, and `run` still ends its
-        // batches CHECK_STEPS apart.
-        let model = Model::from_scene(&crate::scene::Scene::load("lv_touch").unwrap());
-        let mut every = SubstepControl::new(&model, 1, 1).unwrap();
-        assert!(every.step(1, true, 1));
-        every.decide(1, 1.0);
-        assert!(every.step(1, true, 1));
-        assert_eq!(every.batch_limit(), CHECK_STEPS);
+        assert!(c.step(1, false, 1));
+        // A calm spell counts steps, not checks: 63 one-step batches are not enough.
+        let mut c = control(2);
+        for _ in 0..CALM_STEPS - 1 {
+            assert!(c.step(1, true, 1));
+            assert_eq!(c.decide(1, 1.0), None);
+        }
+        assert!(c.step(1, true, 1));
+        assert_eq!(c.decide(1, 1.0), Some(1));
     }
 }

@@ -1136,10 +1136,31 @@ fn press(
     batch: u32,
     adapt: bool,
 ) -> (Result<f64, u64>, Option<(u32, u32)>, f32) {
+    let (outcome, counts, stiffening, _) =
+        press_on(scene, palpate::sim::Backend::Cpu, (seconds, batch, adapt));
+    (outcome, counts, stiffening)
+}
+
+/// [`press`] on `backend` (seconds, batch, adapt), also giving the final state (vertex and
+/// particle displacements, the tool's force, the stressed particles' largest κ now).
+#[allow(clippy::type_complexity)]
+fn press_on(
+    scene: &Scene,
+    backend: palpate::sim::Backend,
+    (seconds, batch, adapt): (f64, u32, bool),
+) -> (
+    Result<f64, u64>,
+    Option<(u32, u32)>,
+    f32,
+    (Vec<f32>, Vec<f32>, DVec3, f32),
+) {
     let mut sim = palpate::sim::Simulation::new(
         scene,
-        palpate::sim::Backend::Cpu,
-        palpate::sim::SimOptions::default(),
+        backend,
+        palpate::sim::SimOptions {
+            gpu: (backend == palpate::sim::Backend::Gpu).then(common::gpu),
+            ..Default::default()
+        },
     )
     .unwrap();
     let base = sim.model.particle_substeps(sim.dt);
@@ -1153,16 +1174,58 @@ fn press(
         match sim.advance(n.min(steps - sim.steps_done) as u32).unwrap() {
             palpate::sim::Advance::Done(_) => {}
             palpate::sim::Advance::Diverged { step, .. } => {
-                return (Err(step), sim.particle_substeps(), 0.0)
+                return (Err(step), sim.particle_substeps(), 0.0, Default::default())
             }
         }
     }
     let most = sim.max_particle_stiffening().unwrap_or(1.0);
+    let state = (
+        sim.state().unwrap().displacements,
+        sim.particle_state().unwrap().unwrap().displacements,
+        sim.last_tool.unwrap().force,
+        sim.particle_stiffening() as f32,
+    );
     (
         Ok(0.0147 - sim.tool_position.x),
         sim.particle_substeps(),
         most,
+        state,
     )
+}
+
+/// The deep press's first 0.25 s (12 mm of travel, the layer stiffened about 30-fold) on the
+/// GPU, in `run`'s 8-step batches: its sub-step count, adapted from the stiffening its
+/// `particle_reduce` reports, rises as the CPU's does (the same count now and at most, the
+/// same largest κ within 1e-3), and the two end in the same state within 1e-3 relative
+/// (vertices, particles; the tool's force within 1e-2; κ there within 1e-3).
+#[test]
+fn the_gpu_adapts_its_particle_substeps_as_the_cpu_does() {
+    let scene = lv_touch_along("[[0.0, 0.0147, 0.0, -0.005], [0.42, -0.0053, 0.0, -0.005]]");
+    let run = |backend| press_on(&scene, backend, (0.25, 8, true));
+    let (c, c_counts, c_most, (cu, cp, cf, c_k)) = run(palpate::sim::Backend::Cpu);
+    let (g, g_counts, g_most, (gu, gp, gf, g_k)) = run(palpate::sim::Backend::Gpu);
+    eprintln!("CPU {c:?} {c_counts:?} κ {c_k}; GPU {g:?} {g_counts:?} κ {g_k}; force {cf} / {gf}");
+    assert!(c.is_ok() && g.is_ok(), "diverged: CPU {c:?}, GPU {g:?}");
+    let (_, most) = c_counts.unwrap();
+    assert!(most >= 3, "the CPU's count rose only to {most}");
+    assert_eq!(c_counts, g_counts, "sub-steps (now, most)");
+    assert!(c_k > 10.0, "the layer stiffened only {c_k}x");
+    assert!((c_k / g_k - 1.0).abs() < 1e-3, "κ CPU {c_k} GPU {g_k}");
+    assert!(
+        (c_most / g_most - 1.0).abs() < 1e-3,
+        "largest κ CPU {c_most} GPU {g_most}"
+    );
+    let rel = |a: &[f32], b: &[f32]| {
+        let scale = a.iter().fold(0.0f32, |m, x| m.max(x.abs()));
+        a.iter()
+            .zip(b)
+            .fold(0.0f32, |m, (x, y)| m.max((x - y).abs()))
+            / scale
+    };
+    let (eu, ep) = (rel(&cu, &gu), rel(&cp, &gp));
+    let ef = (cf - gf).length() / cf.length();
+    eprintln!("rel err vertices {eu:.2e}, particles {ep:.2e}, tool force {ef:.2e}");
+    assert!(eu < 1e-3 && ep < 1e-3 && ef < 1e-2);
 }
 
 /// The built-in haptic scene pressed 20 mm (far past its 3.1 mm wall) at 47.6 mm/s, just
@@ -1189,9 +1252,9 @@ fn a_deep_press_stays_stable_with_particle_substeps_adapted_to_the_layers_stiffe
 }
 
 /// The same scene pressed 6 mm (5 mm into the wall) in 12 ms, ten times its haptic speed
-/// limit, and held, in one-step batches as a haptic session steps it: on the CPU the
-/// sub-step count is checked after every batch, and follows a layer crushed that fast
-/// (it diverges at one sub-step, and in `run`'s 8-step batches, whose checks come too late).
+/// limit, and held, in one-step batches as a haptic session steps it: the sub-step count
+/// is checked after every batch, and follows a layer crushed that fast (it diverges at one
+/// sub-step, and in `run`'s 8-step batches, whose checks come too late).
 #[test]
 fn a_press_at_ten_times_the_speed_limit_in_one_step_batches_stays_stable() {
     let scene = lv_touch_along(

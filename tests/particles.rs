@@ -1137,6 +1137,7 @@ fn particle_reduce_twin(
         &g.read_f32("particle_velocities").unwrap(),
         &g.read_f32("particle_forces").unwrap(),
         &g.read_f32("particle_energy").unwrap(),
+        &g.read_f32("particle_gradient").unwrap(),
         &mut partials,
         &mut stats,
     );
@@ -1154,7 +1155,14 @@ fn check_particle_reduce(
     let (partials, stats) = particle_reduce_twin(g, pp);
     let gstats = g.read_f32("particle_stats").unwrap();
     let gpartials = g.read_f32("particle_partials").unwrap();
-    let names = ["kinetic", "elastic", "max speed", "sum |f|^2", "sum m|u|^2"];
+    let names = [
+        "kinetic",
+        "elastic",
+        "max speed",
+        "sum |f|^2",
+        "sum m|u|^2",
+        "max stiffening",
+    ];
     for (k, name) in names.iter().enumerate() {
         assert!(
             stats[k].is_finite() && stats[k] > 0.0,
@@ -3132,7 +3140,7 @@ fn particle_substeps_changed_during_a_run_match_between_backends() {
                 sim.state().unwrap().displacements,
                 sim.particle_state().unwrap().unwrap().displacements,
             );
-            stiffening.push(sim.particle_stiffening().unwrap());
+            stiffening.push(sim.particle_stiffening());
             out.push((
                 u,
                 p,

@@ -7,8 +7,9 @@ use crate::particles::params::{mode, ParticleParams};
 
 /// Threads per workgroup.
 pub const WORKGROUP: usize = 256;
-/// Floats per lane: kinetic, elastic, max speed, residual², Σ m|u|².
-pub const LANE: usize = 5;
+/// Floats per lane: kinetic, elastic, max speed, residual², Σ m|u|², largest stiffening κ
+/// ([`crate::substeps::stiffening`]; 0 where no particle carries stress).
+pub const LANE: usize = 6;
 
 /// The most partials (the buffer's size: every particle in the stress set).
 pub fn n_partials(pp: &ParticleParams) -> usize {
@@ -26,6 +27,7 @@ fn tree(lanes: &mut [[f32; LANE]; WORKGROUP]) -> [f32; LANE] {
             a[2] = a[2].max(o[2]);
             a[3] += o[3];
             a[4] += o[4];
+            a[5] = a[5].max(o[5]);
         }
         s /= 2;
     }
@@ -33,7 +35,7 @@ fn tree(lanes: &mut [[f32; LANE]; WORKGROUP]) -> [f32; LANE] {
 }
 
 /// Both passes over `stress_list` (the last activation's, which holds every particle then
-/// dynamic; the modes are checked): writes `particle_stats[..5]`.
+/// dynamic; the modes are checked): writes `particle_stats[..6]`.
 #[allow(clippy::too_many_arguments)]
 pub fn particle_reduce(
     pp: &ParticleParams,
@@ -43,6 +45,7 @@ pub fn particle_reduce(
     particle_velocities: &[f32],
     particle_forces: &[f32],
     particle_energy: &[f32],
+    particle_gradient: &[f32],
     particle_partials: &mut [f32],
     particle_stats: &mut [f32],
 ) {
@@ -66,6 +69,10 @@ pub fn particle_reduce(
                 if m & mode::IN_S != 0 {
                     lane[1] = particle_energy[p];
                 }
+                if m & (mode::DYNAMIC | mode::IN_S) != 0 {
+                    let h = glam::Mat3::from_cols_slice(&particle_gradient[9 * p..9 * p + 9]);
+                    lane[5] = crate::substeps::stiffening(glam::Mat3::IDENTITY + h);
+                }
             }
         }
         out.copy_from_slice(&tree(&mut lanes));
@@ -80,6 +87,7 @@ pub fn particle_reduce(
             lane[2] = lane[2].max(b[2]);
             lane[3] += b[3];
             lane[4] += b[4];
+            lane[5] = lane[5].max(b[5]);
             k += WORKGROUP;
         }
     }

@@ -446,6 +446,7 @@ fn run_chain_stage(stage: Stage, c: &ChainInputs, pa: &mut ParticleArrays, statu
             &pa.state.velocities,
             &pa.forces,
             &pa.energy,
+            &pa.gradient,
             &mut pa.partials,
             &mut pa.stats,
         ),
@@ -1996,13 +1997,6 @@ impl Stepper for CpuStepper {
                 .at_core_dt(params.dt, pd.settings.activation_interval);
         }
         Ok(())
-    }
-
-    fn max_particle_stiffening(&mut self) -> Result<f32> {
-        Ok(self.particles.as_ref().map_or(1.0, |pa| {
-            let stressed = pa.act.stress_list.iter().map(|&p| p as usize);
-            crate::substeps::max_stiffening(&pa.gradient, stressed)
-        }))
     }
 
     fn set_particle_substeps(&mut self, substeps: u32) -> Result<()> {

@@ -1395,25 +1395,6 @@ impl Stepper for GpuStepper {
         Ok(())
     }
 
-    fn max_particle_stiffening(&mut self) -> Result<f32> {
-        if self.n_particles == 0 {
-            return Ok(1.0);
-        }
-        self.drain()?;
-        let n = self.n_particles as usize;
-        let modes = self.read_f32("particle_mode")?;
-        let gradient = self.read_f32("particle_gradient")?;
-        let stressed = (0..n).filter(|&p| {
-            modes.get(p).is_some_and(|m| {
-                m.to_bits()
-                    & (crate::particles::params::mode::DYNAMIC
-                        | crate::particles::params::mode::IN_S)
-                    != 0
-            })
-        });
-        Ok(crate::substeps::max_stiffening(&gradient, stressed))
-    }
-
     fn set_particle_substeps(&mut self, substeps: u32) -> Result<()> {
         let substeps = substeps.clamp(1, crate::model::MAX_PARTICLE_SUBSTEPS);
         let Some(t) = &mut self.model_particles else {

@@ -183,7 +183,8 @@ pub struct RunSummary {
     pub particle_substeps: Option<u32>,
     /// The most particle sub-steps per core step the run used: above `particle_substeps`
     /// where the layer stiffened under the tool and the count was raised
-    /// ([`crate::substeps`]; scenes whose particles carry stress).
+    /// ([`crate::substeps`]), or where dt was halved since the start (`particle_substeps`
+    /// is at the final dt); scenes whose particles carry stress.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub particle_substeps_max: Option<u32>,
     /// The largest stiffening κ = max(‖F‖², ‖cof F‖²)/3 of a stressed particle the run
