@@ -505,8 +505,6 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
             ..Default::default()
         },
     )?;
-    // Built: a signal from now on stops after a batch and writes the outputs.
-    crate::interrupt::setup_done();
     let model = sim.model.clone();
     let home = model.tool.as_ref().map_or(DVec3::ZERO, |t| t.tool.home);
     let tool_damping = model.tool.as_ref().map_or(0.0, |t| t.tool.damping);
@@ -576,6 +574,10 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
 
     // Held until the outputs are written: a second job into this folder is refused.
     let _lock = crate::output::lock::OutLock::claim(&opts.out, "the session started")?;
+    // Set up (the contact compliance factored too: seconds on a large mesh): a signal from
+    // now on stops after a batch and writes the outputs; before, it ends the process with
+    // nothing written.
+    crate::interrupt::setup_done();
     // Built before the servo starts: with hm1's 28,000 particles it takes milliseconds.
     let probe = InversionProbe::new(&model);
     let steps_per_batch = ((opts.batch_seconds / sim.dt).round() as u32).max(1);

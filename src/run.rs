@@ -330,14 +330,16 @@ pub fn run_with_state(
             step_on_this_thread: false,
         },
     )?;
-    // Built: a signal from now on stops after a batch and writes the outputs.
-    crate::interrupt::setup_done();
     let model = sim.model.clone();
     let dt0 = sim.dt;
     // Every refusal before an earlier run's outputs are removed: a run refused keeps them.
     let max_steps = steps_for(opts.length, dt0, scene)?;
     // Held until the outputs are written: a second job into this folder is refused.
     let _lock = crate::output::lock::OutLock::claim(&opts.out, "the run started")?;
+    // Set up: a signal from now on stops after a batch and writes the outputs (before, it
+    // ends the process with nothing written: no "stopping after the batch" note followed by
+    // a refusal to start).
+    crate::interrupt::setup_done();
     let removed = crate::output::remove_earlier_outputs(&opts.out)?;
     if opts.announce && removed > 0 {
         crate::say_err!(
