@@ -458,6 +458,9 @@ fn execute(cli: Cli) -> Result<()> {
             };
             let s = palpate::run::run(&scene, &opts)?;
             warn_inverted(&scene, &s);
+            if let Some(note) = raised_substeps_note(&s) {
+                palpate::say_err!("{note}");
+            }
             palpate::say!(
                 "{} steps of {:.3e} s ({:.3e} s simulated) in {:.2} s = {:.0} steps/s",
                 s.steps,
@@ -563,6 +566,9 @@ fn execute(cli: Cli) -> Result<()> {
             }
             warn_inverted(&scene, &s.run);
             warn_inverted_in_contact(&scene, h);
+            if let Some(note) = raised_substeps_note(&s.run) {
+                palpate::say_err!("{note}");
+            }
             if h.physics.workspace_clamps > 0 {
                 palpate::say_err!(
                     "warning: the device left its workspace (radius {} m) in {} physics batches: the tool was held at its edge there (haptic.csv's proxy columns give where the device asked for)",
@@ -906,6 +912,27 @@ fn bench(study: BenchStudy) -> Result<()> {
     }
 }
 
+/// The note a run or session whose particle sub-steps were raised prints: the layer's largest
+/// stiffening and the most sub-steps per core step, against the scene's (None where the
+/// count never went above the scene's).
+fn raised_substeps_note(s: &palpate::output::summary::RunSummary) -> Option<String> {
+    substeps_note(
+        s.particle_substeps,
+        s.particle_substeps_max,
+        s.max_particle_stiffening,
+    )
+}
+
+/// [`raised_substeps_note`] from the scene's count, the most used and the largest stiffening.
+fn substeps_note(base: Option<u32>, most: Option<u32>, stiffening: Option<f32>) -> Option<String> {
+    let (base, most, stiffening) = (base?, most?, stiffening?);
+    (most > base).then(|| {
+        format!(
+            "note: the particle layer stiffened up to {stiffening:.1}x under the tool: its sub-steps were raised to up to {most} per core step (the scene's: {base}) to keep it stable, and its steps took longer there"
+        )
+    })
+}
+
 /// Warn when a run ends with inverted tets or particles (det F ≤ 0): there the force is not
 /// the material's, and StVK pushes an inverted element towards its mirror image, not back.
 fn warn_inverted(scene: &Scene, s: &palpate::output::summary::RunSummary) {
@@ -1030,7 +1057,7 @@ fn adapter_name(backend: Backend) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::servo_rate_warning;
+    use super::{servo_rate_warning, substeps_note};
     use palpate::haptics::servo::ServoStats;
 
     /// The servo's shortfall is warned of: a rate under 95 % of the target, or over 1 % of
@@ -1056,5 +1083,18 @@ mod tests {
             skipping.contains("60 of its 5060 deadlines skipped"),
             "{skipping}"
         );
+    }
+
+    /// A run whose particle sub-steps were raised says so, with the layer's stiffening and
+    /// the counts; one that kept the scene's count, or has no particle layer, does not.
+    #[test]
+    fn raised_particle_substeps_are_noted() {
+        let note = substeps_note(Some(1), Some(6), Some(59.9)).unwrap();
+        assert!(
+            note.contains("59.9x") && note.contains("up to 6 per core step (the scene's: 1)"),
+            "{note}"
+        );
+        assert_eq!(substeps_note(Some(1), Some(1), Some(1.4)), None);
+        assert_eq!(substeps_note(None, None, None), None);
     }
 }
