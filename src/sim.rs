@@ -765,16 +765,23 @@ impl Simulation {
         // Not watched: while no particle is dynamic, a batch on the scene's path moves the
         // tool at most half the activation radius, so that the first particles it wakes are
         // still that far from it at the batch's end, where the watch begins (a 200-step
-        // batch pressed up to 19 mm past them at 95 mm/s on lv_touch, and diverged).
+        // batch pressed up to 19 mm past them at 95 mm/s on lv_touch, and diverged). At the
+        // speed of the path's leg now, to the leg's end (the next batch takes the next's).
         let p = self.model.particles.as_ref()?;
         let t = self
             .model
             .tool
             .as_ref()
             .filter(|_| self.tool_target.is_none())?;
-        let (speed, ..) = t.tool.fastest_leg()?;
-        let steps = 0.5 * p.settings.activation_radius / (speed * self.dt);
-        (speed > 0.0).then(|| steps.floor().clamp(1.0, u32::MAX as f64) as u32)
+        let speed = t.tool.leg_speed_at(self.time + 1e-6 * self.dt);
+        let on_leg = match speed > 0.0 {
+            true => (0.5 * p.settings.activation_radius / (speed * self.dt))
+                .floor()
+                .clamp(1.0, u32::MAX as f64) as u32,
+            false => u32::MAX,
+        };
+        let limit = on_leg.min(self.steps_to_path_corner(u32::MAX));
+        (limit < u32::MAX).then_some(limit)
     }
 
     /// Run the particle stages `substeps` times per core step from now on (at least 1, at

@@ -1278,3 +1278,35 @@ fn a_press_at_ten_times_the_speed_limit_in_one_step_batches_stays_stable() {
     assert!((travel - 0.006).abs() < 1e-6, "the tool reached {travel} m");
     assert!(most >= 4, "at most {most} sub-steps");
 }
+
+/// `palpate run` of the built-in haptic scene pressed 20 mm at 95 mm/s from 3.6 mm clear of
+/// the wall: before any particle is dynamic the run ends its batches where the path has
+/// moved the tool half the activation radius, so the count is watched from the first woken
+/// particles on (in 200-step batches the tool pressed far past them before the first check
+/// and the run diverged with the count never raised).
+#[test]
+fn a_run_watches_the_substeps_from_the_first_woken_particles() {
+    let scene = lv_touch_along("[[0.0, 0.0173, 0.0, -0.005], [0.237395, -0.0053, 0.0, -0.005]]");
+    let out = std::env::temp_dir().join(format!("palpate-fast-approach-{}", std::process::id()));
+    let s = palpate::run::run(
+        &scene,
+        &palpate::run::RunOptions {
+            backend: palpate::sim::Backend::Cpu,
+            length: palpate::run::RunLength::Duration(0.237395),
+            out: out.clone(),
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let _ = std::fs::remove_dir_all(&out);
+    eprintln!(
+        "{:?}; sub-steps at most {:?}, κ {:?}",
+        s.status, s.particle_substeps_max, s.max_particle_stiffening
+    );
+    assert!(
+        matches!(s.status, palpate::run::RunStatus::Ok),
+        "{:?}",
+        s.status
+    );
+    assert!(s.particle_substeps_max.unwrap() >= 4);
+}

@@ -59,6 +59,16 @@ impl Tool {
         }
     }
 
+    /// The tool's speed on the path's leg that starts at or before `t` and ends after it,
+    /// m/s (0 before the first keyframe and from the last one on: the tool stays put).
+    pub fn leg_speed_at(&self, t: f64) -> f64 {
+        let p = &self.path;
+        match p.iter().position(|(tk, _)| *tk > t) {
+            Some(k) if k > 0 => (p[k].1 - p[k - 1].1).length() / (p[k].0 - p[k - 1].0),
+            _ => 0.0,
+        }
+    }
+
     /// The path's fastest leg, [`fastest_leg`].
     pub fn fastest_leg(&self) -> Option<(f64, f64, f64)> {
         fastest_leg(self.path.iter().copied())
@@ -348,8 +358,37 @@ pub fn short_time(t: f64) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::{longest_step_leg, short_time, tunnelling_warning};
+    use super::{longest_step_leg, short_time, tunnelling_warning, Tool};
     use glam::DVec3;
+
+    #[test]
+    fn a_legs_speed_is_the_one_the_tool_moves_at_then() {
+        let tool = Tool {
+            radius: 0.004,
+            stiffness: 1e8,
+            damping: 0.0,
+            // Held until 0.1 s, 3 mm in 0.1 s, held, 1 mm back in 0.01 s.
+            path: vec![
+                (0.1, DVec3::ZERO),
+                (0.2, DVec3::new(-0.003, 0.0, 0.0)),
+                (0.5, DVec3::new(-0.003, 0.0, 0.0)),
+                (0.51, DVec3::new(-0.002, 0.0, 0.0)),
+            ],
+            home: DVec3::ZERO,
+        };
+        for (t, want) in [
+            (0.0, 0.0),
+            (0.1, 0.03),
+            (0.15, 0.03),
+            (0.2, 0.0),
+            (0.505, 0.1),
+            (0.51, 0.0),
+            (9.0, 0.0),
+        ] {
+            let v = tool.leg_speed_at(t);
+            assert!((v - want).abs() < 1e-9, "at {t} s: {v} m/s, not {want}");
+        }
+    }
 
     #[test]
     fn the_longest_step_is_not_always_the_fastest_leg() {
