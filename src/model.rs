@@ -560,28 +560,20 @@ impl Model {
     /// scene's safety factor (1 without particles or with the exact coupling, whose core
     /// step is the particles'; at most 64).
     pub fn particle_substeps(&self, dt: f64) -> u32 {
-        self.particle_substeps_stiffened(dt, 1.0)
+        self.particle_bound_terms()
+            .map_or(1, |t| t.substeps(dt, self.safety, 1.0))
     }
 
-    /// [`Self::particle_substeps`] for particles whose stiffness has grown `stiffening`
-    /// times (κ, [`crate::substeps::stiffening`]): ⌈dt / (safety·bound(κ))⌉, the bound of
-    /// [`crate::particles::Particles::dt_bound_stiffened`] (at most
-    /// [`MAX_PARTICLE_SUBSTEPS`]).
-    pub fn particle_substeps_stiffened(&self, dt: f64, stiffening: f64) -> u32 {
-        match &self.particles {
-            None => 1,
-            Some(_) if self.slaving.is_some() => 1,
-            Some(p) => {
-                let contact = self
-                    .tool
-                    .as_ref()
-                    .map(|t| (t.tool.stiffness, t.tool.damping));
-                let bound = p.dt_bound_stiffened(&self.material, contact, stiffening);
-                (dt / (self.safety * bound))
-                    .ceil()
-                    .clamp(1.0, MAX_PARTICLE_SUBSTEPS as f64) as u32
-            }
-        }
+    /// The terms of the particles' step bound with the tool's contact
+    /// ([`crate::particles::Particles::bound_terms`]); None without particles or with the
+    /// exact coupling (whose particles step at the core's rate).
+    pub fn particle_bound_terms(&self) -> Option<crate::particles::ParticleBoundTerms> {
+        let p = self.particles.as_ref().filter(|_| self.slaving.is_none())?;
+        let contact = self
+            .tool
+            .as_ref()
+            .map(|t| (t.tool.stiffness, t.tool.damping));
+        Some(p.bound_terms(&self.material, contact))
     }
 
     /// The particles' per-run uniform for core step `params.dt` (None without particles).

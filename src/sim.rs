@@ -731,7 +731,6 @@ impl Simulation {
     /// stressed particles' stiffening κ and set the particle sub-steps the stiffened bound
     /// asks for (at once when more; after a calm spell when fewer).
     fn adapt_particle_substeps(&mut self, steps: u32) -> Result<()> {
-        let base = self.model.particle_substeps(self.dt);
         let dynamic = self.any_dynamic();
         let stiffening = match dynamic {
             true => self.particle_stiffening() as f32,
@@ -740,12 +739,10 @@ impl Simulation {
         let Some(c) = &mut self.substeps else {
             return Ok(());
         };
-        if !c.step(steps, dynamic, base) {
+        if !c.step(steps, dynamic, c.needed(self.dt, 1.0)) {
             return Ok(());
         }
-        let needed = self
-            .model
-            .particle_substeps_stiffened(self.dt, stiffening as f64);
+        let needed = c.needed(self.dt, stiffening as f64);
         if let Some(n) = c.decide(needed, stiffening) {
             self.stepper.set_particle_substeps(n)?;
         }
@@ -759,7 +756,7 @@ impl Simulation {
     /// without a limit. A driver that runs long batches ends one there.
     pub fn substep_batch_limit(&self) -> Option<u32> {
         let c = self.substeps.as_ref()?;
-        if c.watching(self.any_dynamic(), self.model.particle_substeps(self.dt)) {
+        if c.watching(self.any_dynamic(), c.needed(self.dt, 1.0)) {
             return Some(crate::substeps::CHECK_STEPS);
         }
         // Not watched: while no particle is dynamic, a batch on the scene's path moves the

@@ -48,6 +48,10 @@ pub fn stiffening(f: Mat3) -> f32 {
 
 /// The particle sub-step count of a run, adapted to how stiff its particles have become.
 pub struct SubstepControl {
+    /// The particles' step bound, in parts (computed once).
+    terms: crate::particles::ParticleBoundTerms,
+    /// The scene's safety factor.
+    safety: f64,
     /// Sub-steps per core step now.
     pub current: u32,
     /// The most sub-steps the run has used.
@@ -68,10 +72,12 @@ impl SubstepControl {
     /// `activation = "all"`).
     pub fn new(model: &Model, substeps: u32) -> Option<SubstepControl> {
         let p = model.particles.as_ref()?;
-        if model.slaving.is_some() || (model.tool.is_none() && !p.settings.all_active) {
+        if model.tool.is_none() && !p.settings.all_active {
             return None;
         }
         Some(SubstepControl {
+            terms: model.particle_bound_terms()?,
+            safety: model.safety,
             current: substeps,
             most: substeps,
             raises: 0,
@@ -80,6 +86,13 @@ impl SubstepControl {
             calm_steps: 0,
             calm_needed: 0,
         })
+    }
+
+    /// The sub-steps a core step of `dt` needs for particles stiffened `stiffening` times
+    /// ([`crate::particles::ParticleBoundTerms::substeps`] with the scene's safety factor;
+    /// κ = 1: the scene's count, [`Model::particle_substeps`]).
+    pub fn needed(&self, dt: f64, stiffening: f64) -> u32 {
+        self.terms.substeps(dt, self.safety, stiffening)
     }
 
     /// Whether the count is watched now: while any particle is `dynamic`, or the count is

@@ -73,6 +73,37 @@ pub struct Particles {
     pub follower_lumping: std::sync::OnceLock<Vec<f64>>,
 }
 
+/// The particles' stable step, in parts ([`Particles::bound_terms`]): 1/dt² of the
+/// lattice's elastic waves, of the contact springs and of the hourglass penalty.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ParticleBoundTerms {
+    /// 1/dt² of the elastic waves at the rest stiffness, 1/s².
+    pub elastic_inv2: f64,
+    /// 1/dt² of the tool's contact springs (0 without a tool), 1/s².
+    pub contact_inv2: f64,
+    /// 1/dt² of the hourglass penalty, ω_h²/4, 1/s².
+    pub hourglass_inv2: f64,
+}
+
+impl ParticleBoundTerms {
+    /// The stable step where the material's stiffness is `stiffening` (κ ≥ 1) times its rest
+    /// value: the elastic frequency scales by √κ (ω² ∝ stiffness), the contact springs and
+    /// the hourglass penalty stay as they are. κ is what a deformed particle's tangent
+    /// stiffness has grown to ([`crate::substeps::stiffening`]).
+    pub fn dt_bound(&self, stiffening: f64) -> f64 {
+        let inv2 = stiffening.max(1.0) * self.elastic_inv2 + self.contact_inv2;
+        1.0 / (inv2 + self.hourglass_inv2).sqrt()
+    }
+
+    /// Sub-steps per core step of `dt` with safety factor `safety`: ⌈dt / (safety ·
+    /// bound(κ))⌉, at least 1, at most [`crate::model::MAX_PARTICLE_SUBSTEPS`].
+    pub fn substeps(&self, dt: f64, safety: f64, stiffening: f64) -> u32 {
+        (dt / (safety * self.dt_bound(stiffening)))
+            .ceil()
+            .clamp(1.0, crate::model::MAX_PARTICLE_SUBSTEPS as f64) as u32
+    }
+}
+
 impl Particles {
     /// Number of particles.
     pub fn len(&self) -> usize {
@@ -130,36 +161,35 @@ impl Particles {
         material: &crate::material::MaterialParams,
         contact: Option<(f64, f64)>,
     ) -> f64 {
-        self.dt_bound_stiffened(material, contact, 1.0)
+        self.bound_terms(material, contact).dt_bound(1.0)
     }
 
-    /// [`Self::dt_bound`] where the material's stiffness is `stiffening` (κ ≥ 1) times its
-    /// rest value: the elastic frequency scales by √κ (ω² ∝ stiffness), the contact springs
-    /// and the hourglass penalty stay as they are. κ is what a deformed particle's tangent
-    /// stiffness has grown to ([`crate::substeps::stiffening`]).
-    pub fn dt_bound_stiffened(
+    /// The terms of [`Self::dt_bound`], computed once: what [`ParticleBoundTerms::dt_bound`]
+    /// combines for a stiffened material.
+    pub fn bound_terms(
         &self,
         material: &crate::material::MaterialParams,
         contact: Option<(f64, f64)>,
-        stiffening: f64,
-    ) -> f64 {
+    ) -> ParticleBoundTerms {
         let dx = self.settings.spacing;
         let c = material.p_wave_speed();
         let m = material;
         let zeta = (m.phi + 2.0 * m.psi) * (2.0 * c / dx) / (2.0 * (m.lambda + 2.0 * m.mu));
         let elastic = dx / c * crate::timestep::damped_step_factor(zeta);
-        // 1/dt² summed over the springs, each dt = 2/ω (quadrature, as the vertices').
-        let mut inv2 = stiffening.max(1.0) / (elastic * elastic);
-        if let Some((k, b)) = contact {
+        // 1/dt² of each spring, each dt = 2/ω (summed in quadrature, as the vertices').
+        let contact_inv2 = contact.map_or(0.0, |(k, b)| {
             let (area, m) = (dx * dx, self.mass as f64);
             let omega = (k * area / m).sqrt();
             let zeta = b * area / (2.0 * m * omega);
             let contact = 2.0 / omega * crate::timestep::damped_step_factor(zeta);
-            inv2 += 1.0 / (contact * contact);
-        }
+            1.0 / (contact * contact)
+        });
         let omega_h = self.hourglass_omega(material);
-        inv2 += 0.25 * omega_h * omega_h;
-        1.0 / inv2.sqrt()
+        ParticleBoundTerms {
+            elastic_inv2: 1.0 / (elastic * elastic),
+            contact_inv2,
+            hourglass_inv2: 0.25 * omega_h * omega_h,
+        }
     }
 
     /// A bound on the highest frequency of tlsph's hourglass penalty: each pair is a spring
