@@ -3829,3 +3829,71 @@ fn a_mesh_file_without_an_extension_says_so() {
         &["mesh_msh: the file name has no extension, which picks the format"],
     );
 }
+
+/// A run whose particles follow the paper model and diverges says why, and that a smaller dt
+/// does not stop it: `lv_touch` with `model = "paper"` diverges before the tool touches, at
+/// about the same simulated time at dt and dt/2 (eq. 13's one-sided force grows at its own
+/// rate), while the shipped tlsph layer runs the same steps and prints no such note.
+#[test]
+fn a_diverged_paper_particle_model_is_explained() {
+    let d = tmp("paperdiverge");
+    let touch = include_str!("../scenes/lv_touch.toml");
+    assert!(touch.contains("[particles]\n"));
+    let paper = scene_file(
+        &d,
+        "paper.toml",
+        &touch.replacen("[particles]\n", "[particles]\nmodel = \"paper\"\n", 1),
+    );
+    let note = "note: the paper particle model's eq. 13 is one-sided";
+    let dt = 7.379e-4;
+    let mut diverged_at = Vec::new();
+    for (dt, steps) in [(dt, "400"), (0.5 * dt, "800")] {
+        let out = d.join(format!("out{steps}"));
+        let (ok, _, err) = palpate(&[
+            "run",
+            &paper,
+            "--steps",
+            steps,
+            "--dt",
+            &format!("{dt:e}"),
+            "--backend",
+            "cpu",
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        let lines = error_lines(&err);
+        assert!(
+            !ok && lines.len() == 1 && lines[0].contains("diverged"),
+            "{err}"
+        );
+        assert!(
+            err.lines()
+                .any(|l| l.starts_with(note) && l.ends_with("use [particles] model = \"tlsph\"")),
+            "{err}"
+        );
+        let t = summary(&out)["sim_seconds"].as_f64().unwrap();
+        // Before the tool (1 mm clear, 6 mm/s) has reached the wall.
+        assert!(t < 0.15, "diverged at t = {t} s");
+        diverged_at.push(t);
+    }
+    let (a, b) = (diverged_at[0], diverged_at[1]);
+    assert!(
+        (a - b).abs() < 0.1 * a,
+        "dt {dt:e}: diverged at t = {a} s; dt/2: at t = {b} s"
+    );
+    let shipped = scene_file(&d, "tlsph.toml", touch);
+    let out = d.join("tlsph");
+    let (ok, _, err) = palpate(&[
+        "run",
+        &shipped,
+        "--steps",
+        "400",
+        "--dt",
+        &format!("{dt:e}"),
+        "--backend",
+        "cpu",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(ok && !err.contains(note), "{err}");
+}

@@ -458,6 +458,9 @@ fn execute(cli: Cli) -> Result<()> {
             };
             let s = palpate::run::run(&scene, &opts)?;
             warn_inverted(&scene, &s);
+            if let Some(note) = paper_divergence_note(&scene, &s.status) {
+                palpate::say_err!("{note}");
+            }
             if let Some(note) = raised_substeps_note(&s) {
                 palpate::say_err!("{note}");
             }
@@ -566,6 +569,9 @@ fn execute(cli: Cli) -> Result<()> {
             }
             warn_inverted(&scene, &s.run);
             warn_inverted_in_contact(&scene, h);
+            if let Some(note) = paper_divergence_note(&scene, &s.run.status) {
+                palpate::say_err!("{note}");
+            }
             if let Some(note) = raised_substeps_note(&s.run) {
                 palpate::say_err!("{note}");
             }
@@ -969,6 +975,22 @@ fn warn_inverted_in_contact(scene: &Scene, h: &palpate::haptic_run::HapticStats)
         h.physics.inversion_checks,
         inversion_advice(scene, peak.particles > 0)
     );
+}
+
+/// The note a diverged run or session of `scene` prints when its particles follow the paper
+/// model: eq. 13 as the paper writes it, a_i = Σ_j m_j σ_j/(ρ_j ρ_i) ∇W, is one-sided (a
+/// particle is pushed by its neighbours' stresses, not by its own), so its forces are not an
+/// energy's gradient and, where a particle's neighbourhood is lopsided (the layer's surface),
+/// do work of their own. On hm1 and lv_touch that grows at its own rate, whatever the dt
+/// (BENCHMARKS.md), where tlsph (with StVK, or without hourglass control) holds.
+fn paper_divergence_note(scene: &Scene, status: &RunStatus) -> Option<&'static str> {
+    let paper = scene
+        .particles
+        .as_ref()
+        .is_some_and(|p| p.model == palpate::scene::ParticleModel::Paper);
+    (paper && status.divergence().is_some()).then_some(
+        "note: the paper particle model's eq. 13 is one-sided (a particle is pushed by its neighbours' stresses, not by its own), so its forces are not an energy's gradient and at the layer's surface do work of their own; this grows at its own rate, so a smaller dt does not stop it (hm1 and lv_touch diverge at the same simulated time at dt and dt/2): use [particles] model = \"tlsph\"",
+    )
 }
 
 /// What to do about inverted elements in `scene` (`particles`: some were particles).
