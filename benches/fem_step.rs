@@ -5,11 +5,12 @@
 //! times from timestamp queries.
 //!
 //! GPU steps are recorded 20 to a command buffer (as the engine runs them) and the time
-//! includes submit and wait. `PALPATE_BENCH_SIZES=10k,100k` limits the sizes.
+//! includes submit and wait. `PALPATE_BENCH_SIZES=10k,100k` limits the sizes and
+//! `PALPATE_BENCH_BACKENDS=cpu` (or `gpu`) the backends (the table's other columns are `-`).
 
 mod common;
 
-use common::median;
+use common::{backends, median};
 use criterion::{criterion_group, BenchmarkId, Criterion, Throughput};
 use palpate::cpu::stepper::available_cores;
 use palpate::cpu::CpuStepper;
@@ -17,6 +18,7 @@ use palpate::gpu::{GpuContext, GpuStepper};
 use palpate::material::MaterialParams;
 use palpate::mesh::generators;
 use palpate::model::Model;
+use palpate::sim::Backend;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -47,12 +49,28 @@ fn cpu(m: &Arc<Model>, threads: usize) -> CpuStepper {
     CpuStepper::with_threads(m.clone(), params, threads).expect("CPU threads")
 }
 
+/// The GPU context when `PALPATE_BENCH_BACKENDS` asks for the GPU.
+fn gpu_context() -> Option<Arc<GpuContext>> {
+    backends().contains(&Backend::Gpu).then(|| {
+        Arc::new(
+            GpuContext::new()
+                .expect("a GPU adapter (apt-get install mesa-vulkan-drivers for lavapipe, or PALPATE_BENCH_BACKENDS=cpu)"),
+        )
+    })
+}
+
+/// The CPU thread counts to time: 1 and all cores, none when `PALPATE_BENCH_BACKENDS` leaves
+/// the CPU out.
+fn cpu_threads() -> Vec<usize> {
+    if backends().contains(&Backend::Cpu) {
+        vec![1, available_cores()]
+    } else {
+        Vec::new()
+    }
+}
+
 fn fem_step(c: &mut Criterion) {
-    let ctx = Arc::new(
-        GpuContext::new()
-            .expect("a GPU adapter (apt-get install mesa-vulkan-drivers for lavapipe)"),
-    );
-    let all = available_cores();
+    let ctx = gpu_context();
     let mut group = c.benchmark_group("fem_step");
     group
         .sample_size(10)
@@ -62,69 +80,92 @@ fn fem_step(c: &mut Criterion) {
         let m = model(cells);
         let params = m.step_params(0.5 * m.bounds.dt_bound, 0.0);
         group.throughput(Throughput::Elements(m.n_tets() as u64));
-        for threads in [1, all] {
+        for threads in cpu_threads() {
             let mut s = cpu(&m, threads);
             group.bench_function(BenchmarkId::new(format!("cpu_{threads}t"), name), |b| {
                 b.iter(|| s.step(false))
             });
         }
-        let mut gpu = GpuStepper::new(ctx.clone(), &m, params).expect("GPU stepper");
-        group.throughput(Throughput::Elements(m.n_tets() as u64 * GPU_BATCH as u64));
-        group.bench_function(BenchmarkId::new(format!("gpu_x{GPU_BATCH}"), name), |b| {
-            b.iter(|| gpu.run_no_readback(GPU_BATCH).expect("GPU batch"))
-        });
+        if let Some(ctx) = &ctx {
+            let mut gpu = GpuStepper::new(ctx.clone(), &m, params).expect("GPU stepper");
+            group.throughput(Throughput::Elements(m.n_tets() as u64 * GPU_BATCH as u64));
+            group.bench_function(BenchmarkId::new(format!("gpu_x{GPU_BATCH}"), name), |b| {
+                b.iter(|| gpu.run_no_readback(GPU_BATCH).expect("GPU batch"))
+            });
+        }
     }
     group.finish();
 }
 
 fn ratio_table() {
-    let ctx = Arc::new(GpuContext::new().expect("GPU adapter"));
+    let ctx = gpu_context();
+    let threads = cpu_threads();
     let all = available_cores();
     println!(
-        "\nfem_step: CPU 1 thread, CPU {all} threads and GPU '{}' (median of 15, same run)",
-        ctx.describe()
+        "\nfem_step: CPU 1 thread, CPU {all} threads and GPU '{}' (median of 15, same run; - where PALPATE_BENCH_BACKENDS left a backend out)",
+        ctx.as_ref().map_or("-".to_string(), |c| c.describe())
     );
     println!(
         "| tets | CPU 1t tet-steps/s | CPU {all}t tet-steps/s | {all}t/1t | GPU tet-steps/s | GPU/CPU 1t | GPU/CPU {all}t |"
     );
     println!("|---:|---:|---:|---:|---:|---:|---:|");
     let mut stages = Vec::new();
+    let cell = |v: Option<f64>, precision: usize| {
+        v.map_or("-".to_string(), |v| {
+            if precision == 0 {
+                format!("{v:.3e}")
+            } else {
+                format!("{v:.2}")
+            }
+        })
+    };
     for (_, cells) in sizes() {
         let m = model(cells);
         let params = m.step_params(0.5 * m.bounds.dt_bound, 0.0);
-        // Warm up past the first steps from rest (first-touch page faults), then time each
-        // pool on its own with the other idle.
-        let mut one = cpu(&m, 1);
-        let mut many = cpu(&m, all);
-        for _ in 0..10 {
-            one.step(false);
-            many.step(false);
+        let (mut t1, mut tn) = (None, None);
+        if !threads.is_empty() {
+            // Warm up past the first steps from rest (first-touch page faults), then time
+            // each pool on its own with the other idle.
+            let mut one = cpu(&m, 1);
+            let mut many = cpu(&m, all);
+            for _ in 0..10 {
+                one.step(false);
+                many.step(false);
+            }
+            t1 = Some(median(15, || one.step(false)));
+            std::thread::sleep(Duration::from_millis(200));
+            tn = Some(median(15, || many.step(false)));
         }
-        let t1 = median(15, || one.step(false));
-        std::thread::sleep(Duration::from_millis(200));
-        let tn = median(15, || many.step(false));
-        let mut gpu = GpuStepper::new(ctx.clone(), &m, params).expect("GPU stepper");
-        // Warm up for a second, not one batch: a real GPU idles at a low clock after the CPU
-        // rows (an NVIDIA H200 read 345 MHz idle; its 1M row gave 1.4e9 tet-steps/s after one
-        // warm-up batch against criterion's 4.7e9, 2026-11-27).
-        let warm = std::time::Instant::now();
-        while warm.elapsed() < Duration::from_secs(1) {
-            gpu.run_no_readback(GPU_BATCH).expect("warm-up");
+        let mut tg = None;
+        if let Some(ctx) = &ctx {
+            let mut gpu = GpuStepper::new(ctx.clone(), &m, params).expect("GPU stepper");
+            // Warm up for a second, not one batch: a real GPU idles at a low clock after the
+            // CPU rows (an NVIDIA H200 read 345 MHz idle; its 1M row gave 1.4e9 tet-steps/s
+            // after one warm-up batch against criterion's 4.7e9, 2026-11-27).
+            let warm = std::time::Instant::now();
+            while warm.elapsed() < Duration::from_secs(1) {
+                gpu.run_no_readback(GPU_BATCH).expect("warm-up");
+            }
+            tg = Some(
+                median(9, || gpu.run_no_readback(GPU_BATCH).expect("GPU batch")) / GPU_BATCH as f64,
+            );
+            stages.push((m.n_tets(), gpu.profile_stages(20).expect("profile")));
         }
-        let tg =
-            median(9, || gpu.run_no_readback(GPU_BATCH).expect("GPU batch")) / GPU_BATCH as f64;
         let n = m.n_tets() as f64;
+        let ratio = |a: Option<f64>, b: Option<f64>| a.zip(b).map(|(a, b)| a / b);
         println!(
-            "| {} | {:.3e} | {:.3e} | {:.2} | {:.3e} | {:.2} | {:.2} |",
+            "| {} | {} | {} | {} | {} | {} | {} |",
             m.n_tets(),
-            n / t1,
-            n / tn,
-            t1 / tn,
-            n / tg,
-            t1 / tg,
-            tn / tg
+            cell(t1.map(|t| n / t), 0),
+            cell(tn.map(|t| n / t), 0),
+            cell(ratio(t1, tn), 2),
+            cell(tg.map(|t| n / t), 0),
+            cell(ratio(t1, tg), 2),
+            cell(ratio(tn, tg), 2)
         );
-        stages.push((m.n_tets(), gpu.profile_stages(20).expect("profile")));
+    }
+    if ctx.is_none() {
+        return;
     }
     println!("\nGPU time per stage (timestamp queries, mean of 20 runs, one pass per stage):");
     for (n, t) in stages {
