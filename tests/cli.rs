@@ -3897,3 +3897,50 @@ fn a_diverged_paper_particle_model_is_explained() {
     ]);
     assert!(ok && !err.contains(note), "{err}");
 }
+
+/// A run stopped by a second signal while it wrote its outputs leaves `final.vtu` and
+/// `particles_final.vtu` but no `summary.json`: the next run into the folder, of a scene
+/// without particles, removes them too, not only a killed run's frames (the old
+/// `particles_final.vtu` used to stay beside the new run's files).
+#[test]
+fn a_run_killed_while_writing_leaves_no_particle_file_for_the_next_run_to_mix_up() {
+    let d = tmp("killedwriting");
+    let out = d.join("out");
+    let o = out.to_str().unwrap();
+    let (ok, _, err) = run_on_cpu("lv_touch", "2", o);
+    assert!(ok, "{err}");
+    assert!(out.join("particles_final.vtu").exists());
+    std::fs::remove_file(out.join("summary.json")).unwrap();
+    let (ok, _, err) = run_on_cpu("beam", "2", o);
+    assert!(ok, "{err}");
+    assert!(
+        err.contains("note: removed 2 output files of an earlier run"),
+        "{err}"
+    );
+    let mut left: Vec<String> = std::fs::read_dir(&out)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    left.sort();
+    assert_eq!(left, ["final.vtu", "summary.json"]);
+}
+
+/// A particle spacing so coarse that a lattice point's barycentric weights in an LV tet
+/// overflow to NaN is "too coarse" like any other, not a particle with NaN weights (which
+/// gave "vertex 91 has mass NaN kg in f32; rescale the units").
+#[test]
+fn a_spacing_whose_lattice_overflows_is_too_coarse() {
+    let d = tmp("overflowspacing");
+    let touch = include_str!("../scenes/lv_touch.toml");
+    let shipped = "spacing = 7.0e-4";
+    assert!(touch.contains(shipped));
+    let scene = scene_file(
+        &d,
+        "coarse.toml",
+        &touch.replacen(shipped, "spacing = 1e306", 1),
+    );
+    assert_one_line_error(
+        &["run", &scene, "--backend", "cpu", "--steps", "1"],
+        &["coarse.toml: particles.spacing: 1e306 m is too coarse"],
+    );
+}

@@ -161,8 +161,9 @@ fn written_by_palpate(name: &str, path: &Path) -> bool {
 
 /// Remove what an earlier run left in `dir`, so that its frames or particle files are not
 /// mixed with the new run's in ParaView: only when `dir` holds an earlier run's
-/// `summary.json` (a JSON object with `scene`, `backend` and `status`) or a `series.pvd` /
-/// `particles_series.pvd` marked [`PVD_MARK`] (a run killed before its summary), and only
+/// `summary.json` (a JSON object with `scene`, `backend` and `status`), or a `series.pvd` /
+/// `particles_series.pvd` marked [`PVD_MARK`] or a palpate `final.vtu` /
+/// `particles_final.vtu` (a run killed before its summary), and only
 /// regular files [`is_run_output`] names whose contents are palpate's (a user's
 /// `haptic.csv` trajectory or a `frame_0007.vtu` of another tool stays), nothing else: its
 /// `final.vtu` and `summary.json` too, so that a run that fails half-way leaves none of the
@@ -180,9 +181,17 @@ pub fn remove_earlier_outputs(dir: &Path) -> Result<usize> {
                 .iter()
                 .all(|k| v.get(k).is_some())
         });
-    let killed_run = ["series.pvd", "particles_series.pvd"]
-        .iter()
-        .any(|name| written_by_palpate(name, &dir.join(name)));
+    // A run killed before its summary (a second signal while the outputs were written)
+    // leaves its final.vtu, and maybe particles_final.vtu, which a run without particles
+    // would leave beside its own; the new run writes final.vtu over the old one anyway.
+    let killed_run = [
+        "series.pvd",
+        "particles_series.pvd",
+        "final.vtu",
+        "particles_final.vtu",
+    ]
+    .iter()
+    .any(|name| written_by_palpate(name, &dir.join(name)));
     if !(earlier_run || killed_run) {
         return Ok(0);
     }

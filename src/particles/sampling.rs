@@ -70,7 +70,10 @@ pub fn sample(
                     let p = lattice(i, j, k);
                     let b = inv * (p - x[0]);
                     let w = [1.0 - b.x - b.y - b.z, b.x, b.y, b.z];
-                    if w.iter().any(|&c| c < -INSIDE_TOLERANCE) || !taken.insert((i, j, k)) {
+                    // Not `c < -tol`: a lattice point so far out that its weights overflow to
+                    // NaN (a spacing near f64's range) is outside too.
+                    let inside = w.iter().all(|&c| c >= -INSIDE_TOLERANCE);
+                    if !inside || !taken.insert((i, j, k)) {
                         continue;
                     }
                     index.push((i, j, k));
