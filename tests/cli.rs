@@ -3944,3 +3944,43 @@ fn a_spacing_whose_lattice_overflows_is_too_coarse() {
         &["coarse.toml: particles.spacing: 1e306 m is too coarse"],
     );
 }
+
+/// Design 8 on a layer too coarse for it (8 particles in a 2 cm box, under gravity alone)
+/// runs away down its remainder energy, which is not bounded below: the run used to end
+/// `ok` with the body's strain energy at −5e-2 J and every particle inverted. It now stops
+/// at the batch that finds the energy below zero, as a divergence that says so; the same
+/// layer under the blend coupling runs and its energy stays ≥ 0.
+#[test]
+fn a_strain_energy_below_zero_under_the_exact_coupling_ends_the_run() {
+    let d = tmp("energybelowzero");
+    let mesh = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/meshes/box_meshio.node");
+    let text = |coupling: &str| {
+        format!(
+            "[mesh]\nfile = {:?}\n[material]\nmodel = \"stvk\"\nyoungs_modulus = 3.0e5\npoisson_ratio = 0.4\ndensity = 1000.0\n[[fixed]]\nplane = {{ normal = [0, 0, 1], offset = 0.0 }}\n[loads]\ngravity = [0.0, 0.0, -9.81]\n[particles]\nregion = 7\nspacing = 4.0e-3\nactivation = \"all\"\ncoupling = \"{coupling}\"\n",
+            mesh.display().to_string()
+        )
+    };
+    for coupling in ["exact", "blend"] {
+        let scene = scene_file(&d, &format!("{coupling}.toml"), &text(coupling));
+        let out = d.join(coupling);
+        let (ok, _, err) = run_on_cpu(&scene, "1000", out.to_str().unwrap());
+        let sm = summary(&out);
+        let status = sm["status"].as_str().unwrap().to_string();
+        let elastic = sm["elastic_energy"].as_f64().unwrap();
+        if coupling == "exact" {
+            assert!(!ok, "{err}");
+            assert!(
+                status.starts_with("diverged: the strain energy went below zero")
+                    && status.contains("coupling = \"exact\"")
+                    && elastic < 0.0,
+                "{status}; elastic {elastic}"
+            );
+            assert_eq!(error_lines(&err).len(), 1, "{err}");
+        } else {
+            assert!(
+                ok && status == "ok" && elastic >= 0.0,
+                "{status}; elastic {elastic}: {err}"
+            );
+        }
+    }
+}

@@ -31,6 +31,17 @@ pub enum RunStatus {
         /// written is the one rolled back to, after this step, to be retried at this dt (s).
         rolled_back_to: Option<(u64, f64)>,
     },
+    /// Design 8 (`coupling = "exact"`): the body's strain energy went below zero, which no
+    /// state of an elastic body reaches: each particle's remainder
+    /// Ψ(F̄ + D) − Ψ(F̄) − P(F̄):D is ≥ 0 only where the law is convex, and past that the
+    /// motion runs away down it (seen on a coarse layer under gravity alone). The state at
+    /// that batch's end was written.
+    EnergyBelowZero {
+        /// The last step of the batch that found it (1-based over the run).
+        step: u64,
+        /// The body's strain energy there, J.
+        elastic: f64,
+    },
     /// Stopped by Ctrl-C or SIGTERM ([`crate::interrupt`]) after a batch; outputs written.
     Interrupted {
         /// Simulated time reached, s.
@@ -82,6 +93,9 @@ impl RunStatus {
                     "diverged: non-finite or faster than {speed_limit:.3e} m/s ({wave_speeds} x P-wave speed) at step {step}, {at} (dt = {dt:.3e} s, bound {dt_bound:.3e} s)"
                 ))
             }
+            RunStatus::EnergyBelowZero { step, elastic } => Some(format!(
+                "diverged: the strain energy went below zero ({elastic:.3e} J at step {step}), which no elastic body does: coupling = \"exact\" adds each particle's remainder of its host tet's energy, which is not bounded below where the material law is not convex, and the motion ran away down it (a smaller dt does not help; a finer particle spacing or coupling = \"blend\" does)"
+            )),
             _ => None,
         }
     }
@@ -102,6 +116,11 @@ impl fmt::Display for RunStatus {
             RunStatus::Diverged { .. } => write!(
                 f,
                 "{}; last finite state written",
+                self.divergence().unwrap_or_default()
+            ),
+            RunStatus::EnergyBelowZero { .. } => write!(
+                f,
+                "{}; that state written",
                 self.divergence().unwrap_or_default()
             ),
             RunStatus::Interrupted { at_seconds } => {
