@@ -254,6 +254,36 @@ const LAG_BATCHES: f64 = 4.0;
 /// pressing lv_touch 6 mm at 2 m/s, in one tick), and each refresh ΔK × the lag.
 const STIFFNESS_RAMP_SECONDS: f64 = 0.03;
 
+/// Where the hand's pose and the settled tissue balance, from the tool: the offset e with
+/// k_c (d − e) + f + K e = 0, e = (k_c I − K)⁻¹ (k_c d + f), for the coupling spring k_c
+/// (N/m), the static stiffness K (N/m, negative semi-definite), the hand's offset `d` from
+/// the tool (m) and the tissue's force on the tool `f` (N) less its dampers' push. Zero when
+/// the hand rests on the tissue's force; about the hand's lag while the tool is held back.
+fn hand_balance_offset(coupling: f64, stiffness: DMat3, d: DVec3, f: DVec3) -> DVec3 {
+    let a = DMat3::from_diagonal(DVec3::splat(coupling)) - stiffness;
+    if a.determinant().abs() <= f64::MIN_POSITIVE || !a.is_finite() {
+        return DVec3::ZERO;
+    }
+    a.inverse() * (d * coupling + f)
+}
+
+/// The push the contact dampers put in the tool force `report` after a batch of
+/// `batch_seconds` that moved the tool by `tool_move` (damping per unit area `damping`):
+/// [`LocalModel::damper_force_of`] of that move.
+fn pushed_by_dampers(
+    report: &crate::stepper::ToolReport,
+    damping: f64,
+    batch_seconds: f64,
+    tool_move: DVec3,
+) -> DVec3 {
+    LocalModel {
+        force: report.force,
+        ..Default::default()
+    }
+    .with_batch_damper(damping, report.contact_area, batch_seconds, tool_move)
+    .damper_force
+}
+
 /// The stiffness to render at loop time `t`: `to`, ramped in from `from` since `since` over
 /// [`STIFFNESS_RAMP_SECONDS`] (none: `to`).
 fn ramped_stiffness(to: DMat3, ramp: Option<(DMat3, f64)>, t: f64) -> DMat3 {
@@ -619,6 +649,9 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
     // still being halved: then it did not end ok).
     let mut unrecovered: Option<(u64, u32, f64)> = None;
     let mut published_k = DMat3::ZERO;
+    // Whether the tool was held back after the last batch (see `held_back` below).
+    let mut held = false;
+    let coupling_stiffness = config.coupling.stiffness;
     let mut last_refresh: Option<Instant> = None;
     // Inverted elements are counted on the same period while in contact.
     let mut last_check: Option<Instant> = None;
@@ -823,7 +856,35 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                 }),
                 _ => None,
             };
-            let held_back = (wanted - sim.tool_position).length() > lag_limit;
+            // Also held back when the pose where the hand and the settled tissue balance
+            // lies that far from the tool: with the contact springs' K in the solve the proxy
+            // stays within a fraction of a batch's travel of the tool however far ahead the
+            // hand is, so by the proxy alone a press that began following never showed a lag,
+            // and the hand felt the coupling spring stretched over it (a brisk 3 mm press on
+            // lv_touch peaked at 0.46 N, held 0.065 N, on one 2-core host, 0.18 N now; on
+            // another the press had begun held back and peaked at 0.2–0.25 N).
+            let balance = hand_balance_offset(
+                coupling_stiffness,
+                ramped_stiffness(published_k, stiffness_ramp, command.stamp),
+                home + command.device_position - sim.tool_position,
+                report.force
+                    - pushed_by_dampers(
+                        &report,
+                        tool_damping,
+                        batch_seconds,
+                        sim.tool_position - tool_before,
+                    ),
+            );
+            let proxy_lag = (wanted - sim.tool_position).length();
+            // Left only once the balance is within half the limit: a switch changes the
+            // force in the hand by about k_c × the balance's offset.
+            // And only while the speed limit holds the tool back: a press the tool can
+            // follow keeps the contact springs' solve (slow presses felt switches between the
+            // two solves, 0.35 N/ms).
+            let balance_limit = if held { 0.5 * lag_limit } else { lag_limit };
+            held = proxy_lag > lag_limit
+                || (in_contact && limited.is_some() && balance.length() > balance_limit);
+            let held_back = held;
             contact_normal =
                 (in_contact && report.force.length() > 0.0).then(|| report.force.normalize());
             if in_contact {
@@ -1060,11 +1121,34 @@ fn wait_for_a_tick(
 #[cfg(test)]
 mod tests {
     use super::{
-        limit_approaching_stride, limit_pressing_stride, limit_withdrawal_remainder,
-        withdrawal_head,
+        hand_balance_offset, limit_approaching_stride, limit_pressing_stride,
+        limit_withdrawal_remainder, withdrawal_head,
     };
     use crate::rest::StrideSurvey;
-    use glam::DVec3;
+    use glam::{DMat3, DVec3};
+
+    /// The balance of hand and settled tissue: none for a hand resting on the tissue's force
+    /// (the coupling stretched f/k_c), about the lag for a hand ahead of a barely pushed tool
+    /// (the brisk press's 1.3 mm lag against f = 0.14 N, k_c = 360 N/m, K = −38 N/m: 0.82
+    /// mm), and the series of coupling and tissue in between.
+    #[test]
+    fn the_hands_balance_is_where_coupling_and_settled_tissue_meet() {
+        let (kc, k) = (360.0, DMat3::from_diagonal(DVec3::splat(-38.0)));
+        let f = DVec3::new(0.14, 0.0, 0.0);
+        let resting = DVec3::new(-0.14 / kc, 0.0, 0.0);
+        assert!(hand_balance_offset(kc, k, resting, f).length() < 1e-15);
+        let ahead = DVec3::new(-1.3e-3, 0.0, 0.0);
+        let e = hand_balance_offset(kc, k, ahead, f);
+        let want = (kc * -1.3e-3 + 0.14) / (kc + 38.0);
+        assert!(
+            (e.x - want).abs() < 1e-12 && e.y == 0.0 && e.z == 0.0,
+            "{e}"
+        );
+        assert!((e.x + 0.824e-3).abs() < 0.001e-3, "{e}");
+        // With no static K yet, the hand's lag less the coupling's stretch.
+        let e = hand_balance_offset(kc, DMat3::ZERO, ahead, f);
+        assert!((e.x - (-1.3e-3 + 0.14 / kc)).abs() < 1e-12, "{e}");
+    }
 
     #[test]
     fn an_approaching_stride_stops_at_the_surface_unless_it_stays_clear() {
