@@ -352,9 +352,10 @@ impl Simulation {
         let dt = choose_dt(scene, &model, opts.dt, opts.allow_unstable, opts.dt_flags)?;
         if !is_normal_f32_step(dt) {
             return Err(PalpateError::Usage(format!(
-                "{}: {} = {dt:e} s is not a positive single-precision number (at least 1.18e-38: GPUs flush smaller ones to zero)",
+                "{}: {} = {dt:e} s {}",
                 scene.origin,
-                dt_source(scene, opts.dt)
+                dt_source(scene, opts.dt),
+                f32_step_problem(dt)
             )));
         }
         if let Some(w) = near_bound_warning(scene, dt, model.bounds.dt_bound, opts.dt) {
@@ -393,7 +394,8 @@ impl Simulation {
         model.check_f32()?;
         if !is_normal_f32_step(dt) {
             return Err(PalpateError::Usage(format!(
-                "dt = {dt:e} s is not a positive single-precision number (at least 1.18e-38: GPUs flush smaller ones to zero)"
+                "dt = {dt:e} s {}",
+                f32_step_problem(dt)
             )));
         }
         let params = model.step_params(dt, damping);
@@ -490,7 +492,8 @@ impl Simulation {
     pub fn set_dt(&mut self, dt: f64) -> Result<()> {
         if !is_normal_f32_step(dt) {
             return Err(PalpateError::Usage(format!(
-                "dt = {dt:e} s is not a positive single-precision number (at least 1.18e-38: GPUs flush smaller ones to zero)"
+                "dt = {dt:e} s {}",
+                f32_step_problem(dt)
             )));
         }
         self.dt = dt;
@@ -845,6 +848,16 @@ impl Simulation {
 
 /// Whether `dt` is a positive, finite, normal single-precision number (a subnormal step
 /// is flushed to zero by GPUs and slows every CPU multiply that meets it).
+/// What is wrong with a step `dt` that [`is_normal_f32_step`] refuses: too large for f32, or
+/// not a positive normal f32.
+fn f32_step_problem(dt: f64) -> &'static str {
+    if dt.is_finite() && dt > f32::MAX as f64 {
+        "does not fit single precision (at most 3.4e38)"
+    } else {
+        "is not a positive single-precision number (at least 1.18e-38: GPUs flush smaller ones to zero)"
+    }
+}
+
 fn is_normal_f32_step(dt: f64) -> bool {
     let d = dt as f32;
     d.is_finite() && d >= f32::MIN_POSITIVE

@@ -688,6 +688,19 @@ fn missing_files_and_unknown_scenes_are_clear_errors() {
         ],
         &["dt = 1e-40", "single-precision", "1.18e-38"],
     );
+    // One too large for single precision says so (it used to say "at least 1.18e-38").
+    assert_one_line_error(
+        &[
+            "run",
+            "beam",
+            "--steps",
+            "1",
+            "--dt",
+            "1e39",
+            "--allow-unstable",
+        ],
+        &["dt = 1e39 s does not fit single precision (at most 3.4e38)"],
+    );
     assert_one_line_error(
         &[
             "run",
@@ -3863,7 +3876,8 @@ fn a_diverged_paper_particle_model_is_explained() {
         ]);
         let lines = error_lines(&err);
         assert!(
-            !ok && lines.len() == 1 && lines[0].contains("diverged"),
+            !ok && lines.len() == 1
+                && lines[0].contains("paper.toml: run did not finish cleanly: diverged"),
             "{err}"
         );
         assert!(

@@ -507,8 +507,8 @@ fn execute(cli: Cli) -> Result<()> {
                 palpate::say_err!("{}; outputs written", s.status);
             } else if !s.status.is_ok() {
                 return Err(PalpateError::Usage(format!(
-                    "run did not finish cleanly: {}",
-                    s.status
+                    "{}: run did not finish cleanly: {}",
+                    scene.origin, s.status
                 )));
             }
             Ok(())
@@ -627,8 +627,8 @@ fn execute(cli: Cli) -> Result<()> {
                 palpate::say_err!("{}; outputs written", s.run.status);
             } else if !s.run.status.is_ok() {
                 return Err(PalpateError::Usage(format!(
-                    "haptic session did not finish cleanly: {}",
-                    s.run.status
+                    "{}: haptic session did not finish cleanly: {}",
+                    scene.origin, s.run.status
                 )));
             }
             Ok(())
