@@ -649,6 +649,8 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
     // still being halved: then it did not end ok).
     let mut unrecovered: Option<(u64, u32, f64)> = None;
     let mut published_k = DMat3::ZERO;
+    // Design 8's floor under the strain energy ([`crate::run::energy_floor`]).
+    let energy_floor = crate::run::energy_floor(&model);
     // Whether the tool was held back after the last batch (see `held_back` below).
     let mut held = false;
     let coupling_stiffness = config.coupling.stiffness;
@@ -818,6 +820,26 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
             }
             stats.batches += 1;
             let diverged = match result {
+                Guarded::Done(ref s)
+                    if energy_floor.is_some_and(|floor| {
+                        crate::run::BodyEnergy::of(&sim, s).elastic < floor
+                    }) =>
+                {
+                    // Design 8 ran away down its remainder energy (see `run`): ends the
+                    // session as a divergence would.
+                    status = RunStatus::EnergyBelowZero {
+                        step: sim.steps_done,
+                        elastic: crate::run::BodyEnergy::of(&sim, s).elastic,
+                    };
+                    physics.publish(LocalModel {
+                        diverged: true,
+                        stamp: command.stamp,
+                        sim_time: sim.time,
+                        ..Default::default()
+                    });
+                    servo.stop();
+                    break;
+                }
                 Guarded::Done(_) => {
                     unrecovered = None;
                     false

@@ -3997,4 +3997,33 @@ fn a_strain_energy_below_zero_under_the_exact_coupling_ends_the_run() {
             );
         }
     }
+    // A haptic session stops there too (a tool 3 cm clear, the hand still).
+    let scene = scene_file(
+        &d,
+        "exact_tool.toml",
+        &format!(
+            "{}[tool]\nradius = 0.002\nstiffness = 1.0e8\nhome = [0.0, 0.0, 0.05]\n",
+            text("exact")
+        ),
+    );
+    let still = d.join("still.csv");
+    std::fs::write(&still, "t,x,y,z\n0,0,0,0\n2,0,0,0\n").unwrap();
+    let out = d.join("haptic");
+    let (ok, _, err) = palpate(&[
+        "haptic",
+        &scene,
+        "--device",
+        &format!("scripted:{}", still.display()),
+        "--seconds",
+        "2",
+        "--backend",
+        "cpu",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let status = summary(&out)["status"].as_str().unwrap().to_string();
+    assert!(
+        !ok && status.starts_with("diverged: the strain energy went below zero"),
+        "{status}: {err}"
+    );
 }
