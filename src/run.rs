@@ -434,6 +434,12 @@ pub fn run_with_state(
         // The first frame too: one that cannot be written ends the series, not the run.
         let particles = sim.particle_state()?;
         output_errors.keep(frames.write(&model, &sim.state()?, particles.as_ref(), 0.0));
+        if opts.announce {
+            let count = (opts.frames as u64).min(max_steps + 1);
+            if let Some(w) = series_size_warning(&opts.out, count) {
+                crate::say_err!("{w}");
+            }
+        }
     }
     let show = opts.progress && std::io::stdout().is_terminal();
     let mut progress = Progress::new(show, (!until_static).then_some(target_steps));
@@ -692,6 +698,26 @@ pub fn summarize(
     }
 }
 
+/// Bytes of frames above which a run with `--frames` says how much it will write.
+const LARGE_SERIES_BYTES: f64 = 1.0e9;
+
+/// A warning when `count` frames the size of the first one written in `dir`
+/// (`frame_0000.vtu` and, with particles, `particles_frame_0000.vtu`) would come to more than
+/// [`LARGE_SERIES_BYTES`]: a million frames of a small scene filled 1.3 GB in 5 s unannounced.
+fn series_size_warning(dir: &std::path::Path, count: u64) -> Option<String> {
+    let size = |name: &str| std::fs::metadata(dir.join(name)).map_or(0, |m| m.len());
+    let frame = size("frame_0000.vtu") + size("particles_frame_0000.vtu");
+    let total = frame as f64 * count as f64;
+    (total > LARGE_SERIES_BYTES).then(|| {
+        format!(
+            "warning: --frames {count} will write about {:.1} GB to {} ({:.0} kB a frame; fewer frames write less)",
+            total / 1e9,
+            dir.display(),
+            frame as f64 / 1e3
+        )
+    })
+}
+
 /// Under design 8 (`coupling = "exact"`), the strain energy below which a run stops as
 /// [`RunStatus::EnergyBelowZero`]: minus that of a uniform strain of 1e-4 over the body,
 /// ½ (λ + 2μ) ε² V, far beyond rounding at rest yet far above a runaway (−5e-2 J on a 2 cm box
@@ -765,6 +791,25 @@ fn human_duration(seconds: f64) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A series whose frames add up to more than a gigabyte is announced with its size; a
+    /// smaller one, or a folder with no first frame, is not.
+    #[test]
+    fn a_large_frame_series_says_how_much_it_will_write() {
+        let dir = std::env::temp_dir().join(format!("palpate-series-size-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        assert_eq!(series_size_warning(&dir, 1_000_000), None);
+        std::fs::write(dir.join("frame_0000.vtu"), vec![b' '; 100_000]).unwrap();
+        std::fs::write(dir.join("particles_frame_0000.vtu"), vec![b' '; 50_000]).unwrap();
+        let w = series_size_warning(&dir, 10_000).unwrap();
+        assert!(
+            w.starts_with("warning: --frames 10000 will write about 1.5 GB to ")
+                && w.contains("(150 kB a frame"),
+            "{w}"
+        );
+        assert_eq!(series_size_warning(&dir, 6_000), None);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 
     #[test]
     fn durations_read_in_the_largest_unit() {
