@@ -4027,3 +4027,32 @@ fn a_strain_energy_below_zero_under_the_exact_coupling_ends_the_run() {
         "{status}: {err}"
     );
 }
+
+/// A gravity near f64's range is named by its size in the overload warning, not as `inf`
+/// (its length and the load ratio used to overflow), before the f32 check refuses it.
+#[test]
+fn an_enormous_gravity_is_warned_of_in_numbers() {
+    let d = tmp("hugegravity");
+    let scene = scene_file(
+        &d,
+        "g.toml",
+        &BEAM.replacen(
+            "gravity = [0.0, 0.0, -9.81]",
+            "gravity = [0.0, 0.0, -1e308]",
+            1,
+        ),
+    );
+    let (ok, _, err) = run_on_cpu(&scene, "1", d.join("out").to_str().unwrap());
+    let warning = err
+        .lines()
+        .find(|l| l.starts_with("warning:") && l.contains("loads.gravity"))
+        .unwrap_or_else(|| panic!("no gravity warning: {err}"));
+    assert!(
+        warning.contains("loads.gravity = 1e308 m/s^2") && !warning.contains("inf"),
+        "{warning}"
+    );
+    assert!(
+        !ok && error_lines(&err)[0].contains("single precision"),
+        "{err}"
+    );
+}

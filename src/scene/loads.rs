@@ -224,9 +224,16 @@ pub(super) fn overload_warnings(
         pressure(format!("loads.follower_pressure[{k}].pascals"), p.pascals);
     }
     if let Some(g) = loads.gravity {
-        let g = DVec3::from(g).length();
+        // Scaled first, so that a component near f64's range gives its magnitude, not inf.
+        let g = DVec3::from(g);
+        let largest = g.abs().max_element();
+        let g = if largest > 0.0 {
+            largest * (g / largest).length()
+        } else {
+            0.0
+        };
         let size = super::fixed::bounding_diagonal(mesh);
-        let ratio = density * g * size / youngs_modulus;
+        let ratio = density * size / youngs_modulus * g;
         if ratio > OVERLOAD_RATIO {
             out.push(format!(
                 "loads.gravity = {} m/s^2 weighs the body ({} m, {} kg/m^3) at {} x the material's Young's modulus ({} Pa): strains far beyond 1, so the run will likely diverge at once (a unit slip?)",
