@@ -255,12 +255,13 @@ const LAG_BATCHES: f64 = 4.0;
 const STIFFNESS_RAMP_SECONDS: f64 = 0.03;
 
 /// Whether the tool is held back after a batch: the proxy lies more than `lag_limit` (m) from
-/// the tool (`proxy_lag`), or, while the speed limit shortened the batch's move in contact
+/// the tool (`proxy_lag`), or, while the speed limit holds the tool in contact
 /// (`limited_in_contact`), the hand's [`hand_balance_offset`] (`balance`, m) does; once held
-/// back (`was_held`), until the balance is within half the limit (a switch between the two
+/// back (`was_held`), while the balance stays above half the limit (a switch between the two
 /// solves changes the force in the hand by about k_c × the balance). Only while limited: a
 /// press the tool can follow keeps the contact springs' solve (with the balance alone a slow
-/// press switched back and forth at 0.35 N/ms).
+/// press switched back and forth at 0.35 N/ms). A batch out of contact (a rollback's too)
+/// or no longer limited ends it.
 fn is_held_back(
     proxy_lag: f64,
     limited_in_contact: bool,
@@ -903,10 +904,22 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
             // and the hand felt the coupling spring stretched over it (a brisk 3 mm press on
             // lv_touch peaked at 0.46 N, held 0.065 N, on one 2-core host, 0.18 N now; on
             // another the press had begun held back and peaked at 0.2–0.25 N).
+            // The hand clamped to the workspace as the tool's target is; the static K only
+            // (with only the contact springs' K there is none: the servo then solves with
+            // none while held back, and the springs' K would give the proxy's offset again).
+            let mut hand_offset = command.device_position;
+            if hand_offset.length() > spec.workspace_radius {
+                hand_offset *= spec.workspace_radius / hand_offset.length();
+            }
+            let settled_k = if k_is_springs {
+                DMat3::ZERO
+            } else {
+                ramped_stiffness(published_k, stiffness_ramp, command.stamp)
+            };
             let balance = hand_balance_offset(
                 coupling_stiffness,
-                ramped_stiffness(published_k, stiffness_ramp, command.stamp),
-                home + command.device_position - sim.tool_position,
+                settled_k,
+                home + hand_offset - sim.tool_position,
                 report.force
                     - pushed_by_dampers(
                         &report,
@@ -915,9 +928,11 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                         sim.tool_position - tool_before,
                     ),
             );
+            // Limited: the batch's move was shortened, or the hand itself outruns the limit
+            // (a contact spring stiff enough keeps even the proxy's stride within reach).
             held = is_held_back(
                 (wanted - sim.tool_position).length(),
-                in_contact && limited.is_some(),
+                in_contact && (limited.is_some() || hand_speed > stats.max_tool_speed),
                 balance.length(),
                 held,
                 lag_limit,

@@ -721,7 +721,7 @@ fn series_size_warning(dir: &std::path::Path, count: u64) -> Option<String> {
 /// Under design 8 (`coupling = "exact"`), the strain energy below which a run stops as
 /// [`RunStatus::EnergyBelowZero`]: minus that of a uniform strain of 1e-4 over the body,
 /// ½ (λ + 2μ) ε² V, far beyond rounding at rest yet far above a runaway (−5e-2 J on a 2 cm box
-/// whose threshold is −1e-8 J). None for other scenes, whose energies are sums of Ψ ≥ 0.
+/// whose threshold is −2.6e-8 J). None for other scenes, whose energies are sums of Ψ ≥ 0.
 pub(crate) fn energy_floor(model: &crate::model::Model) -> Option<f64> {
     let exact = model
         .particles

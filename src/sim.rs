@@ -846,8 +846,6 @@ impl Simulation {
     }
 }
 
-/// Whether `dt` is a positive, finite, normal single-precision number (a subnormal step
-/// is flushed to zero by GPUs and slows every CPU multiply that meets it).
 /// What is wrong with a step `dt` that [`is_normal_f32_step`] refuses: too large for f32, or
 /// not a positive normal f32.
 fn f32_step_problem(dt: f64) -> &'static str {
@@ -858,6 +856,8 @@ fn f32_step_problem(dt: f64) -> &'static str {
     }
 }
 
+/// Whether `dt` is a positive, finite, normal single-precision number (a subnormal step
+/// is flushed to zero by GPUs and slows every CPU multiply that meets it).
 fn is_normal_f32_step(dt: f64) -> bool {
     let d = dt as f32;
     d.is_finite() && d >= f32::MIN_POSITIVE

@@ -3937,6 +3937,17 @@ fn a_run_killed_while_writing_leaves_no_particle_file_for_the_next_run_to_mix_up
         .collect();
     left.sort();
     assert_eq!(left, ["final.vtu", "summary.json"]);
+    // Another tool's uncompressed VTK 9 files begin as palpate's do, but carry no mark: a
+    // folder of them is not taken for a killed run (its frames stay).
+    let other = d.join("other");
+    std::fs::create_dir_all(&other).unwrap();
+    let vtk9 = "<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"1.0\" byte_order=\"LittleEndian\" header_type=\"UInt64\">\n</VTKFile>\n";
+    for name in ["final.vtu", "particles_final.vtu", "frame_0001.vtu"] {
+        std::fs::write(other.join(name), vtk9).unwrap();
+    }
+    let (ok, _, err) = run_on_cpu("beam", "2", other.to_str().unwrap());
+    assert!(ok && !err.contains("note: removed"), "{err}");
+    assert!(other.join("frame_0001.vtu").exists() && other.join("particles_final.vtu").exists());
 }
 
 /// A particle spacing so coarse that a lattice point's barycentric weights in an LV tet

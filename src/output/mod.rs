@@ -138,6 +138,12 @@ fn haptic_csv_prologue() -> &'static str {
     &header[..end]
 }
 
+/// Whether the file at `path` carries [`PVD_MARK`] in its first 4 kB (palpate's `.pvd` and,
+/// since 2026-11-29, its `.vtu` files do; another tool's do not).
+fn marked_by_palpate(path: &Path) -> bool {
+    head(path, 4096).is_some_and(|h| String::from_utf8_lossy(&h).contains(PVD_MARK))
+}
+
 /// Whether the file `name` at `path`, named as a run output, is one palpate wrote: a `.vtu`
 /// that begins as palpate's do ([`vtu::PROLOGUE`]), a `.pvd` marked [`PVD_MARK`], a `haptic.csv` with its
 /// header, or a `.partial` (a write a kill cut short). (`summary.json` is proved by its keys.)
@@ -151,7 +157,7 @@ fn written_by_palpate(name: &str, path: &Path) -> bool {
     if name.ends_with(".vtu") {
         starts(vtu::PROLOGUE)
     } else if name.ends_with(".pvd") {
-        head(path, 4096).is_some_and(|h| String::from_utf8_lossy(&h).contains(PVD_MARK))
+        marked_by_palpate(path)
     } else if name == "haptic.csv" {
         starts(haptic_csv_prologue())
     } else {
@@ -161,9 +167,9 @@ fn written_by_palpate(name: &str, path: &Path) -> bool {
 
 /// Remove what an earlier run left in `dir`, so that its frames or particle files are not
 /// mixed with the new run's in ParaView: only when `dir` holds an earlier run's
-/// `summary.json` (a JSON object with `scene`, `backend` and `status`), or a `series.pvd` /
-/// `particles_series.pvd` marked [`PVD_MARK`] or a palpate `final.vtu` /
-/// `particles_final.vtu` (a run killed before its summary), and only
+/// `summary.json` (a JSON object with `scene`, `backend` and `status`), or a `series.pvd`,
+/// `particles_series.pvd`, `final.vtu` or `particles_final.vtu` marked [`PVD_MARK`] (a run
+/// killed before its summary), and only
 /// regular files [`is_run_output`] names whose contents are palpate's (a user's
 /// `haptic.csv` trajectory or a `frame_0007.vtu` of another tool stays), nothing else: its
 /// `final.vtu` and `summary.json` too, so that a run that fails half-way leaves none of the
@@ -183,7 +189,8 @@ pub fn remove_earlier_outputs(dir: &Path) -> Result<usize> {
         });
     // A run killed before its summary (a second signal while the outputs were written)
     // leaves its final.vtu, and maybe particles_final.vtu, which a run without particles
-    // would leave beside its own; the new run writes final.vtu over the old one anyway.
+    // would leave beside its own: those count when marked as palpate's (an uncompressed VTK
+    // 9 file of another tool begins as palpate's do).
     let killed_run = [
         "series.pvd",
         "particles_series.pvd",
@@ -191,7 +198,7 @@ pub fn remove_earlier_outputs(dir: &Path) -> Result<usize> {
         "particles_final.vtu",
     ]
     .iter()
-    .any(|name| written_by_palpate(name, &dir.join(name)));
+    .any(|name| marked_by_palpate(&dir.join(name)));
     if !(earlier_run || killed_run) {
         return Ok(0);
     }
@@ -303,7 +310,8 @@ impl OutputErrors {
     }
 }
 
-/// The comment that marks a `.pvd` as written by palpate (see [`remove_earlier_outputs`]).
+/// The comment that marks a `.pvd` or `.vtu` as written by palpate (see
+/// [`remove_earlier_outputs`]).
 pub const PVD_MARK: &str = "<!-- written by palpate -->";
 
 /// The end of a `.pvd` after its last `DataSet` line (see [`pvd`]).
