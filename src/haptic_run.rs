@@ -255,31 +255,22 @@ const LAG_BATCHES: f64 = 4.0;
 const STIFFNESS_RAMP_SECONDS: f64 = 0.03;
 
 /// Whether the tool is held back after a batch: the proxy lies more than `lag_limit` (m) from
-/// the tool (`proxy_lag`), or, in contact and while the speed limit holds the tool
-/// (`limited`), the hand's [`hand_balance_offset`] (`balance`, m) does; once held back
-/// (`was_held`), while the balance stays above half the limit (a switch between the two
+/// the tool (`proxy_lag`), or, while the speed limit holds the tool in contact
+/// (`limited_in_contact`), the hand's [`hand_balance_offset`] (`balance`, m) does; once held
+/// back (`was_held`), while the balance stays above half the limit (a switch between the two
 /// solves changes the force in the hand by about k_c × the balance). Only while limited: a
 /// press the tool can follow keeps the contact springs' solve (with the balance alone a slow
-/// press switched back and forth at 0.35 N/ms), and the tool that has caught up with the
-/// proxy goes back to it (held on, the static K's solve and the tissue's quick response rang
-/// at the end of a fast press, 0.13 N/ms). `limited` is None for a batch that saw no new
-/// servo command (its stride is nil, which said nothing): the state is kept (taking it as
-/// "not limited" switched a fast press's end back and forth at 0.1 N/ms). A batch out of
-/// contact (a rollback's too) ends it.
+/// press switched back and forth at 0.35 N/ms). A batch out of contact (a rollback's too)
+/// or no longer limited ends it.
 fn is_held_back(
     proxy_lag: f64,
-    in_contact: bool,
-    limited: Option<bool>,
+    limited_in_contact: bool,
     balance: f64,
     was_held: bool,
     lag_limit: f64,
 ) -> bool {
-    let Some(limited) = limited else {
-        // No new command: nothing says the hand moved on or the tool caught up.
-        return proxy_lag > lag_limit || (in_contact && was_held);
-    };
     let balance_limit = if was_held { 0.5 * lag_limit } else { lag_limit };
-    proxy_lag > lag_limit || (in_contact && limited && balance > balance_limit)
+    proxy_lag > lag_limit || (limited_in_contact && balance > balance_limit)
 }
 
 /// Where the hand's pose and the settled tissue balance, from the tool: the offset e with
@@ -746,8 +737,7 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
             // behind: then the stride below is long though the hand was slow).
             let hand = command.device_position;
             let (x, t) = last_hand;
-            let fresh_command = command.stamp > t;
-            let hand_speed = if fresh_command {
+            let hand_speed = if command.stamp > t {
                 (hand - x).length() / (command.stamp - t)
             } else {
                 0.0
@@ -942,8 +932,7 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
             // (a contact spring stiff enough keeps even the proxy's stride within reach).
             held = is_held_back(
                 (wanted - sim.tool_position).length(),
-                in_contact,
-                fresh_command.then_some(limited.is_some() || hand_speed > stats.max_tool_speed),
+                in_contact && (limited.is_some() || hand_speed > stats.max_tool_speed),
                 balance.length(),
                 held,
                 lag_limit,
@@ -1197,22 +1186,12 @@ mod tests {
     #[test]
     fn a_tool_the_speed_limit_holds_far_from_the_hands_balance_is_held_back() {
         let limit = 1.42e-4;
-        // (proxy lag, in contact, limited (None: no new command), balance, held before)
-        let (yes, no) = (Some(true), Some(false));
-        assert!(is_held_back(1.1e-4, true, yes, 0.82e-3, false, limit));
-        assert!(!is_held_back(1.1e-4, true, no, 0.82e-3, false, limit));
-        assert!(is_held_back(2.0e-4, true, no, 0.0, false, limit));
-        assert!(!is_held_back(1.1e-4, true, yes, 1.0e-4, false, limit));
-        // Held: kept above half the limit while limited; the caught-up tool is released.
-        assert!(is_held_back(1.1e-4, true, yes, 1.0e-4, true, limit));
-        assert!(!is_held_back(1.1e-4, true, yes, 0.6e-4, true, limit));
-        assert!(!is_held_back(0.0, true, no, 2.4e-4, true, limit));
-        // A batch with no new command keeps the state.
-        assert!(is_held_back(0.0, true, None, 2.4e-4, true, limit));
-        assert!(!is_held_back(0.0, true, None, 2.4e-4, false, limit));
-        // Out of contact (or rolled back): by the proxy alone.
-        assert!(!is_held_back(1.1e-4, false, yes, 0.82e-3, true, limit));
-        assert!(!is_held_back(1.1e-4, false, None, 0.82e-3, true, limit));
+        assert!(is_held_back(1.1e-4, true, 0.82e-3, false, limit));
+        assert!(!is_held_back(1.1e-4, false, 0.82e-3, false, limit));
+        assert!(is_held_back(2.0e-4, false, 0.0, false, limit));
+        assert!(!is_held_back(1.1e-4, true, 1.0e-4, false, limit));
+        assert!(is_held_back(1.1e-4, true, 1.0e-4, true, limit));
+        assert!(!is_held_back(1.1e-4, true, 0.6e-4, true, limit));
     }
     use crate::rest::StrideSurvey;
     use glam::{DMat3, DVec3};
