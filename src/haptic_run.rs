@@ -829,47 +829,42 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                 batch_ms.push(elapsed * 1e3);
             }
             stats.batches += 1;
-            let diverged = match result {
-                Guarded::Done(ref s)
-                    if energy_floor.is_some_and(|floor| {
-                        crate::run::BodyEnergy::of(&sim, s).elastic < floor
-                    }) =>
-                {
-                    // Design 8 ran away down its remainder energy (see `run`): ends the
-                    // session as a divergence would.
-                    status = RunStatus::EnergyBelowZero {
+            // A divergence the halvings could not mend, or design 8 running away down its
+            // remainder energy (see `run`), ends the session.
+            let ended = match &result {
+                Guarded::Diverged { step, vertex } => {
+                    Some(diverged_status(&sim, *step, *vertex, sim.dt))
+                }
+                Guarded::Done(s) => energy_floor.and_then(|floor| {
+                    let elastic = crate::run::BodyEnergy::of(&sim, s).elastic;
+                    (elastic < floor).then_some(RunStatus::EnergyBelowZero {
                         step: sim.steps_done,
-                        elastic: crate::run::BodyEnergy::of(&sim, s).elastic,
-                    };
-                    physics.publish(LocalModel {
-                        diverged: true,
-                        stamp: command.stamp,
-                        sim_time: sim.time,
-                        ..Default::default()
-                    });
-                    servo.stop();
-                    break;
-                }
-                Guarded::Done(_) => {
-                    unrecovered = None;
-                    false
-                }
+                        elastic,
+                    })
+                }),
+                Guarded::Retry { .. } => None,
+            };
+            if let Some(end) = ended {
+                status = end;
+                physics.publish(LocalModel {
+                    diverged: true,
+                    stamp: command.stamp,
+                    sim_time: sim.time,
+                    ..Default::default()
+                });
+                servo.stop();
+                break;
+            }
+            let diverged = match result {
                 Guarded::Retry { step, vertex, dt } => {
                     stats.divergences += 1;
                     // It diverged at the step before the halving.
                     unrecovered = Some((step, vertex, 2.0 * dt));
                     true
                 }
-                Guarded::Diverged { step, vertex } => {
-                    status = diverged_status(&sim, step, vertex, sim.dt);
-                    physics.publish(LocalModel {
-                        diverged: true,
-                        stamp: command.stamp,
-                        sim_time: sim.time,
-                        ..Default::default()
-                    });
-                    servo.stop();
-                    break;
+                Guarded::Done(_) | Guarded::Diverged { .. } => {
+                    unrecovered = None;
+                    false
                 }
             };
             let report = sim.last_tool.unwrap_or_default();
