@@ -260,8 +260,8 @@ const STIFFNESS_RAMP_SECONDS: f64 = 0.03;
 /// hand slows, the proxy alone decides, as before: the servo's solve with the static K puts a
 /// held-back proxy ahead, so the tool stays held back until it has caught up. (Gated by the
 /// batch's move being cut instead, the balance re-entered the held state while a fast press's
-/// tool caught up, and the two solves rang, 0.17–0.33 N/ms in 2 of 6 runs; with the balance
-/// alone a slow press switched back and forth at 0.35 N/ms.)
+/// tool caught up, and the two solves rang, 0.28 N/ms in 1 of 8 runs; with the balance alone
+/// a slow press switched back and forth at 0.35 N/ms.)
 fn is_held_back(proxy_lag: f64, hand_outruns: bool, balance: f64, lag_limit: f64) -> bool {
     proxy_lag > lag_limit || (hand_outruns && balance > lag_limit)
 }
@@ -914,8 +914,8 @@ pub fn run_haptic(scene: &Scene, opts: &HapticOptions) -> Result<HapticSummary> 
                         sim.tool_position - tool_before,
                     ),
             );
-            // Limited: the batch's move was shortened, or the hand itself outruns the limit
-            // (a contact spring stiff enough keeps even the proxy's stride within reach).
+            // The balance counts only while the hand itself outruns the speed limit (see
+            // `is_held_back`).
             let held_back = is_held_back(
                 (wanted - sim.tool_position).length(),
                 in_contact && hand_speed > stats.max_tool_speed,
@@ -1161,6 +1161,8 @@ mod tests {
         hand_balance_offset, is_held_back, limit_approaching_stride, limit_pressing_stride,
         limit_withdrawal_remainder, withdrawal_head,
     };
+    use crate::rest::StrideSurvey;
+    use glam::{DMat3, DVec3};
 
     /// The brisk press's batch (lv_touch, 3 mm at 0.1 m/s): the proxy 110 µm from the tool,
     /// under the 142 µm limit (the contact springs' K held it there), the hand's balance 0.82
@@ -1175,8 +1177,6 @@ mod tests {
         assert!(is_held_back(2.0e-4, false, 0.0, limit));
         assert!(!is_held_back(1.1e-4, true, 1.0e-4, limit));
     }
-    use crate::rest::StrideSurvey;
-    use glam::{DMat3, DVec3};
 
     /// The balance of hand and settled tissue: none for a hand resting on the tissue's force
     /// (the coupling stretched f/k_c), about the lag for a hand ahead of a barely pushed tool

@@ -283,7 +283,7 @@ pub trait Stepper: Send {
 
     /// Run the particle stages `substeps` times per core step from the next batch on, each
     /// a sub-step of dt/substeps ([`crate::substeps`]); nothing to do without particles.
-    /// Waits for the batches in flight.
+    /// Batches already submitted keep the count they were recorded with.
     fn set_particle_substeps(&mut self, _substeps: u32) -> Result<()> {
         Ok(())
     }

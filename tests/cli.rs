@@ -3858,13 +3858,11 @@ fn a_diverged_paper_particle_model_is_explained() {
         &touch.replacen("[particles]\n", "[particles]\nmodel = \"paper\"\n", 1),
     );
     let note = "note: the paper particle model's eq. 13 is one-sided";
-    let dt = 7.379e-4;
-    let mut diverged_at = Vec::new();
-    for (dt, steps) in [(dt, "400"), (0.5 * dt, "800")] {
-        let out = d.join(format!("out{steps}"));
-        let (ok, _, err) = palpate(&[
+    // `scene` run `steps` steps of `dt` on the CPU into `out`.
+    let run_at = |scene: &str, steps: &str, dt: f64, out: &Path| {
+        palpate(&[
             "run",
-            &paper,
+            scene,
             "--steps",
             steps,
             "--dt",
@@ -3873,7 +3871,13 @@ fn a_diverged_paper_particle_model_is_explained() {
             "cpu",
             "--out",
             out.to_str().unwrap(),
-        ]);
+        ])
+    };
+    let dt = 7.379e-4;
+    let mut diverged_at = Vec::new();
+    for (dt, steps) in [(dt, "400"), (0.5 * dt, "800")] {
+        let out = d.join(format!("out{steps}"));
+        let (ok, _, err) = run_at(&paper, steps, dt, &out);
         let lines = error_lines(&err);
         assert!(
             !ok && lines.len() == 1
@@ -3896,19 +3900,7 @@ fn a_diverged_paper_particle_model_is_explained() {
         "dt {dt:e}: diverged at t = {a} s; dt/2: at t = {b} s"
     );
     let shipped = scene_file(&d, "tlsph.toml", touch);
-    let out = d.join("tlsph");
-    let (ok, _, err) = palpate(&[
-        "run",
-        &shipped,
-        "--steps",
-        "400",
-        "--dt",
-        &format!("{dt:e}"),
-        "--backend",
-        "cpu",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    let (ok, _, err) = run_at(&shipped, "400", dt, &d.join("tlsph"));
     assert!(ok && !err.contains(note), "{err}");
 }
 
@@ -4020,18 +4012,8 @@ fn a_strain_energy_below_zero_under_the_exact_coupling_ends_the_run() {
     let still = d.join("still.csv");
     std::fs::write(&still, "t,x,y,z\n0,0,0,0\n2,0,0,0\n").unwrap();
     let out = d.join("haptic");
-    let (ok, _, err) = palpate(&[
-        "haptic",
-        &scene,
-        "--device",
-        &format!("scripted:{}", still.display()),
-        "--seconds",
-        "2",
-        "--backend",
-        "cpu",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    let device = format!("scripted:{}", still.display());
+    let (ok, _, err) = haptic_on_cpu(&scene, &device, "2", out.to_str().unwrap());
     let status = summary(&out)["status"].as_str().unwrap().to_string();
     assert!(
         !ok && status.starts_with("diverged: the strain energy went below zero"),
